@@ -142,6 +142,7 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
     robot, actuated = _robot_xml(desc, spec.armature)
     lines = [
         '<mujoco model="depthguard_cell">',
+        '  <compiler angle="radian"/>',
         f'  <option timestep="{spec.timestep}" gravity="0 0 0" integrator="implicitfast">',
         '    <flag contact="disable"/>',
         "  </option>",
@@ -197,7 +198,7 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
     lines.append("  </worldbody>")
     lines.append("  <actuator>")
     for jn in actuated:
-        lines.append(f'    <general name="{jn}_servo" joint="{jn}" gainprm="{spec.kp}" '
+        lines.append(f'    <general name="{jn}_servo" joint="{jn}" gainprm="{spec.kp}" biastype="affine" '
                      f'biasprm="0 {-spec.kp} {-spec.kv}"/>')
     lines.append("  </actuator>")
     lines.append("</mujoco>")

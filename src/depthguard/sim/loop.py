@@ -1,0 +1,248 @@
+"""The three-rate simulation (DESIGN.md §1), in simulated time.
+
+* frame stage, every ``frame_period`` (1/30 s): each simulated Kinect takes a depth image of the cell;
+  the self-filter removes the robot using the *measured* joint positions and the controller's model;
+  the distance stage's frame data is updated (``prepare_frame`` or fusion ``update``);
+* distance stage, every ``distance_period`` (3 ms, 333 Hz): control points from the measured joints,
+  distances to the latest frame data, the end effector's repulsive vector (eq. 7, optional pivot);
+* control stage, every ``control_dt`` (1 ms): task velocity, avoidance controller, joint command; the
+  physics steps 1 ms with that command.
+
+People and boxes move by their scripts at the physics rate. Ground truth (``mj_geomDistance``) is read
+after every physics step for the metrics only. Wall-clock time of every stage call is measured too.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from depthguard.sim.cell import Cell
+from depthguard.sim.controller import AvoidanceController
+from depthguard.sim.depthcam import KinectSim
+from depthguard.sim.pipeline import DistanceStage, Kinematics, self_filter
+from depthguard.sim.truth import TrueClearance
+
+__all__ = ["Task", "LoopConfig", "SimLog", "run_loop"]
+
+
+@dataclass
+class Task:
+    """End-effector task through Cartesian points (ICRA'12 §VI): ``kind`` "points", "cycle" or "hold".
+
+    ``points``: visit ``waypoints`` (K, 3) in order at ``speed`` m/s; ``cycle``: the same, repeated;
+    ``hold``: stay at ``waypoints[0]``.
+    """
+
+    kind: str
+    waypoints: np.ndarray
+    speed: float = 0.4
+    tol: float = 0.02
+    kp: float = 3.0
+    index: int = 0
+    reached: int = 0
+    start: np.ndarray | None = None
+
+    def velocity(self, x: np.ndarray) -> np.ndarray:
+        """Desired end-effector velocity (3,) m/s at position ``x``; advances through the waypoints."""
+        if self.start is None:
+            self.start = np.asarray(x, float).copy()
+        wp = self.waypoints
+        if self.kind != "hold" and self.index < len(wp) and np.linalg.norm(wp[self.index] - x) < self.tol:
+            self.reached += 1
+            self.index += 1
+            if self.kind == "cycle":
+                self.index %= len(wp)
+        if self.kind == "hold":
+            target = wp[0]
+        elif self.index >= len(wp):
+            target = wp[-1]
+        else:
+            target = wp[self.index]
+        e = target - x
+        n = float(np.linalg.norm(e))
+        if n < 1e-9:
+            return np.zeros(3)
+        return e / n * min(self.speed, self.kp * n)
+
+    def path(self) -> np.ndarray:
+        """The nominal path (polyline) as (P, 3): start, then the waypoints (once around for a cycle)."""
+        pts = [self.start] if self.start is not None and self.kind != "hold" else []
+        pts += list(self.waypoints if self.kind != "hold" else self.waypoints[:1])
+        if self.kind == "cycle":
+            pts.append(self.waypoints[0])
+        return np.array(pts)
+
+
+@dataclass
+class LoopConfig:
+    duration: float = 10.0
+    control_dt: float = 0.001
+    frame_period: float = 1.0 / 30.0
+    distance_period: float = 0.003
+    avoid: bool = True
+    rho: float = 0.4
+    vmax: float = 2.0
+    alpha: float = 6.0
+    pivot: bool = False
+    dv_max: float = 0.5
+    pivot_c: float = 5.0
+    log_every: int = 10  # control steps between logged rows (10 ms)
+    progress: bool = False
+    label: str = ""
+
+
+@dataclass
+class SimLog:
+    """What a run recorded (rows every ``log_every`` control steps unless said otherwise)."""
+
+    t: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    ee: list = field(default_factory=list)
+    ee_ref: list = field(default_factory=list)  # the task's current target
+    xdot_cmd: list = field(default_factory=list)
+    elbow: list = field(default_factory=list)
+    true_min: list = field(default_factory=list)
+    true_links: list = field(default_factory=list)
+    eval_min: list = field(default_factory=list)
+    eval_points: list = field(default_factory=list)
+    v_ee: list = field(default_factory=list)
+    centres: list = field(default_factory=list)
+    status: list = field(default_factory=list)
+    # every control step
+    step_true_min: list = field(default_factory=list)
+    # wall-clock timings, seconds
+    wall_distance: list = field(default_factory=list)
+    wall_control: list = field(default_factory=list)
+    wall_frame: list = field(default_factory=list)
+    wall_camera: list = field(default_factory=list)
+    t_distance: list = field(default_factory=list)
+    frames: list = field(default_factory=list)  # (t, [depth per camera]) for the recorder
+    nearest_obstacle: dict = field(default_factory=dict)
+    links: list = field(default_factory=list)
+    point_names: tuple = ()
+    wall_total: float = 0.0
+
+
+class _Progress:
+    def __init__(self, total: float, label: str, enabled: bool) -> None:
+        self.total, self.label, self.enabled = total, label, enabled
+        self.last = -1
+        self.t0 = time.perf_counter()
+
+    def update(self, t: float) -> None:
+        if not self.enabled:
+            return
+        pct = int(100 * t / self.total)
+        if pct == self.last:
+            return
+        self.last = pct
+        n = pct // 4
+        el = time.perf_counter() - self.t0
+        sys.stderr.write(f"\r{self.label:<28} [{'#' * n}{'.' * (25 - n)}] {pct:3d}%  sim {t:5.1f}s  wall {el:5.1f}s")
+        sys.stderr.flush()
+        if pct >= 100:
+            sys.stderr.write("\n")
+
+
+def run_loop(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: DistanceStage,
+             ctrl: AvoidanceController, task: Task, cfg: LoopConfig, record_frames_every: int = 3) -> SimLog:
+    """Run the cell for ``cfg.duration`` s of simulated time. Returns the :class:`SimLog`."""
+    from depthguard.repulsion import repulsive_vectors
+
+    pivot = None
+    if cfg.pivot:
+        from depthguard.pivot import PivotFilter
+
+        pivot = PivotFilter(dv_max=cfg.dv_max, c=cfg.pivot_c)
+    truth = TrueClearance(cell)
+    log = SimLog(links=truth.links, point_names=tuple(kin.names))
+    n_steps = int(round(cfg.duration / cfg.control_dt))
+    frame_every = cfg.frame_period
+    next_frame, next_dist = 0.0, 0.0
+    latest = None  # (t, distances, V_ee)
+    frame_count = 0
+    prog = _Progress(cfg.duration, cfg.label, cfg.progress)
+    elbow_idx = [i for i, n in enumerate(kin.names) if n.startswith("lwr_link_3")]
+    t_start = time.perf_counter()
+    status: dict = {}
+    xdot = np.zeros(3)
+    for k in range(n_steps):
+        t = k * cfg.control_dt
+        cell.update_people(t)
+        q_meas = cell.q()
+        # ---------------------------------------------------------------- frame stage (30 Hz)
+        if t >= next_frame - 1e-9:
+            next_frame += frame_every
+            cell.forward()
+            w0 = time.perf_counter()
+            depths = [c.capture(cell.data) for c in cams]
+            w1 = time.perf_counter()
+            masks = [self_filter(c.camera, dimg, q_meas, kin)[0] for c, dimg in zip(cams, depths, strict=True)]
+            stage.update(depths, masks)
+            w2 = time.perf_counter()
+            log.wall_camera.append(w1 - w0)
+            log.wall_frame.append(w2 - w1)
+            if frame_count % record_frames_every == 0:
+                log.frames.append((t, [d.copy() for d in depths], [m.copy() for m in masks]))
+            frame_count += 1
+        # ---------------------------------------------------------------- distance stage (333 Hz)
+        if t >= next_dist - 1e-9 and stage.ready:
+            next_dist += cfg.distance_period
+            w0 = time.perf_counter()
+            cp = kin.evaluate(q_meas)
+            res = stage.query(cp.centres, cp.radii)
+            V = repulsive_vectors(res, cfg.vmax, cfg.rho, cfg.alpha)[0]
+            if pivot is not None:
+                V = pivot.step(V, cfg.distance_period)
+            log.wall_distance.append(time.perf_counter() - w0)
+            log.t_distance.append(t)
+            latest = (t, res, V)
+        # ---------------------------------------------------------------- control stage (1 kHz)
+        w0 = time.perf_counter()
+        cp = kin.evaluate(q_meas)
+        x = cp.centres[0]
+        xdot = task.velocity(x)
+        stale = latest is None or (t - latest[0]) > ctrl.p.stale_timeout
+        if latest is not None:
+            res = latest[1]
+            body = slice(1, None)
+            q_cmd, status = ctrl.step(q_meas, cp.jacobians[0], xdot, latest[2], cp.jacobians[body],
+                                      res.distance[body], res.direction[body], stale, cfg.avoid)
+        else:
+            q_cmd, status = ctrl.step(q_meas, cp.jacobians[0], xdot, None, None, None, None, True, cfg.avoid)
+        log.wall_control.append(time.perf_counter() - w0)
+        cell.step(q_cmd)
+        # ---------------------------------------------------------------- truth (metrics only)
+        per_link, tmin, name, _ = truth.evaluate()
+        log.step_true_min.append(tmin)
+        if tmin <= 0:
+            log.nearest_obstacle[name] = log.nearest_obstacle.get(name, 0) + 1
+        if k % cfg.log_every == 0:
+            log.t.append(t)
+            log.q.append(q_meas)
+            log.ee.append(x.copy())
+            tgt = task.waypoints[min(task.index, len(task.waypoints) - 1)] if task.kind != "hold" else task.waypoints[0]
+            log.ee_ref.append(np.asarray(tgt, float).copy())
+            log.xdot_cmd.append(xdot + (latest[2] if (latest is not None and cfg.avoid) else 0.0))
+            log.elbow.append(cp.centres[elbow_idx[0]].copy() if elbow_idx else cell.data.xpos[5].copy())
+            log.true_min.append(tmin)
+            log.true_links.append(per_link)
+            if latest is not None:
+                d = latest[1].distance
+                log.eval_min.append(float(np.min(d)))
+                log.eval_points.append(d.copy())
+                log.v_ee.append(latest[2].copy())
+            else:
+                log.eval_min.append(np.inf)
+                log.eval_points.append(np.full(len(kin.names), np.inf))
+                log.v_ee.append(np.zeros(3))
+            log.centres.append(cp.centres.copy())
+            log.status.append(status)
+            prog.update(t)
+    prog.update(cfg.duration)
+    log.wall_total = time.perf_counter() - t_start
+    return log

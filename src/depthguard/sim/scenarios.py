@@ -1,0 +1,301 @@
+"""Scenarios: the papers' experiments as data files, run end to end, with metrics, plots and a recording.
+
+A scenario is a TOML file in ``depthguard/data/scenarios/`` (see ``README.md`` there for the fields):
+camera placement, robot start, control points, avoidance parameters, the end-effector task, boxes and
+keyframed people. :func:`run_scenario` builds the cell, runs the three-rate loop
+(:mod:`depthguard.sim.loop`) and returns the metrics as one JSON-ready dict; with ``out_dir`` it also
+writes ``metrics.json``, the plots and ``recording.mcap`` there.
+
+Metrics (ground truth from ``mj_geomDistance``, never seen by the pipeline):
+
+* ``min_clearance`` (m), overall and per robot link (``min_clearance_per_link``);
+* ``collision_steps``: 1 ms physics steps with a true clearance <= 0;
+* ``time_below_margin_s``: time with a true clearance below 5 cm;
+* ``path_error`` (m): RMS distance of the end effector from the nominal task path
+  (the polyline through the waypoints; for a "hold" task the hold point); ``path_error_max``;
+* ``task_completion``: fraction of the task's waypoints reached (hold task: 1 if the end effector is
+  back within 3 cm at the end);
+* ``distance_hz_median`` / ``distance_hz_p99``: wall-clock rate of the distance stage, ``1 / t`` for the
+  median and the 99th-percentile call time ``t`` (control points + distances + repulsion);
+* ``control_ms_p99``: 99th-percentile wall time of one control cycle; frame-stage timings likewise.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import time
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["list_scenarios", "load_scenario", "run_scenario", "compute_metrics"]
+
+MARGIN = 0.05
+
+
+def _scenario_dir():
+    return resources.files("depthguard").joinpath("data/scenarios")
+
+
+def list_scenarios() -> list[str]:
+    """Names of the shipped scenarios."""
+    return sorted(p.name[:-5] for p in _scenario_dir().iterdir() if p.name.endswith(".toml"))
+
+
+def load_scenario(name_or_path: str | Path) -> dict[str, Any]:
+    """Read a scenario by name (shipped) or path (.toml). Raises ``ValueError`` naming the problem."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" and p.is_file():
+        text = p.read_text()
+    else:
+        ref = _scenario_dir().joinpath(f"{name_or_path}.toml")
+        if not ref.is_file():
+            raise ValueError(f"unknown scenario {name_or_path!r}; known: {list_scenarios()}")
+        text = ref.read_text()
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"scenario {name_or_path!r}: bad TOML: {exc}") from exc
+    for key in ("name", "task", "cameras"):
+        if key not in data:
+            raise ValueError(f"scenario {name_or_path!r}: missing field '{key}'")
+    return data
+
+
+def _set_path(d: dict, dotted: str, value: Any) -> None:
+    keys = dotted.split(".")
+    for k in keys[:-1]:
+        d = d.setdefault(k, {})
+    d[keys[-1]] = value
+
+
+def _build(sc: dict, *, quick: bool, cameras: int | None):
+    from depthguard.sim.cell import BoxSpec, CellSpec, build_cell
+    from depthguard.sim.depthcam import placement
+    from depthguard.sim.people import Keyframe, PersonScript
+    from depthguard.sim.pipeline import Kinematics
+
+    res = sc.get("quick_resolution", [160, 120]) if quick else sc.get("resolution", [640, 480])
+    cams = placement(sc["cameras"], int(res[0]), int(res[1]))
+    n_cams = cameras if cameras is not None else sc.get("camera_count", len(cams))
+    if n_cams < 1 or n_cams > len(cams):
+        raise ValueError(f"scenario {sc['name']}: cameras must be 1..{len(cams)} for placement {sc['cameras']!r}")
+    cams = cams[:n_cams]
+    q0 = np.array(sc.get("q0", [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0]), float)
+    kin = Kinematics(sc.get("control_points", "ral-9"))
+    ee0 = kin.evaluate(q0).centres[0]
+    floor_z = float(sc.get("floor_z", -0.8))
+
+    def hand(kf: dict, side: str):
+        if f"{side}_hand" in kf:
+            return tuple(kf[f"{side}_hand"])
+        if f"{side}_hand_rel_ee" in kf:
+            return tuple(ee0 + np.asarray(kf[f"{side}_hand_rel_ee"], float))
+        return None
+
+    people = []
+    for p in sc.get("people", []):
+        kfs = [
+            Keyframe(t=float(k["t"]), base=tuple(k["base"]), yaw=float(k.get("yaw", 0.0)),
+                     left_hand=hand(k, "left"), right_hand=hand(k, "right"), carry=k.get("carry"),
+                     carry_hand=k.get("carry_hand", "right"))
+            for k in p["keyframes"]
+        ]
+        people.append(PersonScript(p["name"], kfs, floor_z=floor_z))
+    boxes = [
+        BoxSpec(b["name"], tuple(b["center"]), tuple(b["half"]), bool(b.get("movable", False)))
+        for b in sc.get("boxes", [])
+    ]
+    room = tuple(sc.get("room", (-1.1, 2.0, -1.1, 2.0) if sc["cameras"] == "ral" else (-1.5, 2.3, -1.6, 2.3)))
+    spec = CellSpec(cameras=cams, boxes=boxes, people=people, q0=tuple(q0), floor_z=floor_z, room=room)
+    cell = build_cell(spec)
+    return cell, kin, ee0
+
+
+def _task(sc: dict, ee0: np.ndarray):
+    from depthguard.sim.loop import Task
+
+    t = sc["task"]
+    kind = t.get("kind", "points")
+    if kind not in ("points", "cycle", "hold"):
+        raise ValueError(f"scenario {sc['name']}: task.kind must be points, cycle or hold, got {kind!r}")
+    if kind == "hold":
+        wps = np.array([ee0])
+    else:
+        wps = np.array(t["waypoints"], float)
+        if t.get("relative", False):
+            wps = wps + ee0
+    return Task(kind=kind, waypoints=wps, speed=float(t.get("speed", 0.4)))
+
+
+def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """Distance from each of (T, 3) points to the polyline (P, 3)."""
+    if len(path) == 1:
+        return np.linalg.norm(points - path[0], axis=1)
+    best = np.full(len(points), np.inf)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        ab = b - a
+        s = np.clip((points - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(points - (a + s[:, None] * ab), axis=1))
+    return best
+
+
+def compute_metrics(log, task, cfg, backends: dict | None = None) -> dict[str, Any]:
+    """Metrics of one run from its :class:`~depthguard.sim.loop.SimLog` (see the module docstring)."""
+    steps = np.asarray(log.step_true_min)
+    links = np.asarray(log.true_links)
+    ee = np.asarray(log.ee)
+    pe = _path_distance(ee, task.path())
+    if task.kind == "hold":
+        completion = 1.0 if pe[-1] < 0.03 else 0.0
+    else:
+        completion = min(task.reached, len(task.waypoints) if task.kind == "points" else task.reached) / (
+            len(task.waypoints)
+        )
+        completion = float(min(completion, 1.0))
+
+    def hz(ts: list[float], q: float) -> float:
+        return float(1.0 / np.percentile(ts, q)) if ts else 0.0
+
+    wd, wc, wf = log.wall_distance, log.wall_control, log.wall_frame
+    t_dist = np.asarray(log.t_distance)
+    out = {
+        "collision_steps": int(np.sum(steps <= 0.0)),
+        "min_clearance": float(np.min(steps)) if len(steps) else None,
+        "min_clearance_per_link": {n: float(v) for n, v in zip(log.links, links.min(axis=0), strict=True)},
+        "time_below_margin_s": float(np.sum(steps < MARGIN) * cfg.control_dt),
+        "path_error": float(np.sqrt(np.mean(pe**2))),
+        "path_error_max": float(np.max(pe)),
+        "task_completion": completion,
+        "waypoints_reached": int(task.reached),
+        "distance_hz_median": hz(wd, 50),
+        "distance_hz_p99": hz(wd, 99),
+        "distance_ms_median": float(np.median(wd) * 1e3) if wd else None,
+        "distance_stage_sim_hz": float(1.0 / np.median(np.diff(t_dist))) if len(t_dist) > 1 else 0.0,
+        "control_ms_median": float(np.median(wc) * 1e3),
+        "control_ms_p99": float(np.percentile(wc, 99) * 1e3),
+        "frame_ms_median": float(np.median(wf) * 1e3) if wf else None,
+        "frame_ms_p99": float(np.percentile(wf, 99) * 1e3) if wf else None,
+        "camera_ms_median": float(np.median(log.wall_camera) * 1e3) if log.wall_camera else None,
+        "frames": len(log.wall_frame),
+        "sim_seconds": cfg.duration,
+        "wall_seconds": round(log.wall_total, 2),
+        "collided_with": dict(log.nearest_obstacle),
+    }
+    if backends:
+        out["backends"] = backends
+    return out
+
+
+def _run_one(sc: dict, *, quick: bool, avoidance: bool, cameras: int | None, progress: bool, label: str,
+             seed: int = 0):
+    from depthguard.sim.controller import AvoidanceController, ControlParams
+    from depthguard.sim.depthcam import KinectSim
+    from depthguard.sim.loop import LoopConfig, run_loop
+    from depthguard.sim.pipeline import DistanceStage
+
+    cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras)
+    av = sc.get("avoidance", {})
+    cams = [KinectSim(cell.model, c, i, seed=seed + i) for i, c in enumerate(cell.cameras)]
+    stage = DistanceStage(cell.cameras, rho=float(av.get("rho", 0.4)), mode=sc.get("mode", "hybrid"),
+                          alpha=float(av.get("alpha", 6.0)),
+                          workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))))
+    params = ControlParams(rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
+                           alpha_body=float(av.get("alpha", 6.0)))
+    ctrl = AvoidanceController(kin.q_min, kin.q_max, kin.v_max, cell.q(), params)
+    task = _task(sc, ee0)
+    duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
+    cfg = LoopConfig(duration=duration, avoid=avoidance, rho=float(av.get("rho", 0.4)),
+                     vmax=float(av.get("vmax", 2.0)), alpha=float(av.get("alpha", 6.0)),
+                     pivot=bool(av.get("pivot", False)), dv_max=float(av.get("dv_max", 0.5)),
+                     pivot_c=float(av.get("c", 5.0)), progress=progress, label=label,
+                     distance_period=float(sc.get("distance_period", 0.003)))
+    log = run_loop(cell, cams, kin, stage, ctrl, task, cfg)
+    for c in cams:
+        c.close()
+    return cell, log, task, cfg
+
+
+def run_scenario(
+    name: str,
+    *,
+    quick: bool = False,
+    avoidance: bool = True,
+    cameras: int | None = None,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+    variants: bool = True,
+) -> dict[str, Any]:
+    """Run a scenario; return its metrics (the object ``depthguard scenario NAME --json`` prints).
+
+    Args:
+        name: a shipped scenario name (:func:`list_scenarios`) or a path to a .toml file.
+        quick: the CI form: reduced resolution and duration (``quick_*`` fields of the file).
+        avoidance: False runs the same scenario with the avoidance switched off (the robot ignores the
+            distances), which should collide: that proves the scenario tests something.
+        cameras: use only the first N cameras of the placement (1 or 2 for "ral").
+        out_dir: where to write ``metrics.json``, the plots and ``recording.mcap``; None writes nothing.
+        progress: draw a progress bar on stderr.
+        variants: also run the file's ``[[variants]]`` (e.g. without the pivot, without the person) and
+            report their metrics under ``"variants"``.
+    Returns:
+        A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
+        ``path_error``, ``distance_hz_median`` and the rest of the metrics.
+    """
+    from depthguard.sim.pipeline import backends
+
+    sc = load_scenario(name)
+    t0 = time.perf_counter()
+    cell, log, task, cfg = _run_one(sc, quick=quick, avoidance=avoidance, cameras=cameras, progress=progress,
+                                    label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})")
+    result: dict[str, Any] = {
+        "scenario": sc["name"],
+        "description": sc.get("description", ""),
+        "quick": quick,
+        "avoidance": avoidance,
+        "cameras": len(cell.cameras),
+        "resolution": [cell.cameras[0].width, cell.cameras[0].height],
+        "control_points": list(log.point_names),
+        "parameters": sc.get("avoidance", {}),
+    }
+    result.update(compute_metrics(log, task, cfg, backends()))
+    runs = {"main": (log, task)}
+    if variants and avoidance:
+        result["variants"] = {}
+        for v in sc.get("variants", []):
+            sv = copy.deepcopy(sc)
+            for k, val in v.get("set", {}).items():
+                _set_path(sv, k, val)
+            if v.get("remove_people"):
+                sv["people"] = []
+            if v.get("remove_boxes"):
+                sv["boxes"] = []
+            _, vlog, vtask, vcfg = _run_one(sv, quick=quick, avoidance=avoidance, cameras=cameras,
+                                            progress=progress, label=f"{sc['name']} [{v['name']}]")
+            result["variants"][v["name"]] = compute_metrics(vlog, vtask, vcfg)
+            runs[v["name"]] = (vlog, vtask)
+    result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        result["out_dir"] = str(out)
+        files = {}
+        try:
+            from depthguard.viz.plots import plot_run
+
+            files.update(plot_run(out, runs, sc["name"]))
+        except ImportError as exc:  # matplotlib missing
+            result["plots_error"] = f"plots skipped: {exc} (pip install depthguard[viz])"
+        try:
+            from depthguard.sim.recorder import record_run
+
+            files["recording"] = str(record_run(out / "recording.mcap", cell, log))
+        except ImportError as exc:
+            result["recording_error"] = f"recording skipped: {exc} (pip install depthguard[sim])"
+        result["files"] = files
+        (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
+    return result
