@@ -35,6 +35,7 @@ class ControlParams:
     vel_scale: float = 0.9  # fraction of the joint velocity limits used
     limit_margin: float = 0.05  # rad from the joint position limits
     damping: float = 1e-3
+    body_repulsion: float = 0.3  # m/s: null-space repulsion of the body points (0 = eq. 14 only)
 
 
 def _pinv(A: np.ndarray, damping: float) -> np.ndarray:
@@ -148,6 +149,27 @@ class AvoidanceController:
                 qmin[neg] = np.maximum(qmin[neg], -lim[neg])
         return qmin, qmax, fmax
 
+    def null_space_repulsion(self, J_ee: np.ndarray, body_J, body_d, body_dir) -> np.ndarray | None:
+        """Joint velocity moving the body points away from obstacles, in the null space of the task.
+
+        ``qdot_0 = sum_C J_C^T n_C v_b f(D_C)`` projected by ``I - J^# J``: the redundancy is used to move
+        the body away (ICRA'12 §V-C: "exploiting kinematic redundancy"); eq. 14 still bounds the rest.
+        """
+        if body_J is None or body_d is None or self.p.body_repulsion <= 0:
+            return None
+        q0 = np.zeros(self.n)
+        any_ = False
+        for Jc, d, n in zip(body_J, body_d, body_dir, strict=True):
+            if not np.isfinite(d):
+                continue
+            f = 1.0 / (1.0 + np.exp((d * 2.0 / self.p.rho_body - 1.0) * self.p.alpha_body))
+            q0 += Jc.T @ np.asarray(n) * (self.p.body_repulsion * f)
+            any_ = True
+        if not any_:
+            return None
+        P = np.eye(self.n) - _pinv(J_ee, self.p.damping) @ J_ee
+        return P @ q0
+
     def step(self, q: np.ndarray, J_ee: np.ndarray, xdot_task: np.ndarray, V_ee: np.ndarray | None,
              body_J: np.ndarray | None, body_d: np.ndarray | None, body_dir: np.ndarray | None,
              stale: bool, avoid: bool = True) -> tuple[np.ndarray, dict]:
@@ -171,7 +193,13 @@ class AvoidanceController:
             if avoid and V_ee is not None:
                 xc = xc + V_ee
             qmin, qmax, fmax = self.bounds(q, body_J, body_d, body_dir, avoid)
-            target, scale = sns(J_ee, xc, qmin, qmax, self.p.damping)
+            qns = self.null_space_repulsion(J_ee, body_J, body_d, body_dir) if avoid else None
+            if qns is not None:
+                qns = np.clip(qns, qmin, qmax)
+                delta, scale = sns(J_ee, xc - J_ee @ qns, qmin - qns, qmax - qns, self.p.damping)
+                target = qns + delta
+            else:
+                target, scale = sns(J_ee, xc, qmin, qmax, self.p.damping)
             status["scale"], status["risk"] = float(scale), float(fmax)
         self._follow(target)
         return self.q_cmd.copy(), status

@@ -86,7 +86,7 @@ def _build(sc: dict, *, quick: bool, cameras: int | None):
         raise ValueError(f"scenario {sc['name']}: cameras must be 1..{len(cams)} for placement {sc['cameras']!r}")
     cams = cams[:n_cams]
     q0 = np.array(sc.get("q0", [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0]), float)
-    kin = Kinematics(sc.get("control_points", "ral-9"))
+    kin = Kinematics(sc.get("control_points", "ral-9"), ee_radius=float(sc.get("ee_radius", 0.12)))
     ee0 = kin.evaluate(q0).centres[0]
     floor_z = float(sc.get("floor_z", -0.8))
 
