@@ -87,6 +87,8 @@ def _build(sc: dict, *, quick: bool, cameras: int | None):
     cams = cams[:n_cams]
     q0 = np.array(sc.get("q0", [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0]), float)
     kin = Kinematics(sc.get("control_points", "ral-9"), ee_radius=float(sc.get("ee_radius", 0.12)))
+    if "ee_start" in sc:
+        q0 = _ik(kin, q0, np.asarray(sc["ee_start"], float))
     ee0 = kin.evaluate(q0).centres[0]
     floor_z = float(sc.get("floor_z", -0.8))
 
@@ -116,6 +118,20 @@ def _build(sc: dict, *, quick: bool, cameras: int | None):
     return cell, kin, ee0
 
 
+def _ik(kin, q: np.ndarray, target: np.ndarray, iters: int = 200) -> np.ndarray:
+    """Joint positions putting the end effector at ``target`` (damped least squares from ``q``)."""
+    q = q.copy()
+    for _ in range(iters):
+        s = kin.evaluate(q)
+        e = target - s.centres[0]
+        if np.linalg.norm(e) < 1e-5:
+            break
+        J = s.jacobians[0]
+        q += J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(3), e) * 0.5
+        q = np.clip(q, kin.q_min + 0.05, kin.q_max - 0.05)
+    return q
+
+
 def _task(sc: dict, ee0: np.ndarray):
     from depthguard.sim.loop import Task
 
@@ -129,7 +145,7 @@ def _task(sc: dict, ee0: np.ndarray):
         wps = np.array(t["waypoints"], float)
         if t.get("relative", False):
             wps = wps + ee0
-    return Task(kind=kind, waypoints=wps, speed=float(t.get("speed", 0.4)))
+    return Task(kind=kind, waypoints=wps, speed=float(t.get("speed", 0.4)), tol=float(t.get("tol", 0.02)))
 
 
 def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
