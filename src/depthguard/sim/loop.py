@@ -137,10 +137,10 @@ class _Progress:
         if not self.enabled:
             return
         pct = int(100 * t / self.total)
-        if pct == self.last:
-            return
-        self.last = pct
         n = pct // 4
+        if n == self.last:
+            return
+        self.last = n
         el = time.perf_counter() - self.t0
         sys.stderr.write(f"\r{self.label:<28} [{'#' * n}{'.' * (25 - n)}] {pct:3d}%  sim {t:5.1f}s  wall {el:5.1f}s")
         sys.stderr.flush()
