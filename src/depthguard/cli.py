@@ -21,9 +21,13 @@ def _parse_workspace(text: str) -> tuple[float, ...]:
     try:
         vals = tuple(float(x) for x in text.split(","))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--workspace must be xmin,xmax,ymin,ymax,zmin,zmax numbers, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"--workspace must be xmin,xmax,ymin,ymax,zmin,zmax numbers, got {text!r}"
+        ) from None
     if len(vals) != 6 or any(vals[2 * i] >= vals[2 * i + 1] for i in range(3)):
-        raise argparse.ArgumentTypeError(f"--workspace must be xmin,xmax,ymin,ymax,zmin,zmax with min < max, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"--workspace must be xmin,xmax,ymin,ymax,zmin,zmax with min < max, got {text!r}"
+        ) from None
     return vals
 
 
@@ -31,9 +35,9 @@ def _positive_float(text: str) -> float:
     try:
         x = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
     if not (np.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
     return x
 
 
@@ -41,9 +45,9 @@ def _positive_int(text: str) -> int:
     try:
         x = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     if x < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
     return x
 
 
@@ -52,15 +56,21 @@ def _cmd_distance(args: argparse.Namespace) -> int:
     from depthguard.io import read_camera, read_depth, read_mask, read_points
 
     if len(args.camera) != len(args.depth):
-        raise _Exit(f"give one --depth per --camera: got {len(args.camera)} camera(s) and {len(args.depth)} depth image(s)")
+        raise _Exit(
+            f"give one --depth per --camera: got {len(args.camera)} camera(s) and {len(args.depth)} depth image(s)"
+        ) from None
     if args.mask and len(args.mask) != len(args.camera):
-        raise _Exit(f"give one --mask per --camera (in the same order): got {len(args.mask)} for {len(args.camera)}")
+        raise _Exit(
+            f"give one --mask per --camera (in the same order): got {len(args.mask)} for {len(args.camera)}"
+        ) from None
     cameras = [read_camera(p) for p in args.camera]
     depths = [read_depth(p, cam) for p, cam in zip(args.depth, cameras, strict=True)]
-    masks = [read_mask(p, cam) for p, cam in zip(args.mask, cameras, strict=True)] if args.mask else [None] * len(cameras)
+    masks = (
+        [read_mask(p, cam) for p, cam in zip(args.mask, cameras, strict=True)] if args.mask else [None] * len(cameras)
+    )
     points = read_points(args.points)
     if not points:
-        raise _Exit(f"{args.points}: the points file holds no points")
+        raise _Exit(f"{args.points}: the points file holds no points") from None
     names = [p.name for p in points]
     centres = np.array([p.position for p in points])
     radii = np.array([p.radius for p in points])
@@ -76,7 +86,9 @@ def _cmd_distance(args: argparse.Namespace) -> int:
         try:
             from depthguard.depthgrid import DepthGridFusion
         except ImportError:
-            raise _Exit("several cameras need the depth-grid fusion module (depthguard.depthgrid), not installed")
+            raise _Exit(
+                "several cameras need the depth-grid fusion module (depthguard.depthgrid), not installed"
+            ) from None
         fusion = DepthGridFusion(cameras, dd=args.grid_dd, workspace=args.workspace)
         fusion.update(depths, masks, invalid=args.invalid)
 
@@ -116,9 +128,15 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
         try:
             from depthguard.sim.scenarios import run_scenario
         except ImportError as exc:
-            raise _Exit(f"scenario {args.name!r} needs the simulator: pip install 'depthguard[sim]' ({exc})")
-        out = run_scenario(args.name, quick=args.quick, avoidance=not args.no_avoidance, cameras=args.cameras,
-                           out_dir=args.out, progress=not args.json)
+            raise _Exit(f"scenario {args.name!r} needs the simulator: pip install 'depthguard[sim]' ({exc})") from None
+        out = run_scenario(
+            args.name,
+            quick=args.quick,
+            avoidance=not args.no_avoidance,
+            cameras=args.cameras,
+            out_dir=args.out,
+            progress=not args.json,
+        )
     if args.json:
         print(json.dumps(out, default=float))
     else:
@@ -138,8 +156,9 @@ def _save_pivot_plot(res: dict, out_dir: Path) -> None:
         tp, to = res[key]["trace_point"], res[key]["trace_obstacle"]
         ax.plot(to[:, 0], to[:, 1] + to[:, 2], "b-", label="obstacle (1 m/s)")
         ax.plot(tp[:, 0], tp[:, 1] + tp[:, 2], "r-", lw=2, label="control point (max 0.8 m/s)")
-        ax.set_title(f"{key}: min distance {res[key]['min_distance']:.3f} m"
-                     + (" (collision)" if res[key]["collided"] else ""))
+        ax.set_title(
+            f"{key}: min distance {res[key]['min_distance']:.3f} m" + (" (collision)" if res[key]["collided"] else "")
+        )
         ax.set_aspect("equal")
         ax.legend(fontsize=7)
     axes[-1].set_xlabel("x [m]")
@@ -158,7 +177,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         try:
             from depthguard.bench.control import run_control_benchmark
         except ImportError as exc:
-            raise _Exit(f"the control benchmark needs the robot extra: pip install 'depthguard[robot]' ({exc})")
+            raise _Exit(
+                f"the control benchmark needs the robot extra: pip install 'depthguard[robot]' ({exc})"
+            ) from None
         out = run_control_benchmark(quick=args.quick)
     print(json.dumps(out, indent=None if args.json else 2, default=float))
     return 0
@@ -185,26 +206,61 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("distance", help="distances from control points to the obstacles in depth image(s)")
-    p.add_argument("--camera", action="append", required=True, metavar="CAM.json",
-                   help="camera JSON; repeat for several cameras, the first is the principal one")
-    p.add_argument("--depth", action="append", required=True, metavar="DEPTH.png|npy",
-                   help="depth image (16-bit PNG in mm or .npy float32 m), one per --camera")
+    p.add_argument(
+        "--camera",
+        action="append",
+        required=True,
+        metavar="CAM.json",
+        help="camera JSON; repeat for several cameras, the first is the principal one",
+    )
+    p.add_argument(
+        "--depth",
+        action="append",
+        required=True,
+        metavar="DEPTH.png|npy",
+        help="depth image (16-bit PNG in mm or .npy float32 m), one per --camera",
+    )
     p.add_argument("--points", required=True, metavar="POINTS.json", help="control points JSON")
     p.add_argument("--rho", type=_positive_float, default=0.4, help="radius of surveillance in m (default 0.4)")
-    p.add_argument("--mode", choices=["min", "all", "hybrid"], default="min",
-                   help="min: nearest obstacle; all: ICRA'12 eq. 9 direction; hybrid: RA-L'16 eq. 11")
-    p.add_argument("--invalid", choices=["conservative", "ignore"], default="conservative",
-                   help="missing-depth policy (default conservative: unknown space is an obstacle)")
-    p.add_argument("--mask", action="append", default=[], metavar="MASK.png",
-                   help="robot mask (nonzero = robot), once per camera in the same order")
-    p.add_argument("--repeat", type=_positive_int, default=0, metavar="N",
-                   help="also time N repeated queries (I/O excluded)")
-    p.add_argument("--model", choices=["frustum", "icra"], default="frustum",
-                   help="point-to-pixel distance: frustum lower bound (default) or ICRA'12 eq. 4")
+    p.add_argument(
+        "--mode",
+        choices=["min", "all", "hybrid"],
+        default="min",
+        help="min: nearest obstacle; all: ICRA'12 eq. 9 direction; hybrid: RA-L'16 eq. 11",
+    )
+    p.add_argument(
+        "--invalid",
+        choices=["conservative", "ignore"],
+        default="conservative",
+        help="missing-depth policy (default conservative: unknown space is an obstacle)",
+    )
+    p.add_argument(
+        "--mask",
+        action="append",
+        default=[],
+        metavar="MASK.png",
+        help="robot mask (nonzero = robot), once per camera in the same order",
+    )
+    p.add_argument(
+        "--repeat", type=_positive_int, default=0, metavar="N", help="also time N repeated queries (I/O excluded)"
+    )
+    p.add_argument(
+        "--model",
+        choices=["frustum", "icra"],
+        default="frustum",
+        help="point-to-pixel distance: frustum lower bound (default) or ICRA'12 eq. 4",
+    )
     p.add_argument("--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4)")
-    p.add_argument("--grid-dd", type=_positive_float, default=0.01, help="depth-grid quantisation in m (several cameras)")
-    p.add_argument("--workspace", type=_parse_workspace, default=None, metavar="xmin,xmax,ymin,ymax,zmin,zmax",
-                   help="workspace box in m (world frame) for the depth grid")
+    p.add_argument(
+        "--grid-dd", type=_positive_float, default=0.01, help="depth-grid quantisation in m (several cameras)"
+    )
+    p.add_argument(
+        "--workspace",
+        type=_parse_workspace,
+        default=None,
+        metavar="xmin,xmax,ymin,ymax,zmin,zmax",
+        help="workspace box in m (world frame) for the depth grid",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_distance)
 

@@ -36,8 +36,16 @@ def run_static_demo(out_dir: str | Path = "runs/demo-static", rho: float = 0.4) 
         rows.append({"name": n, "distance": float(d) if np.isfinite(d) else None, "true": float(truth[i])})
     from depthguard.viz.depth_figure import save_depth_figure
 
-    png = save_depth_figure(Path(out_dir) / "depth_repulsion.png", cam, depth, centres, names, rep, res.distance,
-                            title=f"one camera, rho = {rho} m: distances and repulsive vectors")
+    png = save_depth_figure(
+        Path(out_dir) / "depth_repulsion.png",
+        cam,
+        depth,
+        centres,
+        names,
+        rep,
+        res.distance,
+        title=f"one camera, rho = {rho} m: distances and repulsive vectors",
+    )
     print(f"\npicture: {png}")
     print("distances are lower bounds: the gray area behind the person counts as obstacle (true = visible geometry)")
     return {"rows": rows, "picture": str(png)}

@@ -44,28 +44,52 @@ def run_distance_benchmark(quick: bool = False, include_grid: bool = True) -> di
     for rho in (0.4, 0.2):
         for mode in ("min", "all"):
             query_distances(frame, centres, radii, rho=rho, mode=mode)  # JIT warm-up
-            t = time_calls(lambda rho=rho, mode=mode: query_distances(frame, centres, radii, rho=rho, mode=mode), repeat)
-            results.append({"name": f"depthspace-1cam-{mode}", "rho": rho, "hz_median": t["hz_median"],
-                            "us_median": t["us_median"], "us_p99": t["us_p99"]})
+            t = time_calls(
+                lambda rho=rho, mode=mode: query_distances(frame, centres, radii, rho=rho, mode=mode), repeat
+            )
+            results.append(
+                {
+                    "name": f"depthspace-1cam-{mode}",
+                    "rho": rho,
+                    "hz_median": t["hz_median"],
+                    "us_median": t["us_median"],
+                    "us_p99": t["us_p99"],
+                }
+            )
     t_kd = time_calls(lambda: _kdtree_query(cam, depth, centres, radii), max(10, repeat // 10))
     for rho in (0.4, 0.2):
-        results.append({"name": "kdtree-1cam", "rho": rho, "hz_median": t_kd["hz_median"],
-                        "us_median": t_kd["us_median"], "us_p99": t_kd["us_p99"]})
+        results.append(
+            {
+                "name": "kdtree-1cam",
+                "rho": rho,
+                "hz_median": t_kd["hz_median"],
+                "us_median": t_kd["us_median"],
+                "us_p99": t_kd["us_p99"],
+            }
+        )
     t_prep = time_calls(lambda: prepare_frame(cam, depth), max(10, repeat // 10))
     ratios = {
         r["name"] + f"@{r['rho']}": r["hz_median"] / t_kd["hz_median"]
-        for r in results if r["name"].startswith("depthspace")
+        for r in results
+        if r["name"].startswith("depthspace")
     }
     out = {
         "benchmark": "distance",
         "machine": machine_info(),
-        "parameters": {"width": cam.width, "height": cam.height, "fx": cam.fx, "points": len(centres),
-                       "missing_fraction": 0.02, "repeat": repeat, "quick": quick},
+        "parameters": {
+            "width": cam.width,
+            "height": cam.height,
+            "fx": cam.fx,
+            "points": len(centres),
+            "missing_fraction": 0.02,
+            "repeat": repeat,
+            "quick": quick,
+        },
         "results": results,
         "per_frame": {"prepare_frame_us_median": t_prep["us_median"], "prepare_frame_us_p99": t_prep["us_p99"]},
         "ratios_vs_kdtree": ratios,
         "notes": "depthspace times are per query (the frame is prepared once per camera frame, see per_frame); "
-                 "kdtree times include the tree build, since a new frame means a new tree.",
+        "kdtree times include the tree build, since a new frame means a new tree.",
     }
     if include_grid:
         try:

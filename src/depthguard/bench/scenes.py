@@ -47,8 +47,16 @@ def bench_cameras(width: int = 640, height: int = 480, f: float = 525.0) -> list
         R, t = look_at(eye, target)
         cams.append(
             Camera(
-                width=width, height=height, fx=f, fy=f, cx=width / 2 - 0.5, cy=height / 2 - 0.5,
-                R=R, t=t, min_depth=0.5, max_depth=4.5,
+                width=width,
+                height=height,
+                fx=f,
+                fy=f,
+                cx=width / 2 - 0.5,
+                cy=height / 2 - 0.5,
+                R=R,
+                t=t,
+                min_depth=0.5,
+                max_depth=4.5,
             )
         )
     return cams
@@ -61,15 +69,22 @@ def arm_chain_points() -> tuple[list[str], np.ndarray, np.ndarray]:
         names (9,), centres (9, 3) world metres, radii (9,) metres.
     """
     joints = np.array([[0.0, 0.0, 0.35], [0.0, 0.0, 0.65], [0.05, 0.05, 0.95], [0.22, 0.05, 1.10], [0.30, 0.06, 1.05]])
-    seg = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0])
-    centres = np.array([joints[int(min(s, 3))] + (s - int(min(s, 3))) * (joints[int(min(s, 3)) + 1] - joints[int(min(s, 3))]) for s in seg])
+    # two points per segment, base to end effector: s = 0, 0.5, ..., 4 along the polyline
+    s = np.arange(9) * 0.5
+    k = np.minimum(s.astype(int), 3)
+    centres = joints[k] + (s - k)[:, None] * (joints[k + 1] - joints[k])
     radii = np.array([0.09, 0.09, 0.08, 0.08, 0.07, 0.07, 0.06, 0.06, 0.05])
     names = [f"cp{i}" for i in range(8)] + ["ee"]
     return names, centres, radii
 
 
-def kinect_noise(depth: np.ndarray, rng: np.random.Generator, sigma_per_m2: float = 0.0014,
-                 quantum: float = 0.001, missing: float = 0.02) -> np.ndarray:
+def kinect_noise(
+    depth: np.ndarray,
+    rng: np.random.Generator,
+    sigma_per_m2: float = 0.0014,
+    quantum: float = 0.001,
+    missing: float = 0.02,
+) -> np.ndarray:
     """Kinect v1-like measurement: axial noise ``sigma = 1.4 mm z^2``, 1 mm quantisation, random dropouts.
 
     Args:

@@ -18,8 +18,18 @@ from depthguard.repulsion import magnitude
 __all__ = ["run_pivot_scenario"]
 
 
-def _simulate(use_pivot: bool, duration: float, dt: float, rho: float, alpha: float, vmax: float,
-              speed_limit: float, obstacle_speed: float, offset: float, contact: float) -> dict:
+def _simulate(
+    use_pivot: bool,
+    duration: float,
+    dt: float,
+    rho: float,
+    alpha: float,
+    vmax: float,
+    speed_limit: float,
+    obstacle_speed: float,
+    offset: float,
+    contact: float,
+) -> dict:
     p = np.zeros(3)
     o = np.array([-1.0, offset, 0.0])
     filt = PivotFilter(dv_max=0.5, c=5.0)
@@ -54,6 +64,15 @@ def run_pivot_scenario(duration: float = 3.0, dt: float = 0.001, contact: float 
         ``{"direct": {...}, "pivot": {...}}`` each with ``min_distance`` (m, centre to obstacle point),
         ``collided`` (min distance <= ``contact``, the control sphere's radius, 2 cm) and the traces (T, 3).
     """
-    kw = dict(duration=duration, dt=dt, rho=0.4, alpha=6.0, vmax=0.8, speed_limit=0.8,
-              obstacle_speed=1.0, offset=0.0, contact=contact)
+    kw = dict(
+        duration=duration,
+        dt=dt,
+        rho=0.4,
+        alpha=6.0,
+        vmax=0.8,
+        speed_limit=0.8,
+        obstacle_speed=1.0,
+        offset=0.0,
+        contact=contact,
+    )
     return {"direct": _simulate(False, **kw), "pivot": _simulate(True, **kw)}

@@ -40,7 +40,9 @@ def save_depth_figure(
 
     fig, ax = plt.subplots(figsize=(8, 6.4), dpi=110)
     shown = np.where(np.isfinite(depth), depth, np.nan)
-    im = ax.imshow(shown, cmap="viridis_r", vmin=camera.min_depth, vmax=np.nanmax(shown) if np.isfinite(shown).any() else 4.5)
+    im = ax.imshow(
+        shown, cmap="viridis_r", vmin=camera.min_depth, vmax=np.nanmax(shown) if np.isfinite(shown).any() else 4.5
+    )
     if mask is not None and mask.any():
         overlay = np.zeros((*mask.shape, 4))
         overlay[mask] = (1, 1, 1, 0.6)
