@@ -394,14 +394,19 @@ def _query_one(obs, tmin, tile, fx, fy, cx, cy, Pc, radius, rho, mode, model, al
     out[7] = count
 
 
-@nb.njit(cache=True, parallel=True, error_model="numpy")
-def _query_many(obs, tmin, tile, fx, fy, cx, cy, R, t, centres, radii, rho, mode, model, alpha, near, unseen):
+def _query_many_py(obs, tmin, tile, fx, fy, cx, cy, R, t, centres, radii, rho, mode, model, alpha, near, unseen):
     n = centres.shape[0]
     out = np.empty((n, 8))
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
         _query_one(obs, tmin, tile, fx, fy, cx, cy, Pc, radii[i], rho, mode, model, alpha, near, unseen, out[i])
     return out
+
+
+# One thread by default: on a loaded machine (a robot PC runs the controller too) a parallel kernel waits for
+# a free core and its latency jumps by a scheduler time slice (several ms); opt in with parallel=True.
+_query_many = nb.njit(cache=True, error_model="numpy")(_query_many_py)
+_query_many_parallel = nb.njit(cache=True, parallel=True, error_model="numpy")(_query_many_py)
 
 
 def query_distances(
@@ -412,6 +417,7 @@ def query_distances(
     mode: str = "all",
     alpha: float = 6.0,
     model: str = "frustum",
+    parallel: bool = False,
 ) -> PointDistances:
     """Distances from N control spheres to the obstacles seen by one camera (ICRA'12 §III-IV).
 
@@ -424,6 +430,8 @@ def query_distances(
             ``"all"`` (direction of ICRA'12 eq. 9) or ``"hybrid"`` (direction of RA-L'16 eq. 11).
         alpha: shape factor α of the magnitude profile (eq. 7), used for the eq. 9 weights.
         model: ``"frustum"`` (lower bound, default) or ``"icra"`` (eq. 4 at the pixel centre).
+        parallel: spread the points over numba's threads (faster on an idle multi-core machine, slower
+            and jittery when the cores are busy).
     Returns:
         :class:`PointDistances` in the world frame.
     """
@@ -437,7 +445,8 @@ def query_distances(
     r = np.broadcast_to(np.asarray(radii, dtype=float), (c.shape[0],)) if c.ndim == 2 else radii
     c, r = check_points(c, r)
     cam = frame.camera
-    raw = _query_many(
+    kernel = _query_many_parallel if parallel else _query_many
+    raw = kernel(
         frame.obstacle_depth,
         frame.tile_min,
         TILE,
