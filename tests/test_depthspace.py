@@ -222,3 +222,22 @@ def test_property_never_larger_than_truth_plus_tolerance(data):
     assert np.all(res.distance[finite] <= np.maximum(truth[finite], 0.0) + tol[finite])
     # "nothing within rho" must be true: no obstacle closer than rho - tolerance
     assert np.all(truth[~finite] >= 0.4 - tol[~finite])
+
+
+def test_literal_ral16_form_over_reports_off_axis_but_frustum_does_not():
+    """Why the default is the frustum bound: beside a wall seen obliquely, eqs. 5-7 exceed the truth."""
+    cam = _camera()
+    # a slab whose side face is a plane through the camera centre, 25 degrees off axis
+    ang = math.radians(25.0)
+    n = np.array([math.cos(ang), 0.0, -math.sin(ang)])  # normal of the plane x cos - z sin = 0
+    P = np.array([[math.tan(ang) * 2.0 - 0.25, 0.0, 2.0]])  # 0.25 m beside the plane (horizontally)
+    truth = abs(P[0] @ n)
+    depth = np.full(cam.shape, np.nan)
+    cols = np.arange(cam.width) + 0.5
+    right = (cols - cam.cx) / cam.fx > math.tan(ang)
+    depth[:, right] = 1.0  # everything to the right of the plane is an obstacle surface at 1 m, shadow behind
+    wall = np.where(np.isnan(depth), 4.0, depth)
+    frame = prepare_frame(cam, wall, invalid="ignore")
+    d = {m: query_distances(frame, P, 0.0, rho=0.4, mode="min", model=m).distance[0] for m in ("frustum", "ral16")}
+    assert d["frustum"] <= truth + 1e-9
+    assert d["ral16"] > truth + 0.01  # ~ 1/cos(25 deg): about 2.5 cm too far at 0.25 m

@@ -17,7 +17,7 @@ plus its gray area, RA-L'16 eqs. 5-7). With ``r = ((u+.5-cx)/fx, (v+.5-cy)/fy, 1
 control point's depth, which over-estimates the distance by up to ``1/cos θ`` off the optical axis
 (≈ 15 % at the edge of a Kinect image); this form never over-estimates and is as cheap.
 ``model="icra"`` is ICRA'12 eq. 4 at the pixel centre, with the gray area handled by ``d_o := d_p`` when
-``d_o < d_p``.
+``d_o < d_p``; ``model="ral16"`` is the literal RA-L'16 eqs. 5-7. Both are kept for comparison only.
 
 Region of surveillance (eq. 5). The exact pixel bounding box of the cube of side ``2ρ'`` around ``P``
 (ρ' = ρ + sphere radius) is obtained by projecting its 8 corners, plus one pixel of margin; the whole
@@ -57,7 +57,7 @@ __all__ = [
 TILE = 16
 MODES = ("min", "all", "hybrid")
 INVALID_POLICIES = ("conservative", "ignore")
-DISTANCE_MODELS = ("frustum", "icra")
+DISTANCE_MODELS = ("frustum", "icra", "ral16")
 
 
 class DepthFrame(NamedTuple):
@@ -357,8 +357,19 @@ def _query_one(obs, tmin, tile, fx, fy, cx, cy, Pc, radius, rho, mode, model, al
                     D = dr * (1.0 - h) - h * pz
                     if D < 0.0:
                         D = 0.0
-                else:
+                elif model == 1:
                     s = do if do > pz else pz
+                    dx, dy, dz = px - s * a, py - s * b, pz - s
+                    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    D = dr
+                else:  # literal RA-L'16 eqs. 5-7: nearest pixel edge, evaluated at the point's depth
+                    qx = fx * px / pz + cx
+                    qy = fy * py / pz + cy
+                    ox = min(max(qx, u), u + 1.0)
+                    oy = min(max(qy, v), v + 1.0)
+                    s = do if do > pz else pz
+                    a = (ox - cx) / fx
+                    b = (oy - cy) / fy
                     dx, dy, dz = px - s * a, py - s * b, pz - s
                     dr = math.sqrt(dx * dx + dy * dy + dz * dz)
                     D = dr
@@ -429,7 +440,8 @@ def query_distances(
         mode: ``"min"`` (nearest obstacle only, nearest-first search with a shrinking region),
             ``"all"`` (direction of ICRA'12 eq. 9) or ``"hybrid"`` (direction of RA-L'16 eq. 11).
         alpha: shape factor α of the magnitude profile (eq. 7), used for the eq. 9 weights.
-        model: ``"frustum"`` (lower bound, default) or ``"icra"`` (eq. 4 at the pixel centre).
+        model: ``"frustum"`` (lower bound, default), ``"icra"`` (eq. 4 at the pixel centre) or ``"ral16"``
+            (literal RA-L'16 eqs. 5-7, which over-estimates off the optical axis); the last two for comparison.
         parallel: spread the points over numba's threads (faster on an idle multi-core machine, slower
             and jittery when the cores are busy).
     Returns:
