@@ -3,7 +3,9 @@
 ``dV/dt`` of the repulsive vector stands in for the obstacle velocity. With ``a = dV/dt/|dV/dt|``,
 ``r = V/|V|`` and ``β = acos(aᵀr)``: if ``β < π/2`` (the obstacle approaches) the vector is turned in the
 plane of ``a`` and ``r`` to the angle ``γ = β + (π/2 - β) σ`` from ``a``, with
-``σ = 1 / (1 + exp(-(|dV/dt| 2/dVmax - 1) c))`` (DESIGN.md §4): ``γ = β`` for a still obstacle and
+``σ = 1 / (1 + exp(-(|dV/dt| 2/dVmax - 1) c))`` (DESIGN.md §4), shifted and rescaled so that it is exactly 0
+at ``|dV/dt| = 0`` (the raw sigmoid is ``1/(1+e^c)`` there: 0.7 % for c = 5, 27 % for c = 1): ``γ = β`` for
+a still obstacle and
 ``γ -> π/2`` (escape at right angles to the approach) as ``|dV/dt| -> dVmax``. When ``a`` and ``r`` are
 nearly parallel the plane is undefined and a small deterministic perturbation picks one.
 """
@@ -61,7 +63,9 @@ def pivot(
         return V.copy()  # the obstacle moves away: no change
     perp = r - a * cos_b  # = (n × a) with n = a × r, up to its norm
     v = perp / np.linalg.norm(perp)
+    sigma0 = 1.0 / (1.0 + np.exp(c))  # the sigmoid at |dV/dt| = 0, subtracted so that gamma = beta exactly
     sigma = 1.0 / (1.0 + np.exp(-(nd * 2.0 / dv_max - 1.0) * c))
+    sigma = max(0.0, (sigma - sigma0) / (1.0 - sigma0))
     gamma = beta + (np.pi / 2 - beta) * sigma
     return nv * (np.cos(gamma) * a + np.sin(gamma) * v)
 
