@@ -250,7 +250,7 @@ class RobotModel:
     def joint_support_mask(self, joint: int) -> np.ndarray:
         """(n,) bool: the coordinates that move pinocchio joint ``joint`` (its kinematic support)."""
         mask = np.zeros(self.n_dof, dtype=bool)
-        for j in self.model.supports[joint]:
+        for j in self.model.supports[int(joint)]:
             if j > 0:
                 mask[self.model.idx_vs[j] : self.model.idx_vs[j] + self.model.nvs[j]] = True
         return mask
