@@ -1,0 +1,173 @@
+"""Control points: spheres that bound the robot's links (ICRA'12 §IV-B, Fig. 8; RA-L'16 §VII-VIII).
+
+Each link capsule (segment ``a``-``b`` of length L, radius r; see :mod:`depthguard.robot.model`) is
+covered by ``k`` spheres:
+
+* ``k = 1``: one sphere at the segment's midpoint with radius ``L/2 + r``;
+* ``k >= 2``: centres at ``a + i/(k-1) (b - a)``, ``i = 0..k-1``, all with radius
+  ``sqrt(r^2 + (L / (2 (k-1)))^2)``. Neighbouring spheres then cover the cylinder between them and the
+  end spheres cover the hemispherical caps, so the union of the spheres contains the capsule.
+
+The sphere centres are the control points; a reported distance is measured from the sphere surface
+(DESIGN.md §3). The end-effector point is a sphere of radius ``ee_radius`` centred at the model's
+end-effector frame; it is always point 0.
+
+Presets for the shipped LWR (:func:`depthguard.robot.model.load_lwr4`):
+
+* ``"icra-exp3"``: ICRA'12 Exp. 3, the end effector plus five points on the arm and forearm
+  (upper arm A2-A4: three, forearm A4-A6: two; the base and shoulder are not considered).
+* ``"ral-9"``: RA-L'16 §VIII, nine points including the end effector (upper arm three, forearm four,
+  wrist one, plus the end effector).
+
+For any other robot pass a ``{link_name: count}`` mapping.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from depthguard.robot.model import RobotModel
+
+__all__ = ["PRESETS", "ControlPointSet", "ControlPointState", "bounding_spheres", "control_points"]
+
+PRESETS: dict[str, dict[str, int]] = {
+    "icra-exp3": {"lwr_link_2": 1, "lwr_link_3": 2, "lwr_link_4": 1, "lwr_link_5": 1},
+    "ral-9": {"lwr_link_2": 1, "lwr_link_3": 2, "lwr_link_4": 2, "lwr_link_5": 2, "lwr_link_6": 1},
+}
+
+
+def bounding_spheres(a: np.ndarray, b: np.ndarray, radius: float, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` spheres whose union contains the capsule ``a``-``b`` (3,) of ``radius`` (m).
+
+    Returns:
+        centres (k, 3) in the frame of ``a``, ``b``, and radii (k,), metres.
+    """
+    if k < 1:
+        raise ValueError(f"sphere count per link must be >= 1, got {k}")
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    L = float(np.linalg.norm(b - a))
+    if k == 1:
+        return (0.5 * (a + b))[None], np.array([0.5 * L + radius])
+    t = np.linspace(0.0, 1.0, k)
+    centres = a + t[:, None] * (b - a)
+    return centres, np.full(k, np.hypot(radius, 0.5 * L / (k - 1)))
+
+
+class ControlPointState(NamedTuple):
+    """Control points at one configuration.
+
+    Attributes:
+        centres: (N, 3) sphere centres in the world frame, m.
+        radii: (N,) sphere radii, m.
+        jacobians: (N, 3, n) positional Jacobians, ``d centre / dq`` (m/rad).
+        names: N names; ``names[0] == "ee"``.
+    """
+
+    centres: np.ndarray
+    radii: np.ndarray
+    jacobians: np.ndarray
+    names: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ControlPointSet:
+    """A fixed set of control spheres on a robot; build once, evaluate every cycle.
+
+    Attributes:
+        model: the robot.
+        names: N point names, ``"ee"`` first, then ``"<link>/<i>"``.
+        joints: (N,) pinocchio parent-joint index of each point.
+        offsets: (N, 3) centre in the parent joint frame, m.
+        radii: (N,) sphere radii, m.
+        support: (N, n) bool, the joint coordinates that move each point.
+    """
+
+    model: RobotModel
+    names: tuple[str, ...]
+    joints: np.ndarray
+    offsets: np.ndarray
+    radii: np.ndarray
+    support: np.ndarray
+
+    @classmethod
+    def build(
+        cls, model: RobotModel, counts: str | Mapping[str, int] = "ral-9", ee_radius: float = 0.06
+    ) -> ControlPointSet:
+        """Cover the links named in ``counts`` (a preset name or ``{link: spheres}``) plus the end effector.
+
+        Links with several capsules get ``count`` spheres per capsule.
+        """
+        if isinstance(counts, str):
+            if counts not in PRESETS:
+                raise ValueError(f"unknown control-point preset '{counts}'; known: {sorted(PRESETS)}")
+            counts = PRESETS[counts]
+        links = {c.link for c in model.capsules}
+        unknown = [name for name in counts if name not in links]
+        if unknown:
+            raise ValueError(
+                f"control-point links {unknown} have no collision capsule; links: {sorted(links)}"
+            )
+        if not np.isfinite(ee_radius) or ee_radius < 0:
+            raise ValueError(f"ee_radius must be a finite number >= 0, got {ee_radius!r}")
+        ee = model.model.frames[model.ee_frame_id]
+        names, joints = ["ee"], [int(ee.parentJoint)]
+        offsets, radii = [np.array(ee.placement.translation)], [float(ee_radius)]
+        for link, k in counts.items():
+            frame = model.model.frames[model.frame_id(link)]
+            M = frame.placement
+            caps = [c for c in model.capsules if c.link == link]
+            for ci, cap in enumerate(caps):
+                centres, rr = bounding_spheres(cap.a, cap.b, cap.radius, int(k))
+                for i, (c, r) in enumerate(zip(centres, rr, strict=True)):
+                    suffix = f"{i}" if len(caps) == 1 else f"{ci}.{i}"
+                    names.append(f"{link}/{suffix}")
+                    joints.append(int(frame.parentJoint))
+                    offsets.append(M.rotation @ c + M.translation)
+                    radii.append(float(r))
+        joints_a = np.array(joints, dtype=np.int64)
+        support = np.array([model.joint_support_mask(j) for j in joints_a])
+        return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)
+
+    @property
+    def _joint_list(self) -> list[int]:
+        return [int(j) for j in self.joints]
+
+    @property
+    def n_points(self) -> int:
+        return len(self.names)
+
+    def evaluate(self, q: np.ndarray, *, updated: bool = False) -> ControlPointState:
+        """Centres, radii and Jacobians of all points at ``q`` (n,) in one call.
+
+        Args:
+            q: joint positions (n,), rad.
+            updated: True if ``model.update(q)`` has already run for this ``q`` (skips it).
+        """
+        if not updated:
+            self.model.update(self.model.check_q(q))
+        data = self.model.data
+        R = np.array([data.oMi[j].rotation for j in self._joint_list])  # (N, 3, 3)
+        p = np.array([data.oMi[j].translation for j in self._joint_list])  # (N, 3)
+        centres = np.einsum("kij,kj->ki", R, self.offsets) + p
+        Jw = np.asarray(data.J)  # (6, n): linear part at the world origin, angular part
+        # velocity of a body point c: v_O + w x c  ->  J_c = J_lin + J_ang x c (column-wise)
+        lin = Jw[:3].T[None, :, :]  # (1, n, 3)
+        ang = Jw[3:].T[None, :, :]
+        jac = lin + np.cross(ang, centres[:, None, :])  # (N, n, 3)
+        jac = np.transpose(jac, (0, 2, 1)) * self.support[:, None, :]
+        return ControlPointState(centres, self.radii.copy(), jac, self.names)
+
+
+def control_points(
+    model: RobotModel, q: np.ndarray, preset: str | Mapping[str, int] = "ral-9", ee_radius: float = 0.06
+) -> ControlPointState:
+    """One-shot convenience: build the set named ``preset`` and evaluate it at ``q`` (n,).
+
+    For a control loop build a :class:`ControlPointSet` once and call :meth:`ControlPointSet.evaluate`.
+    """
+    return ControlPointSet.build(model, preset, ee_radius).evaluate(q)
