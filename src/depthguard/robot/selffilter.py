@@ -25,6 +25,7 @@ pixels at depth edges outside the inflated robot are kept as obstacles.
 
 from __future__ import annotations
 
+import threading
 from typing import NamedTuple
 
 import numpy as np
@@ -43,56 +44,88 @@ class SelfFilterResult(NamedTuple):
     robot_depth: np.ndarray
 
 
-@njit(cache=True, fastmath=False)
-def _line_capsule(dx: float, dy: float, a: np.ndarray, b: np.ndarray, r: float) -> tuple[float, float]:
-    """Interval [t0, t1] of the line ``t (dx, dy, 1)`` (camera at the origin) inside the capsule a-b, r.
-
-    Returns (inf, -inf) when the line misses. t is the depth z_C since the direction has z = 1.
-    """
-    dz = 1.0
-    dd = dx * dx + dy * dy + dz * dz
-    t0, t1 = np.inf, -np.inf
-    r2 = r * r
-    # end spheres
-    for c0, c1, c2 in ((a[0], a[1], a[2]), (b[0], b[1], b[2])):
-        dc = dx * c0 + dy * c1 + dz * c2
-        disc = dc * dc - dd * (c0 * c0 + c1 * c1 + c2 * c2 - r2)
-        if disc >= 0.0:
-            sq = np.sqrt(disc)
-            e0, e1 = (dc - sq) / dd, (dc + sq) / dd
-            if e0 < t0:
-                t0 = e0
-            if e1 > t1:
-                t1 = e1
-    # cylinder body between the end discs
-    w0, w1, w2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    L = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+@njit(cache=True)
+def _capsule_consts(a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
+    """Per-capsule constants for :func:`_line_capsule` (camera at the origin)."""
+    c = np.empty(17)
+    c[0:3] = a
+    c[3:6] = b
+    w = b - a
+    L = np.sqrt(np.sum(w * w))
     if L > 1e-12:
-        w0, w1, w2 = w0 / L, w1 / L, w2 / L
-        dw = dx * w0 + dy * w1 + dz * w2
-        oa0, oa1, oa2 = -a[0], -a[1], -a[2]
-        ow = oa0 * w0 + oa1 * w1 + oa2 * w2
-        p0, p1, p2 = dx - dw * w0, dy - dw * w1, dz - dw * w2
-        q0, q1, q2 = oa0 - ow * w0, oa1 - ow * w1, oa2 - ow * w2
-        A = p0 * p0 + p1 * p1 + p2 * p2
-        B = p0 * q0 + p1 * q1 + p2 * q2
-        C = q0 * q0 + q1 * q1 + q2 * q2 - r2
-        disc = B * B - A * C
-        if A > 1e-18 and disc >= 0.0:
-            sq = np.sqrt(disc)
-            s0, s1 = (-B - sq) / A, (-B + sq) / A
-            if abs(dw) > 1e-15:  # clip to 0 <= ow + s dw <= L
-                u0, u1 = -ow / dw, (L - ow) / dw
-                if u0 > u1:
-                    u0, u1 = u1, u0
-                s0, s1 = max(s0, u0), min(s1, u1)
-            elif ow < 0.0 or ow > L:
-                s0, s1 = np.inf, -np.inf
-            if s0 <= s1:
-                if s0 < t0:
-                    t0 = s0
-                if s1 > t1:
-                    t1 = s1
+        w = w / L
+    else:
+        w = np.array([0.0, 0.0, 1.0])
+        L = 0.0
+    c[6:9] = w
+    c[9] = L
+    ow = -np.sum(a * w)  # (origin - a) . w
+    q = -a - ow * w  # (origin - a) without its axial part
+    c[10:13] = q
+    c[13] = np.sum(q * q) - r * r
+    c[14] = np.sum(a * a) - r * r
+    c[15] = np.sum(b * b) - r * r
+    c[16] = ow
+    return c
+
+
+@njit(cache=True)
+def _line_capsule(dx: float, dy: float, c: np.ndarray) -> tuple[float, float]:
+    """Interval [t0, t1] of the line ``t (dx, dy, 1)`` (camera at the origin) inside a capsule.
+
+    ``c`` comes from :func:`_capsule_consts`. Returns (inf, -inf) when the line misses. t is the depth
+    z_C since the direction has z = 1.
+    """
+    w0, w1, w2, L = c[6], c[7], c[8], c[9]
+    dw = dx * w0 + dy * w1 + w2
+    p0, p1, p2 = dx - dw * w0, dy - dw * w1, 1.0 - dw * w2
+    A = p0 * p0 + p1 * p1 + p2 * p2
+    B = p0 * c[10] + p1 * c[11] + p2 * c[12]
+    C = c[13]
+    disc = B * B - A * C
+    # the capsule lies inside the infinite cylinder around its axis: missing that is missing it
+    if A > 1e-18:
+        if disc < 0.0:
+            return np.inf, -np.inf
+    elif C > 0.0:
+        return np.inf, -np.inf
+    t0, t1 = np.inf, -np.inf
+    dd = dx * dx + dy * dy + 1.0
+    # end spheres
+    da = dx * c[0] + dy * c[1] + c[2]
+    disc_a = da * da - dd * c[14]
+    if disc_a >= 0.0:
+        sq = np.sqrt(disc_a)
+        t0, t1 = (da - sq) / dd, (da + sq) / dd
+    db = dx * c[3] + dy * c[4] + c[5]
+    disc_b = db * db - dd * c[15]
+    if disc_b >= 0.0:
+        sq = np.sqrt(disc_b)
+        e0, e1 = (db - sq) / dd, (db + sq) / dd
+        if e0 < t0:
+            t0 = e0
+        if e1 > t1:
+            t1 = e1
+    # cylinder body between the end discs
+    if L > 0.0 and A > 1e-18:
+        sq = np.sqrt(disc)
+        s0, s1 = (-B - sq) / A, (-B + sq) / A
+        ow = c[16]
+        if abs(dw) > 1e-15:  # clip to 0 <= ow + s dw <= L
+            u0, u1 = -ow / dw, (L - ow) / dw
+            if u0 > u1:
+                u0, u1 = u1, u0
+            if u0 > s0:
+                s0 = u0
+            if u1 < s1:
+                s1 = u1
+        elif ow < 0.0 or ow > L:
+            s0, s1 = np.inf, -np.inf
+        if s0 <= s1:
+            if s0 < t0:
+                t0 = s0
+            if s1 > t1:
+                t1 = s1
     return t0, t1
 
 
@@ -126,12 +159,15 @@ def _self_filter_kernel(
     mask: np.ndarray,
     robot_depth: np.ndarray,
     exact_only: bool,
+    infl: np.ndarray,
+    tmp: np.ndarray,
 ) -> None:
+    """Rasterise the capsules; ``infl`` and ``tmp`` are (H, W) work buffers, all inf on entry and on exit."""
     H, W = depth.shape
-    infl = np.full((H, W), np.inf)
     u_lo, u_hi, v_lo, v_hi = W, -1, H, -1
     for k in range(A.shape[0]):
         ri = R[k] + margin
+        cc = _capsule_consts(A[k], B[k], ri)
         # bounding box of the inflated capsule = union of its end spheres' boxes
         if A[k, 2] - ri <= 1e-6 or B[k, 2] - ri <= 1e-6:
             x0, x1, y0, y1 = 0, W - 1, 0, H - 1
@@ -145,11 +181,38 @@ def _self_filter_kernel(
         if x0 > x1 or y0 > y1:
             continue
         u_lo, u_hi, v_lo, v_hi = min(u_lo, x0), max(u_hi, x1), min(v_lo, y0), max(v_hi, y1)
+        full_rows = A[k, 2] - ri <= 1e-6 or B[k, 2] - ri <= 1e-6
         for v in range(y0, y1 + 1):
             dy = (v + 0.5 - cy) / fy
-            for u in range(x0, x1 + 1):
+            r0, r1 = x0, x1
+            if not full_rows:
+                # the row's pixel-centre rays span the plane y = dy z; only the part of the segment within
+                # ri of that plane can meet it, and the balls at that part's ends bound the row span
+                nn = np.sqrt(1.0 + dy * dy)
+                sa = (A[k, 1] - dy * A[k, 2]) / nn
+                sb = (B[k, 1] - dy * B[k, 2]) / nn
+                ta, tb = 0.0, 1.0
+                ds = sb - sa
+                if abs(ds) > 1e-15:
+                    ta, tb = (-ri - sa) / ds, (ri - sa) / ds
+                    if ta > tb:
+                        ta, tb = tb, ta
+                    ta, tb = max(ta, 0.0), min(tb, 1.0)
+                elif abs(sa) > ri:
+                    continue
+                if ta > tb:
+                    continue
+                pa = A[k] + ta * (B[k] - A[k])
+                pb = A[k] + tb * (B[k] - A[k])
+                if pa[2] - ri <= 1e-6 or pb[2] - ri <= 1e-6:
+                    continue  # cannot happen when both end balls are in front; kept for safety
+                e0, e1, _, _ = _sphere_bbox(pa, ri, fx, fy, cx, cy)
+                g0, g1, _, _ = _sphere_bbox(pb, ri, fx, fy, cx, cy)
+                r0 = max(int(np.floor(min(e0, g0))) - 1, x0)
+                r1 = min(int(np.floor(max(e1, g1))) + 1, x1)
+            for u in range(r0, r1 + 1):
                 dx = (u + 0.5 - cx) / fx
-                t0, t1 = _line_capsule(dx, dy, A[k], B[k], ri)
+                t0, t1 = _line_capsule(dx, dy, cc)
                 if t1 < max(t0, 0.0):
                     continue
                 tin = max(t0, 0.0)
@@ -166,11 +229,11 @@ def _self_filter_kernel(
             for u in range(u_lo, u_hi + 1):
                 if infl[v, u] < np.inf:
                     robot_depth[v, u] = infl[v, u]
+                    infl[v, u] = np.inf
         return
     # widen the silhouette by pad pixels: separable running minimum of the inflated depth
     x0, x1 = max(u_lo - pad, 0), min(u_hi + pad, W - 1)
     y0, y1 = max(v_lo - pad, 0), min(v_hi + pad, H - 1)
-    tmp = np.full((H, W), np.inf)
     for v in range(v_lo, v_hi + 1):
         for u in range(x0, x1 + 1):
             m = np.inf
@@ -189,6 +252,22 @@ def _self_filter_kernel(
                 d = depth[v, u]
                 if not (d > 0.0 and d < np.inf):  # no reading next to the robot: robot
                     mask[v, u] = True
+    for v in range(v_lo, v_hi + 1):  # leave the work buffers as found
+        for u in range(x0, x1 + 1):
+            infl[v, u] = np.inf
+            tmp[v, u] = np.inf
+
+
+_WORK = threading.local()
+
+
+def _work_buffers(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-thread (H, W) work buffers (all inf between calls), so that frames do not allocate them."""
+    bufs = getattr(_WORK, "bufs", None)
+    if bufs is None or bufs[0].shape != shape:
+        bufs = (np.full(shape, np.inf), np.full(shape, np.inf))
+        _WORK.bufs = bufs
+    return bufs
 
 
 def _capsules_in_camera(camera: Camera, a: np.ndarray, b: np.ndarray, radius: np.ndarray):
@@ -233,7 +312,20 @@ def self_filter_capsules(
     mask = np.zeros(camera.shape, dtype=np.bool_)
     robot_depth = np.full(camera.shape, np.nan)
     _self_filter_kernel(
-        A, B, R, float(margin), int(pad_px), camera.fx, camera.fy, camera.cx, camera.cy, d, mask, robot_depth, False
+        A,
+        B,
+        R,
+        float(margin),
+        int(pad_px),
+        camera.fx,
+        camera.fy,
+        camera.cx,
+        camera.cy,
+        d,
+        mask,
+        robot_depth,
+        False,
+        *_work_buffers(camera.shape),
     )
     return SelfFilterResult(mask, robot_depth)
 
@@ -255,5 +347,6 @@ def render_capsules_depth(camera: Camera, a: np.ndarray, b: np.ndarray, radius: 
     out = np.full(camera.shape, np.nan)
     dummy = np.zeros(camera.shape)
     mask = np.zeros(camera.shape, dtype=np.bool_)
-    _self_filter_kernel(A, B, R, 0.0, 0, camera.fx, camera.fy, camera.cx, camera.cy, dummy, mask, out, True)
+    cam = (camera.fx, camera.fy, camera.cx, camera.cy)
+    _self_filter_kernel(A, B, R, 0.0, 0, *cam, dummy, mask, out, True, *_work_buffers(camera.shape))
     return out
