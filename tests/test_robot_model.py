@@ -117,3 +117,10 @@ def test_bad_inputs_raise_clear_errors(lwr: RobotModel, tmp_path: Path) -> None:
         lwr.frame_pose(np.zeros(7), "nope")
     with pytest.raises(ValueError, match="urdf_path"):
         RobotModel.from_urdf(tmp_path / "missing.urdf")
+
+
+def test_shipped_urdf_parses_in_mujoco() -> None:
+    mujoco = pytest.importorskip("mujoco")
+    m = mujoco.MjModel.from_xml_path(str(lwr4_urdf_path()))
+    assert m.njnt == 7
+    assert m.ngeom >= 8

@@ -178,3 +178,11 @@ def test_bad_inputs_raise_clear_errors(lwr) -> None:
         self_filter(cam, np.zeros(cam.shape), Q, lwr, pad_px=1.5)
     with pytest.raises(ValueError, match="q"):
         self_filter(cam, np.zeros(cam.shape), Q[:3], lwr)
+
+
+def test_default_model_is_the_shipped_lwr(lwr) -> None:
+    cam = _camera()
+    measured = render_depth(cam, Scene(_robot_scene(lwr, Q) + _wall_and_floor()))
+    mask, robot_depth = self_filter(cam, measured, Q)  # (camera, depth, q) as the simulator calls it
+    ref = self_filter(cam, measured, Q, lwr)
+    assert np.array_equal(mask, ref.mask) and np.array_equal(robot_depth, ref.robot_depth, equal_nan=True)

@@ -26,6 +26,7 @@ pixels at depth edges outside the inflated robot are kept as obstacles.
 from __future__ import annotations
 
 import threading
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -330,13 +331,29 @@ def self_filter_capsules(
     return SelfFilterResult(mask, robot_depth)
 
 
-def self_filter(
-    camera: Camera, depth: np.ndarray, q: np.ndarray, model, *, margin: float = 0.03, pad_px: int = 3
-) -> SelfFilterResult:
-    """Remove the robot ``model`` at joint positions ``q`` (n,) from ``depth`` (H, W) metres.
+@lru_cache(maxsize=1)
+def _default_model():
+    from depthguard.robot.model import load_lwr4
 
-    ``model`` is a :class:`depthguard.robot.model.RobotModel`; see :func:`self_filter_capsules`.
+    return load_lwr4()
+
+
+def self_filter(
+    camera: Camera,
+    depth: np.ndarray,
+    q: np.ndarray,
+    model=None,
+    *,
+    margin: float = 0.03,
+    pad_px: int = 3,
+) -> SelfFilterResult:
+    """Remove the robot at joint positions ``q`` (n,) rad from ``depth`` (H, W), metres (0/NaN = no reading).
+
+    ``model`` is a :class:`depthguard.robot.model.RobotModel` (default: the shipped LWR,
+    :func:`depthguard.robot.model.load_lwr4`); see :func:`self_filter_capsules` for the rest.
+    Returns ``(mask (H, W) bool, robot_depth (H, W) float)`` as a :class:`SelfFilterResult`.
     """
+    model = _default_model() if model is None else model
     a, b, r = model.link_capsules(q)
     return self_filter_capsules(camera, depth, a, b, r, margin=margin, pad_px=pad_px)
 
