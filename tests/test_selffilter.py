@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("pinocchio")
 
@@ -186,3 +188,26 @@ def test_default_model_is_the_shipped_lwr(lwr) -> None:
     mask, robot_depth = self_filter(cam, measured, Q)  # (camera, depth, q) as the simulator calls it
     ref = self_filter(cam, measured, Q, lwr)
     assert np.array_equal(mask, ref.mask) and np.array_equal(robot_depth, ref.robot_depth, equal_nan=True)
+
+
+@pytest.mark.slow
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_property_no_robot_left_and_nothing_removed_beyond_the_margin(seed: int) -> None:
+    lwr = load_lwr4()
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(lwr.q_min, lwr.q_max) * 0.8
+    ang = rng.uniform(-0.45 * np.pi, 0.45 * np.pi)  # in front of the wall at x = -1
+    eye = np.array([1.8 * np.cos(ang), 1.8 * np.sin(ang), rng.uniform(0.8, 1.8)])
+    R, t = look_at(eye, np.array([0.0, 0.0, 0.6]))
+    cam = Camera(width=160, height=120, fx=130.0, fy=130.0, cx=79.5, cy=59.5, R=R, t=t, min_depth=0.3)
+    robot = _robot_scene(lwr, q)
+    blobs = tuple(Sphere(rng.uniform([-0.8, -0.8, 0.1], [0.8, 0.8, 1.4]), rng.uniform(0.03, 0.15)) for _ in range(4))
+    measured = render_depth(cam, Scene(robot + blobs + _wall_and_floor()))
+    robot_only = render_depth(cam, Scene(robot))
+    res = self_filter(cam, measured, q, lwr, margin=MARGIN, pad_px=2)
+    robot_vis = np.isfinite(robot_only) & (np.abs(measured - robot_only) < 1e-9)
+    assert not np.any(robot_vis & ~res.mask)  # no robot pixel left in
+    removed = res.mask & np.isfinite(measured) & (measured > 0)
+    pts = cam.unproject_image(measured)[removed]
+    assert np.all(Scene(robot).distance(pts) <= MARGIN + 1e-9)  # nothing removed beyond the margin
