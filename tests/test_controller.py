@@ -243,3 +243,14 @@ def test_fresh_data_resumes_after_a_stop(points) -> None:
     assert out.status == CycleStatus.STOP_STALE_DISTANCES
     out = ctrl.step(CycleInput(1.001, Q0, np.zeros(7), 1.001, np.zeros(3), dist, dirs, 1.0))
     assert out.status == CycleStatus.OK
+
+
+@pytest.mark.slow
+def test_joint_position_limits_hold_when_the_task_pulls_beyond_reach(points) -> None:
+    model = points.model
+    for xd in (np.array([-0.4, 0.0, 0.0]), np.array([0.0, 0.4, -0.3])):
+        log = _run(points, xd, steps=5000)
+        qs = np.array([e[1] for e in log])
+        assert np.all(qs >= model.q_min) and np.all(qs <= model.q_max)
+        v = np.array([e[4].qdot_cmd for e in log])
+        assert np.all(np.abs(v) <= model.v_max + 1e-9)

@@ -117,3 +117,23 @@ def test_bad_inputs_raise_clear_errors(lwr: RobotModel, tmp_path: Path) -> None:
         lwr.frame_pose(np.zeros(7), "nope")
     with pytest.raises(ValueError, match="urdf_path"):
         RobotModel.from_urdf(tmp_path / "missing.urdf")
+
+
+def test_shipped_urdf_parses_in_mujoco() -> None:
+    mujoco = pytest.importorskip("mujoco")
+    m = mujoco.MjModel.from_xml_path(str(lwr4_urdf_path()))
+    assert m.njnt == 7
+    assert m.ngeom >= 8
+
+
+def test_point_jacobian_matches_finite_differences(lwr: RobotModel) -> None:
+    q = np.array([0.2, -0.7, 0.4, 1.1, -0.3, 0.6, 0.9])
+    point = np.array([0.03, -0.05, 0.02])
+    p0, J = lwr.point_jacobian(q, "lwr_link_5", point)
+    h = 1e-6
+    for i in range(7):
+        dq = np.zeros(7)
+        dq[i] = h
+        p1, _ = lwr.point_jacobian(q + dq, "lwr_link_5", point)
+        np.testing.assert_allclose((p1 - p0) / h, J[:, i], atol=1e-5)
+    assert np.all(J[:, 5:] == 0.0)  # joints after link 5 do not move it

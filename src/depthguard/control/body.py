@@ -29,20 +29,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from depthguard.repulsion import risk  # ICRA'12 eq. 12, shared with the distance stage
+
 __all__ = ["risk", "body_velocity_bounds"]
-
-
-def risk(distance: np.ndarray | float, rho: float, alpha: float) -> np.ndarray:
-    """Collision risk f(D) of ICRA'12 eq. 12 (DESIGN.md §4 reading), 0 for ``D = inf``.
-
-    Args:
-        distance: distances D >= 0 in metres (any shape; inf = no obstacle within rho).
-        rho: distance of influence, m (> 0).
-        alpha: steepness (> 0).
-    """
-    d = np.asarray(distance, dtype=float)
-    with np.errstate(over="ignore"):
-        return 1.0 / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
 
 
 @njit(cache=True)

@@ -74,7 +74,10 @@ class ControllerConfig:
         distance_timeout: distances older than this trigger the safe stop, s (3 frames at 30 Hz).
         joint_timeout: joint states older than this trigger the safe stop, s.
         dls_eps, dls_lambda_max: damped least squares below this singular value / largest damping.
-        synchronization: Ruckig synchronization, "time", "phase" or "none".
+        synchronization: Ruckig synchronization, "none" (default), "time" or "phase". With "none" every
+            joint brakes and accelerates on its own time-optimal profile; "time"/"phase" stretch the faster
+            joints' profiles to finish together, which slows their braking below the acceleration limit
+            that the position-limit bounds assume (a test drove a joint past its limit that way).
     """
 
     dt: float = 0.001
@@ -92,7 +95,7 @@ class ControllerConfig:
     joint_timeout: float = 0.005
     dls_eps: float = 0.02
     dls_lambda_max: float = 0.05
-    synchronization: str = "time"
+    synchronization: str = "none"
 
 
 class CycleInput(NamedTuple):

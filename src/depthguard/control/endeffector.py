@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 __all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_inverse"]
 
@@ -44,13 +45,20 @@ def commanded_task_velocity(xdot_d: np.ndarray, v_repulsive: np.ndarray) -> np.n
     return xc
 
 
-def dls_damping(J: np.ndarray, eps: float = 0.02, lambda_max: float = 0.05) -> float:
-    """Damping factor lambda (>= 0) for J (m, n): 0 unless the smallest singular value is below eps."""
-    sigma = np.linalg.svd(J, compute_uv=False)
-    smin = float(sigma[-1]) if J.shape[0] <= J.shape[1] else 0.0
+@njit(cache=True)
+def _dls_damping(J: np.ndarray, eps: float, lambda_max: float) -> float:
+    if J.shape[0] > J.shape[1]:
+        smin = 0.0
+    else:
+        smin = np.sqrt(max(np.linalg.eigvalsh(J @ J.T)[0], 0.0))
     if smin >= eps:
         return 0.0
-    return float(lambda_max * np.sqrt(1.0 - (smin / eps) ** 2))
+    return lambda_max * np.sqrt(1.0 - (smin / eps) ** 2)
+
+
+def dls_damping(J: np.ndarray, eps: float = 0.02, lambda_max: float = 0.05) -> float:
+    """Damping factor lambda (>= 0) for J (m, n): 0 unless the smallest singular value is below eps."""
+    return float(_dls_damping(np.ascontiguousarray(J, dtype=np.float64), float(eps), float(lambda_max)))
 
 
 def dls_inverse(J: np.ndarray, damping: float) -> np.ndarray:

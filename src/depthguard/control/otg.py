@@ -71,6 +71,8 @@ class OtgState(NamedTuple):
 class JointOtg:
     """Ruckig in velocity mode for n joints with cycle time ``dt`` (s).
 
+    ``synchronization``: "none" (each joint time-optimal, the default), "time" or "phase".
+
     ``step`` is a function of its arguments (the Ruckig object only caches the last trajectory).
     """
 
@@ -78,7 +80,7 @@ class JointOtg:
     dt: float
     a_max: np.ndarray
     j_max: np.ndarray
-    synchronization: str = "time"
+    synchronization: str = "none"
 
     def __post_init__(self) -> None:
         import ruckig

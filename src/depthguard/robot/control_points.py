@@ -26,9 +26,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from depthguard.robot.model import RobotModel
 
@@ -56,6 +58,30 @@ def bounding_spheres(a: np.ndarray, b: np.ndarray, radius: float, k: int) -> tup
     t = np.linspace(0.0, 1.0, k)
     centres = a + t[:, None] * (b - a)
     return centres, np.full(k, np.hypot(radius, 0.5 * L / (k - 1)))
+
+
+@njit(cache=True)
+def _assemble(
+    H: np.ndarray, slot: np.ndarray, offsets: np.ndarray, Jw: np.ndarray, support: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, 3) and Jacobians (N, 3, n) from the parent joints' poses H (U, 4, 4) and the WORLD
+    joint Jacobian Jw (6, n): a body point c moves with ``v_O + w x c``, so ``J_c = J_lin + J_ang x c``
+    over the joints that support it."""
+    N, n = slot.shape[0], Jw.shape[1]
+    centres = np.empty((N, 3))
+    jac = np.zeros((N, 3, n))
+    for k in range(N):
+        M = H[slot[k]]
+        for i in range(3):
+            centres[k, i] = M[i, 0] * offsets[k, 0] + M[i, 1] * offsets[k, 1] + M[i, 2] * offsets[k, 2] + M[i, 3]
+        c0, c1, c2 = centres[k, 0], centres[k, 1], centres[k, 2]
+        for j in range(n):
+            if support[k, j]:
+                w0, w1, w2 = Jw[3, j], Jw[4, j], Jw[5, j]
+                jac[k, 0, j] = Jw[0, j] + w1 * c2 - w2 * c1
+                jac[k, 1, j] = Jw[1, j] + w2 * c0 - w0 * c2
+                jac[k, 2, j] = Jw[2, j] + w0 * c1 - w1 * c0
+    return centres, jac
 
 
 class ControlPointState(NamedTuple):
@@ -133,9 +159,14 @@ class ControlPointSet:
         support = np.array([model.joint_support_mask(j) for j in joints_a])
         return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)
 
-    @property
-    def _joint_list(self) -> list[int]:
-        return [int(j) for j in self.joints]
+    @cached_property
+    def _unique_joints(self) -> list[int]:
+        return sorted({int(j) for j in self.joints})
+
+    @cached_property
+    def _joint_slot(self) -> np.ndarray:
+        u = self._unique_joints
+        return np.array([u.index(int(j)) for j in self.joints], dtype=np.int64)
 
     @property
     def n_points(self) -> int:
@@ -150,16 +181,10 @@ class ControlPointSet:
         """
         if not updated:
             self.model.update(self.model.check_q(q))
-        data = self.model.data
-        R = np.array([data.oMi[j].rotation for j in self._joint_list])  # (N, 3, 3)
-        p = np.array([data.oMi[j].translation for j in self._joint_list])  # (N, 3)
-        centres = np.einsum("kij,kj->ki", R, self.offsets) + p
-        Jw = np.asarray(data.J)  # (6, n): linear part at the world origin, angular part
-        # velocity of a body point c: v_O + w x c  ->  J_c = J_lin + J_ang x c (column-wise)
-        lin = Jw[:3].T[None, :, :]  # (1, n, 3)
-        ang = Jw[3:].T[None, :, :]
-        jac = lin + np.cross(ang, centres[:, None, :])  # (N, n, 3)
-        jac = np.transpose(jac, (0, 2, 1)) * self.support[:, None, :]
+        oMi = self.model.data.oMi
+        H = np.array([oMi[j].homogeneous for j in self._unique_joints])  # (U, 4, 4)
+        Jw = np.asarray(self.model.data.J)  # (6, n): linear part at the world origin, angular part
+        centres, jac = _assemble(H, self._joint_slot, self.offsets, Jw, self.support)
         return ControlPointState(centres, self.radii.copy(), jac, self.names)
 
 

@@ -229,6 +229,22 @@ class RobotModel:
             self._pin.computeFrameJacobian(self.model, self.data, q, fid, self._pin.LOCAL_WORLD_ALIGNED)
         )
 
+    def point_jacobian(
+        self, q: np.ndarray, frame: str | None = None, point: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """World position (3,) m and positional Jacobian (3, n) of a point fixed in ``frame``.
+
+        Args:
+            q: (n,) joint positions.
+            frame: frame name (default: end effector).
+            point: (3,) coordinates of the point in ``frame``, m (default: its origin).
+        """
+        R, p = self.frame_pose(q, frame)
+        J = self.frame_jacobian(q, frame)
+        off = R @ (np.zeros(3) if point is None else check_finite_array(point, (3,), "point"))
+        # v_point = v_origin + w x off  ->  J_lin - [off]x J_ang
+        return p + off, J[:3] + np.cross(J[3:].T, off).T
+
     def joint_poses(self, q: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """World rotations (J+1, 3, 3) and origins (J+1, 3) of all pinocchio joints (0 = universe).
 
