@@ -5,7 +5,7 @@
 * The arm is built link by link from the robot's URDF (:mod:`depthguard.sim.robotdesc`): one body per
   link, one hinge per revolute joint, and the URDF's collision capsules as MuJoCo capsules, so the
   simulator and the controller share one geometry. Each joint has a position servo (kp, kv) fed at
-  1 kHz with the controller's joint command; gravity is off (the LWR compensates it) and contacts are
+  1 kHz with the controller's joint command (position and velocity: ``kp (q_cmd - q) + kv (qd_cmd - qd)``); gravity is off (the LWR compensates it) and contacts are
   disabled: collisions are measured (:mod:`depthguard.sim.truth`), not simulated.
 * World frame = robot base frame; the base stands on a table whose top is at z = 0; the floor is at
   ``floor_z`` (default -0.8 m), with walls near enough for the cameras to see them within range.
@@ -197,9 +197,12 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
         lines.append(mujoco_camera_xml(f"depthcam{i}", cam))
     lines.append("  </worldbody>")
     lines.append("  <actuator>")
-    for jn in actuated:
-        lines.append(f'    <general name="{jn}_servo" joint="{jn}" gainprm="{spec.kp}" biastype="affine" '
-                     f'biasprm="0 {-spec.kp} {-spec.kv}"/>')
+    for jn in actuated:  # position servo: kp (q_cmd - q)
+        lines.append(f'    <general name="{jn}_pos" joint="{jn}" gainprm="{spec.kp}" biastype="affine" '
+                     f'biasprm="0 {-spec.kp} 0"/>')
+    for jn in actuated:  # velocity servo: kv (qdot_cmd - qdot)
+        lines.append(f'    <general name="{jn}_vel" joint="{jn}" gainprm="{spec.kv}" biastype="affine" '
+                     f'biasprm="0 0 {-spec.kv}"/>')
     lines.append("  </actuator>")
     lines.append("</mujoco>")
     return "\n".join(lines), actuated
@@ -272,6 +275,7 @@ class Cell:
         self.data.qpos[self.qadr] = q
         self.data.qvel[self.dofadr] = 0.0
         self.data.ctrl[: self.nq] = q
+        self.data.ctrl[self.nq : 2 * self.nq] = 0.0
         mujoco.mj_forward(self.model, self.data)
 
     def q(self) -> np.ndarray:
@@ -283,11 +287,13 @@ class Cell:
     def ee_position(self) -> np.ndarray:
         return self.data.site_xpos[self.ee_site].copy()
 
-    def step(self, q_cmd: np.ndarray, n: int = 1) -> None:
-        """Advance the physics ``n`` steps (1 ms each) with joint position command ``q_cmd`` (7,) rad."""
+    def step(self, q_cmd: np.ndarray, qd_cmd: np.ndarray | None = None, n: int = 1) -> None:
+        """Advance the physics ``n`` steps (1 ms each) with the joint command: position ``q_cmd`` (7,) rad and
+        velocity ``qd_cmd`` (7,) rad/s (servo ``kp (q_cmd - q) + kv (qd_cmd - qd)``)."""
         import mujoco
 
         self.data.ctrl[: self.nq] = np.clip(q_cmd, self.q_lower, self.q_upper)
+        self.data.ctrl[self.nq : 2 * self.nq] = 0.0 if qd_cmd is None else qd_cmd
         mujoco.mj_step(self.model, self.data, n)
 
     # --------------------------------------------------------------- people

@@ -21,9 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from depthguard.sim.cell import Cell
-from depthguard.sim.controller import AvoidanceController
 from depthguard.sim.depthcam import KinectSim
-from depthguard.sim.pipeline import DistanceStage, Kinematics, self_filter
+from depthguard.sim.pipeline import Controller, DistanceStage, Kinematics, self_filter
 from depthguard.sim.truth import TrueClearance
 
 __all__ = ["Task", "LoopConfig", "SimLog", "run_loop"]
@@ -149,7 +148,7 @@ class _Progress:
 
 
 def run_loop(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: DistanceStage,
-             ctrl: AvoidanceController, task: Task, cfg: LoopConfig, record_frames_every: int = 3) -> SimLog:
+             ctrl: Controller, task: Task, cfg: LoopConfig, record_frames_every: int = 3) -> SimLog:
     """Run the cell for ``cfg.duration`` s of simulated time. Returns the :class:`SimLog`."""
     from depthguard.repulsion import repulsive_vectors
 
@@ -196,26 +195,28 @@ def run_loop(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: Distance
             cp = kin.evaluate(q_meas)
             res = stage.query(cp.centres, cp.radii)
             V = repulsive_vectors(res, cfg.vmax, cfg.rho, cfg.alpha)[0]
+            dirs = np.array(res.direction, dtype=float)
             if pivot is not None:
+                # the pivot turns V_R (keeping its norm): hand the controller the turned direction
                 V = pivot.step(V, cfg.distance_period)
+                nv = float(np.linalg.norm(V))
+                if nv > 1e-12 and np.isfinite(res.distance[0]):
+                    dirs[0] = V / nv
             log.wall_distance.append(time.perf_counter() - w0)
             log.t_distance.append(t)
-            latest = (t, res, V)
+            latest = (t, res, V, dirs)
         # ---------------------------------------------------------------- control stage (1 kHz)
         w0 = time.perf_counter()
         cp = kin.evaluate(q_meas)
         x = cp.centres[0]
         xdot = task.velocity(x)
-        stale = latest is None or (t - latest[0]) > ctrl.p.stale_timeout
         if latest is not None:
-            res = latest[1]
-            body = slice(1, None)
-            q_cmd, status = ctrl.step(q_meas, cp.jacobians[0], xdot, latest[2], cp.jacobians[body],
-                                      res.distance[body], res.direction[body], stale, cfg.avoid)
+            q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, np.asarray(latest[1].distance, float),
+                                              latest[3], latest[0], cfg.avoid)
         else:
-            q_cmd, status = ctrl.step(q_meas, cp.jacobians[0], xdot, None, None, None, None, True, cfg.avoid)
+            q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, None, None, -1.0, cfg.avoid)
         log.wall_control.append(time.perf_counter() - w0)
-        cell.step(q_cmd)
+        cell.step(q_cmd, qd_cmd)
         # ---------------------------------------------------------------- truth (metrics only)
         per_link, tmin, name, _ = truth.evaluate()
         log.step_true_min.append(tmin)
@@ -241,7 +242,7 @@ def run_loop(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: Distance
                 log.eval_points.append(np.full(len(kin.names), np.inf))
                 log.v_ee.append(np.zeros(3))
             log.centres.append(cp.centres.copy())
-            log.status.append(status)
+            log.status.append({k: v for k, v in status.items() if k != "xdot_c"})
             prog.update(t)
     prog.update(cfg.duration)
     log.wall_total = time.perf_counter() - t_start

@@ -52,6 +52,14 @@ try:
 except ImportError:
     _HAVE_SELFFILTER = False
 
+try:
+    from depthguard.control.cycle import AvoidanceController as _ProjectController
+    from depthguard.control.cycle import ControllerConfig, CycleInput
+
+    _HAVE_CONTROL = True
+except ImportError:
+    _HAVE_CONTROL = False
+
 
 def backends() -> dict[str, str]:
     """Which implementation each pipeline piece uses ("project" or "sim stand-in")."""
@@ -60,7 +68,8 @@ def backends() -> dict[str, str]:
         "distance": f[_HAVE_DEPTHSPACE],
         "fusion": f[_HAVE_GRID],
         "robot_model": f[_HAVE_ROBOT],
-        "self_filter": f[_HAVE_SELFFILTER],
+        "self_filter": f[_HAVE_SELFFILTER and _HAVE_ROBOT],
+        "controller": f[_HAVE_CONTROL and _HAVE_ROBOT],
     }
 
 
@@ -124,12 +133,70 @@ def self_filter(camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematic
     (inflated by ``pad`` m) through every pixel centre and marks the pixels whose measurement is at or
     behind the robot surface (minus ``pad``), or missing, where the robot is.
     """
-    if _HAVE_SELFFILTER:
-        return _robot_self_filter(camera, depth, q)
+    if _HAVE_SELFFILTER and kin._impl is None:
+        res = _robot_self_filter(camera, depth, q, kin.model)
+        return res[0], res[1]
     from depthguard.sim._standins import capsule_self_filter
 
     a, b, r = kin.capsules(q)
     return capsule_self_filter(camera, depth, a, b, r + pad, pad)
+
+
+class Controller:
+    """The 1 kHz avoidance controller: the project's (``depthguard.control``) or the sim stand-in.
+
+    Args:
+        kin: the controller's model and control points.
+        q0: (n,) initial joint positions.
+        rho, vmax, alpha: end-effector repulsion (eq. 7). rho_body, alpha_body: body constraints (eqs. 12-14).
+    """
+
+    def __init__(self, kin: Kinematics, q0: np.ndarray, rho: float, vmax: float, alpha: float,
+                 rho_body: float, alpha_body: float, dt: float = 1e-3, distance_timeout: float = 0.1) -> None:
+        self.kin = kin
+        self.n = kin.n
+        self.project = _HAVE_CONTROL and kin._impl is None
+        self.distance_timeout = distance_timeout
+        if self.project:
+            cfg = ControllerConfig(dt=dt, rho_ee=rho, alpha_ee=alpha, v_rep_max=vmax, rho_body=rho_body,
+                                   alpha_body=alpha_body, distance_timeout=distance_timeout)
+            self._c = _ProjectController(kin.points, cfg)
+        else:
+            from depthguard.sim.controller import AvoidanceController, ControlParams
+
+            self._c = AvoidanceController(kin.q_min, kin.q_max, kin.v_max, q0,
+                                          ControlParams(rho_body=rho_body, alpha_body=alpha_body,
+                                                        stale_timeout=distance_timeout), dt)
+        self.vmax, self.rho, self.alpha = vmax, rho, alpha
+
+    def step(self, t: float, q: np.ndarray, qd: np.ndarray, xdot: np.ndarray, cp: CPState,
+             distances: np.ndarray | None, directions: np.ndarray | None, t_distances: float,
+             avoid: bool = True) -> tuple[np.ndarray, dict]:
+        """One cycle. ``distances`` (N,) / ``directions`` (N, 3) from the distance stage (None = none yet);
+        with ``avoid=False`` the robot ignores them (no repulsion, no body constraints, no stale stop).
+        Returns the joint position command (n,), velocity command (n,) and a status dict."""
+        N = len(cp.radii)
+        if not avoid:
+            distances, directions, t_distances = np.full(N, np.inf), np.zeros((N, 3)), t
+        if self.project:
+            if distances is None:
+                distances, directions = np.full(N, np.nan), np.zeros((N, 3))
+            directions = np.where(np.isfinite(directions), directions, 0.0)
+            out = self._c.step(CycleInput(t, q, qd, t, xdot, distances, directions, t_distances))
+            return out.q_cmd, out.qdot_cmd, {"status": out.status.name, "scale": out.scale, "xdot_c": out.xdot_c}
+        stale = distances is None or (t - t_distances) > self.distance_timeout
+        if distances is None:
+            q_cmd, st = self._c.step(q, cp.jacobians[0], xdot, None, None, None, None, True, avoid)
+        else:
+            d0 = distances[0]
+            V = np.zeros(3)
+            if np.isfinite(d0):
+                mag = self.vmax / (1.0 + np.exp((d0 * 2.0 / self.rho - 1.0) * self.alpha))
+                V = mag * np.nan_to_num(directions[0])
+            q_cmd, st = self._c.step(q, cp.jacobians[0], xdot, V, cp.jacobians[1:], distances[1:],
+                                     directions[1:], stale, avoid)
+        st["status"] = "STOP_STALE_DISTANCES" if st.get("stale") else ("OK" if st.get("scale", 1) >= 1 else "SCALED")
+        return q_cmd, self._c.qd_cmd.copy(), st
 
 
 class DistanceStage:

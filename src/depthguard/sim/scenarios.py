@@ -208,11 +208,10 @@ def compute_metrics(log, task, cfg, backends: dict | None = None) -> dict[str, A
 
 
 def _run_one(sc: dict, *, quick: bool, avoidance: bool, cameras: int | None, progress: bool, label: str,
-             seed: int = 0):
-    from depthguard.sim.controller import AvoidanceController, ControlParams
+             seed: int = 0, demo: bool = False):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
-    from depthguard.sim.pipeline import DistanceStage
+    from depthguard.sim.pipeline import Controller, DistanceStage
 
     cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras)
     av = sc.get("avoidance", {})
@@ -220,11 +219,13 @@ def _run_one(sc: dict, *, quick: bool, avoidance: bool, cameras: int | None, pro
     stage = DistanceStage(cell.cameras, rho=float(av.get("rho", 0.4)), mode=sc.get("mode", "hybrid"),
                           alpha=float(av.get("alpha", 6.0)),
                           workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))))
-    params = ControlParams(rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
-                           alpha_body=float(av.get("alpha", 6.0)))
-    ctrl = AvoidanceController(kin.q_min, kin.q_max, kin.v_max, cell.q(), params)
+    ctrl = Controller(kin, cell.q(), rho=float(av.get("rho", 0.4)), vmax=float(av.get("vmax", 2.0)),
+                      alpha=float(av.get("alpha", 6.0)), rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
+                      alpha_body=float(av.get("alpha", 6.0)))
     task = _task(sc, ee0)
     duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
+    if demo:
+        duration = float(sc.get("demo_duration", duration))
     cfg = LoopConfig(duration=duration, avoid=avoidance, rho=float(av.get("rho", 0.4)),
                      vmax=float(av.get("vmax", 2.0)), alpha=float(av.get("alpha", 6.0)),
                      pivot=bool(av.get("pivot", False)), dv_max=float(av.get("dv_max", 0.5)),
@@ -245,6 +246,7 @@ def run_scenario(
     out_dir: str | Path | None = None,
     progress: bool = False,
     variants: bool = True,
+    demo: bool = False,
 ) -> dict[str, Any]:
     """Run a scenario; return its metrics (the object ``depthguard scenario NAME --json`` prints).
 
@@ -258,6 +260,7 @@ def run_scenario(
         progress: draw a progress bar on stderr.
         variants: also run the file's ``[[variants]]`` (e.g. without the pivot, without the person) and
             report their metrics under ``"variants"``.
+        demo: use the file's ``demo_duration`` (``make demo``).
     Returns:
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
@@ -267,7 +270,7 @@ def run_scenario(
     sc = load_scenario(name)
     t0 = time.perf_counter()
     cell, log, task, cfg = _run_one(sc, quick=quick, avoidance=avoidance, cameras=cameras, progress=progress,
-                                    label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})")
+                                    label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})", demo=demo)
     result: dict[str, Any] = {
         "scenario": sc["name"],
         "description": sc.get("description", ""),

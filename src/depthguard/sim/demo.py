@@ -1,0 +1,74 @@
+"""``make demo``: the RA-L'16 hexagon experiment in the simulated cell, avoidance on and off.
+
+Runs ``ral-hexagon`` with two Kinects twice (avoidance on, then off), with a progress bar, then prints a
+table comparing true minimum clearance, collision steps, path error, task completion and stage rates,
+and the paths of the plots and recordings.
+
+To fit in about three minutes on a 2-core machine the demo uses the scenario's quick form: depth images
+at 160x120 (the Kinect's field of view, a quarter of its resolution; ray casting a 640x480 frame costs
+about 60 ms per camera here) and ``demo_duration`` seconds of simulated time. Everything else (rates,
+noise model, controller, fusion) is as in the full scenario.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["run_demo"]
+
+
+def _fmt(v, unit: str = "", nd: int = 3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.{nd}f}{unit}"
+    return f"{v}{unit}"
+
+
+def run_demo(out_dir: str | Path | None = None) -> int:
+    """Run the demo; return 0 when the avoidance run is collision-free and the run without avoidance
+    collides (the demo shows what it claims), 1 otherwise."""
+    from depthguard.sim.scenarios import run_scenario
+
+    out = Path(out_dir) if out_dir is not None else Path("runs") / "demo"
+    t0 = time.perf_counter()
+    print("DepthGuard demo: RA-L'16 hexagon task, two simulated Kinects 4 m apart, a person carrying a box")
+    print("(depth images 160x120 for speed; 1 kHz control, 30 Hz cameras, distance stage every 3 ms)\n")
+    on = run_scenario("ral-hexagon", quick=True, avoidance=True, cameras=2, out_dir=out / "avoidance_on",
+                      progress=True, variants=False, demo=True)
+    off = run_scenario("ral-hexagon", quick=True, avoidance=False, cameras=2, out_dir=out / "avoidance_off",
+                       progress=True, variants=False, demo=True)
+    rows = [
+        ("true min clearance [m]", "min_clearance", "", 3),
+        ("collision steps (1 ms)", "collision_steps", "", 0),
+        ("time below 5 cm [s]", "time_below_margin_s", "", 2),
+        ("path error RMS [m]", "path_error", "", 3),
+        ("path error max [m]", "path_error_max", "", 3),
+        ("task completion", "task_completion", "", 2),
+        ("distance stage [Hz] median", "distance_hz_median", "", 0),
+        ("distance stage [Hz] p99", "distance_hz_p99", "", 0),
+        ("control cycle p99 [ms]", "control_ms_p99", "", 3),
+        ("frame stage median [ms]", "frame_ms_median", "", 1),
+        ("wall time [s]", "wall_seconds", "", 1),
+    ]
+    print()
+    print(f"{'':30s} {'avoidance ON':>14s} {'avoidance OFF':>14s}")
+    for label, key, unit, nd in rows:
+        print(f"{label:30s} {_fmt(on.get(key), unit, nd):>14s} {_fmt(off.get(key), unit, nd):>14s}")
+    print(f"\nbackends: {on.get('backends')}")
+    for name, res in (("avoidance ON", on), ("avoidance OFF", off)):
+        print(f"\n{name}: {res['out_dir']}")
+        for k, v in res.get("files", {}).items():
+            print(f"  {k:14s} {v}")
+    ok = on["collision_steps"] == 0 and off["collision_steps"] > 0
+    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s: "
+          + ("avoidance kept the robot clear; without it the robot hit the box."
+             if ok else "UNEXPECTED RESULT (see the metrics above)."))
+    sys.stdout.flush()
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(run_demo())
