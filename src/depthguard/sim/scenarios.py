@@ -145,7 +145,8 @@ def _task(sc: dict, ee0: np.ndarray):
         wps = np.array(t["waypoints"], float)
         if t.get("relative", False):
             wps = wps + ee0
-    return Task(kind=kind, waypoints=wps, speed=float(t.get("speed", 0.4)), tol=float(t.get("tol", 0.02)))
+    return Task(kind=kind, waypoints=wps, speed=float(t.get("speed", 0.4)), tol=float(t.get("tol", 0.02)),
+                kp=float(t.get("kp", 3.0)))
 
 
 def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
