@@ -54,8 +54,9 @@ def test_depth_is_z_along_the_optical_axis_and_opencv_axes():
     a box on the right of the scene appears on the right of the image."""
     R, t = look_at([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0])
     cam = Camera(width=64, height=48, fx=50.0, fy=50.0, cx=32.0, cy=24.0, R=R, t=t, min_depth=0.1, max_depth=10)
-    spec = CellSpec(cameras=[cam], boxes=[BoxSpec("wall", (0.0, 0.0, 1.0), (3.0, 3.0, 0.01))],
-                    q0=tuple(Q0), backdrops=False)
+    spec = CellSpec(
+        cameras=[cam], boxes=[BoxSpec("wall", (0.0, 0.0, 1.0), (3.0, 3.0, 0.01))], q0=tuple(Q0), backdrops=False
+    )
     cell = build_cell(spec)
     d = raycast_depth(cell.model, cell.data, cam, geomgroup=np.array([0, 0, 0, 1, 0, 0], np.uint8))
     np.testing.assert_allclose(d, 3.0 - 1.01, atol=1e-9)

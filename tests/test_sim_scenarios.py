@@ -90,7 +90,7 @@ def test_run_folder_has_metrics_plots_and_recording(tmp_path):
         reader = make_reader(fh)
         topics = {c.topic for c in reader.get_summary().channels.values()}
         assert {"/camera0/depth", "/joint_states", "/control_points", "/repulsion", "/clearance"} <= topics
-        for schema, channel, message in reader.iter_messages(topics=["/camera0/depth"]):
+        for schema, _channel, message in reader.iter_messages(topics=["/camera0/depth"]):
             img = json.loads(message.data)
             assert img["encoding"] == "16UC1" and img["width"] == 160 and img["height"] == 120
             assert schema.encoding == "jsonschema"

@@ -52,14 +52,20 @@ def _fill(depth: np.ndarray, robot: np.ndarray, camera: Camera, fill_radius: int
     return obs.astype(np.float32)
 
 
-def prepare_frame(camera: Camera, depth: np.ndarray, mask: np.ndarray | None = None,
-                  invalid: str = "conservative", fill_radius: int = 4) -> _Frame:
+def prepare_frame(
+    camera: Camera,
+    depth: np.ndarray,
+    mask: np.ndarray | None = None,
+    invalid: str = "conservative",
+    fill_radius: int = 4,
+) -> _Frame:
     robot = np.zeros(camera.shape, bool) if mask is None else np.asarray(mask, bool)
     return _Frame(camera, _fill(depth, robot, camera, fill_radius), camera.pixel_ray_directions())
 
 
-def query_distances(frame: _Frame, centres: np.ndarray, radii: np.ndarray, rho: float = 0.4,
-                    mode: str = "all", alpha: float = 6.0) -> PointDistances:
+def query_distances(
+    frame: _Frame, centres: np.ndarray, radii: np.ndarray, rho: float = 0.4, mode: str = "all", alpha: float = 6.0
+) -> PointDistances:
     cam = frame.camera
     c = np.atleast_2d(np.asarray(centres, float))
     r = np.broadcast_to(np.asarray(radii, float), (len(c),))
@@ -122,8 +128,9 @@ class VoxelFusion:
     in the principal camera the space behind the robot stays possibly occupied.
     """
 
-    def __init__(self, cameras: list[Camera], dd: float = 0.01,
-                 workspace: tuple[float, ...] = (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5)) -> None:
+    def __init__(
+        self, cameras: list[Camera], dd: float = 0.01, workspace: tuple[float, ...] = (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5)
+    ) -> None:
         self.cameras = list(cameras)
         self.dd = max(float(dd), 0.03)  # the stand-in keeps the grid coarse
         x0, x1, y0, y1, z0, z1 = workspace
@@ -267,8 +274,11 @@ class MjKinematics:
         self._fk(q)
         R = self.d.xmat[self.cap_bodies].reshape(-1, 3, 3)
         p = self.d.xpos[self.cap_bodies]
-        return (np.einsum("kij,kj->ki", R, self.cap_a) + p, np.einsum("kij,kj->ki", R, self.cap_b) + p,
-                self.cap_r.copy())
+        return (
+            np.einsum("kij,kj->ki", R, self.cap_a) + p,
+            np.einsum("kij,kj->ki", R, self.cap_b) + p,
+            self.cap_r.copy(),
+        )
 
 
 def capsule_depth(camera: Camera, a: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -289,8 +299,9 @@ def capsule_depth(camera: Camera, a: np.ndarray, b: np.ndarray, r: np.ndarray) -
     return out
 
 
-def capsule_self_filter(camera: Camera, depth: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray,
-                        tol: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+def capsule_self_filter(
+    camera: Camera, depth: np.ndarray, a: np.ndarray, b: np.ndarray, r: np.ndarray, tol: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
     robot_depth = capsule_depth(camera, a, b, r)
     d = np.asarray(depth, float)
     on_robot = np.isfinite(robot_depth)

@@ -5,7 +5,8 @@
 * The arm is built link by link from the robot's URDF (:mod:`depthguard.sim.robotdesc`): one body per
   link, one hinge per revolute joint, and the URDF's collision capsules as MuJoCo capsules, so the
   simulator and the controller share one geometry. Each joint has a position servo (kp, kv) fed at
-  1 kHz with the controller's joint command (position and velocity: ``kp (q_cmd - q) + kv (qd_cmd - qd)``); gravity is off (the LWR compensates it) and contacts are
+  1 kHz with the controller's joint command (position and velocity:
+  ``kp (q_cmd - q) + kv (qd_cmd - qd)``); gravity is off (the LWR compensates it) and contacts are
   disabled: collisions are measured (:mod:`depthguard.sim.truth`), not simulated.
 * World frame = robot base frame; the base stands on a table whose top is at z = 0; the floor is at
   ``floor_z`` (default -0.8 m), with walls near enough for the cameras to see them within range.
@@ -67,7 +68,9 @@ def _f(v) -> str:
 def _quat_from_matrix(Rm: np.ndarray) -> np.ndarray:
     w = math.sqrt(max(0.0, 1.0 + Rm[0, 0] + Rm[1, 1] + Rm[2, 2])) / 2.0
     if w > 1e-6:
-        return np.array([w, (Rm[2, 1] - Rm[1, 2]) / (4 * w), (Rm[0, 2] - Rm[2, 0]) / (4 * w), (Rm[1, 0] - Rm[0, 1]) / (4 * w)])
+        return np.array(
+            [w, (Rm[2, 1] - Rm[1, 2]) / (4 * w), (Rm[0, 2] - Rm[2, 0]) / (4 * w), (Rm[1, 0] - Rm[0, 1]) / (4 * w)]
+        )
     # fall back to a robust conversion
     import mujoco
 
@@ -92,11 +95,15 @@ def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str]]:
             a, b = np.asarray(c.a), np.asarray(c.b)
             kind = "capsule" if c.kind == "capsule" else "cylinder"
             if np.linalg.norm(b - a) < 1e-9:
-                out.append(f'{indent}<geom name="{link}_g{i}" type="sphere" size="{c.radius:.6g}" pos="{_f(a)}" '
-                           f'group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"/>')
+                out.append(
+                    f'{indent}<geom name="{link}_g{i}" type="sphere" size="{c.radius:.6g}" pos="{_f(a)}" '
+                    f'group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"/>'
+                )
             else:
-                out.append(f'{indent}<geom name="{link}_g{i}" type="{kind}" size="{c.radius:.6g}" '
-                           f'fromto="{_f(a)} {_f(b)}" group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"/>')
+                out.append(
+                    f'{indent}<geom name="{link}_g{i}" type="{kind}" size="{c.radius:.6g}" '
+                    f'fromto="{_f(a)} {_f(b)}" group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"/>'
+                )
         return "\n".join(out)
 
     def body(link: str, depth: int) -> str:
@@ -107,8 +114,10 @@ def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str]]:
             inner = []
             if j.type in ("revolute", "continuous"):
                 rng = f'range="{j.lower:.6g} {j.upper:.6g}" limited="true"' if j.type == "revolute" else ""
-                inner.append(f'{ind}  <joint name="{j.name}" type="hinge" axis="{_f(j.axis)}" {rng} '
-                             f'armature="{armature}" damping="0.1"/>')
+                inner.append(
+                    f'{ind}  <joint name="{j.name}" type="hinge" axis="{_f(j.axis)}" {rng} '
+                    f'armature="{armature}" damping="0.1"/>'
+                )
                 actuated.append(j.name)
             inner.append(f'{ind}  <inertial pos="0 0 0.05" mass="1.5" diaginertia="0.01 0.01 0.005"/>')
             g = geoms(j.child, ind + "  ")
@@ -119,8 +128,11 @@ def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str]]:
             sub = body(j.child, depth + 1)
             if sub:
                 inner.append(sub)
-            parts.append(f'{ind}<body name="{j.child}" pos="{_f(j.xyz)}" quat="{_f(quat)}">\n'
-                         + "\n".join(inner) + f"\n{ind}</body>")
+            parts.append(
+                f'{ind}<body name="{j.child}" pos="{_f(j.xyz)}" quat="{_f(quat)}">\n'
+                + "\n".join(inner)
+                + f"\n{ind}</body>"
+            )
         return "\n".join(parts)
 
     xml = f'    <body name="{desc.root}" pos="0 0 0">\n{geoms(desc.root, "      ")}\n{body(desc.root, 1)}\n    </body>'
@@ -131,8 +143,7 @@ def mujoco_camera_xml(name: str, cam: Camera) -> str:
     """A MuJoCo camera (looks along -z, y up) matching a depthguard camera (OpenCV axes)."""
     x_cv, y_cv = cam.R[0], cam.R[1]
     fovy = math.degrees(2 * math.atan(cam.height / 2.0 / cam.fy))
-    return (f'    <camera name="{name}" pos="{_f(cam.position)}" xyaxes="{_f(x_cv)} {_f(-y_cv)}" '
-            f'fovy="{fovy:.8g}"/>')
+    return f'    <camera name="{name}" pos="{_f(cam.position)}" xyaxes="{_f(x_cv)} {_f(-y_cv)}" fovy="{fovy:.8g}"/>'
 
 
 def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
@@ -151,7 +162,8 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
         "  <worldbody>",
         '    <light pos="0 0 3" dir="0 0 -1" directional="true"/>',
         f'    <geom name="floor" type="plane" pos="0 0 {fz}" size="5 5 0.1" group="{GROUP_ENV}" rgba="0.5 0.5 0.5 1"/>',
-        f'    <geom name="table" type="box" pos="0 0 {fz / 2:.6g}" size="{spec.table_half[0]} {spec.table_half[1]} {-fz / 2:.6g}" '
+        f'    <geom name="table" type="box" pos="0 0 {fz / 2:.6g}" '
+        f'size="{spec.table_half[0]} {spec.table_half[1]} {-fz / 2:.6g}" '
         f'group="{GROUP_ENV}" rgba="0.6 0.6 0.65 1"/>',
     ]
     wall_h = 1.5
@@ -161,8 +173,10 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
         ("wall_ymin", (0.5 * (xmin + xmax), ymin - 0.05, fz + wall_h), (0.5 * (xmax - xmin) + 0.1, 0.05, wall_h)),
         ("wall_ymax", (0.5 * (xmin + xmax), ymax + 0.05, fz + wall_h), (0.5 * (xmax - xmin) + 0.1, 0.05, wall_h)),
     ):
-        lines.append(f'    <geom name="{name}" type="box" pos="{_f(pos)}" size="{_f(size)}" group="{GROUP_ENV}" '
-                     'rgba="0.85 0.85 0.8 1"/>')
+        lines.append(
+            f'    <geom name="{name}" type="box" pos="{_f(pos)}" size="{_f(size)}" group="{GROUP_ENV}" '
+            'rgba="0.85 0.85 0.8 1"/>'
+        )
     if spec.backdrops:
         # a screen behind the robot for each camera, so that the background stays within the sensor range
         for k, cam in enumerate(spec.cameras):
@@ -172,11 +186,13 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
             c = h * spec.backdrop_distance
             yaw = math.atan2(h[1], h[0])
             quat = (math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2))
-            lines.append(f'    <geom name="wall_screen{k}" type="box" pos="{_f((c[0], c[1], fz + 1.3))}" '
-                         f'quat="{_f(quat)}" size="0.03 2.2 1.3" group="{GROUP_ENV}" rgba="0.8 0.8 0.75 1"/>')
+            lines.append(
+                f'    <geom name="wall_screen{k}" type="box" pos="{_f((c[0], c[1], fz + 1.3))}" '
+                f'quat="{_f(quat)}" size="0.03 2.2 1.3" group="{GROUP_ENV}" rgba="0.8 0.8 0.75 1"/>'
+            )
     lines.append(robot)
     for b in spec.boxes:
-        geom = (f'<geom name="{b.name}" type="box" size="{_f(b.half)}" group="{GROUP_BOX}" rgba="{_f(b.rgba)}"/>')
+        geom = f'<geom name="{b.name}" type="box" size="{_f(b.half)}" group="{GROUP_BOX}" rgba="{_f(b.rgba)}"/>'
         if b.movable:
             lines.append(f'    <body name="{b.name}_body" mocap="true" pos="{_f(b.center)}">{geom}</body>')
         else:
@@ -190,19 +206,25 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
             if half < 1e-6:
                 g = f'<geom name="{nm}" type="sphere" size="{r}" group="{GROUP_PEOPLE}" rgba="0.3 0.5 0.9 1"/>'
             else:
-                g = (f'<geom name="{nm}" type="capsule" size="{r} {half:.6g}" group="{GROUP_PEOPLE}" '
-                     'rgba="0.3 0.5 0.9 1"/>')
+                g = (
+                    f'<geom name="{nm}" type="capsule" size="{r} {half:.6g}" group="{GROUP_PEOPLE}" '
+                    'rgba="0.3 0.5 0.9 1"/>'
+                )
             lines.append(f'    <body name="{nm}_body" mocap="true" pos="0 0 -5">{g}</body>')
     for i, cam in enumerate(spec.cameras):
         lines.append(mujoco_camera_xml(f"depthcam{i}", cam))
     lines.append("  </worldbody>")
     lines.append("  <actuator>")
     for jn in actuated:  # position servo: kp (q_cmd - q)
-        lines.append(f'    <general name="{jn}_pos" joint="{jn}" gainprm="{spec.kp}" biastype="affine" '
-                     f'biasprm="0 {-spec.kp} 0"/>')
+        lines.append(
+            f'    <general name="{jn}_pos" joint="{jn}" gainprm="{spec.kp}" biastype="affine" '
+            f'biasprm="0 {-spec.kp} 0"/>'
+        )
     for jn in actuated:  # velocity servo: kv (qdot_cmd - qdot)
-        lines.append(f'    <general name="{jn}_vel" joint="{jn}" gainprm="{spec.kv}" biastype="affine" '
-                     f'biasprm="0 0 {-spec.kv}"/>')
+        lines.append(
+            f'    <general name="{jn}_vel" joint="{jn}" gainprm="{spec.kv}" biastype="affine" '
+            f'biasprm="0 0 {-spec.kv}"/>'
+        )
     lines.append("  </actuator>")
     lines.append("</mujoco>")
     return "\n".join(lines), actuated
@@ -247,7 +269,9 @@ class Cell:
         self.ee_site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "ee")
         groups = m.geom_group
         self.robot_geoms = np.flatnonzero(groups == GROUP_ROBOT)
-        self.robot_geom_body = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, m.geom_bodyid[g]) for g in self.robot_geoms]
+        self.robot_geom_body = [
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, m.geom_bodyid[g]) for g in self.robot_geoms
+        ]
         names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}" for g in range(m.ngeom)]
         self.geom_names = names
         self.obstacle_geoms = np.array(

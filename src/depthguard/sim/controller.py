@@ -42,8 +42,9 @@ def _pinv(A: np.ndarray, damping: float) -> np.ndarray:
     return A.T @ np.linalg.inv(A @ A.T + damping * np.eye(A.shape[0]))
 
 
-def sns(J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 1e-3
-        ) -> tuple[np.ndarray, float]:
+def sns(
+    J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 1e-3
+) -> tuple[np.ndarray, float]:
     """Saturation in the Null Space, velocity level (Flacco, De Luca, Khatib, ICRA'12, Alg. 1-2).
 
     Returns ``(qdot (n,), scale)`` with ``qmin <= qdot <= qmax`` and ``J qdot ~ scale xdot``.
@@ -102,8 +103,15 @@ class AvoidanceController:
         dt: control period, s (0.001).
     """
 
-    def __init__(self, q_min: np.ndarray, q_max: np.ndarray, v_max: np.ndarray, q0: np.ndarray,
-                 params: ControlParams | None = None, dt: float = 1e-3) -> None:
+    def __init__(
+        self,
+        q_min: np.ndarray,
+        q_max: np.ndarray,
+        v_max: np.ndarray,
+        q0: np.ndarray,
+        params: ControlParams | None = None,
+        dt: float = 1e-3,
+    ) -> None:
         self.p = params or ControlParams()
         self.q_min, self.q_max = np.asarray(q_min, float), np.asarray(q_max, float)
         self.v_max = np.asarray(v_max, float) * self.p.vel_scale
@@ -126,8 +134,14 @@ class AvoidanceController:
         except ImportError:  # pragma: no cover
             self._otg = None
 
-    def bounds(self, q: np.ndarray, body_J: np.ndarray | None, body_d: np.ndarray | None,
-               body_dir: np.ndarray | None, avoid: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    def bounds(
+        self,
+        q: np.ndarray,
+        body_J: np.ndarray | None,
+        body_d: np.ndarray | None,
+        body_dir: np.ndarray | None,
+        avoid: bool,
+    ) -> tuple[np.ndarray, np.ndarray, float]:
         """Joint-velocity bounds (eqs. 12-14 and position limits). Returns (qmin, qmax, max risk)."""
         vmax = self.v_max
         qmin, qmax = -vmax.copy(), vmax.copy()
@@ -170,9 +184,18 @@ class AvoidanceController:
         P = np.eye(self.n) - _pinv(J_ee, self.p.damping) @ J_ee
         return P @ q0
 
-    def step(self, q: np.ndarray, J_ee: np.ndarray, xdot_task: np.ndarray, V_ee: np.ndarray | None,
-             body_J: np.ndarray | None, body_d: np.ndarray | None, body_dir: np.ndarray | None,
-             stale: bool, avoid: bool = True) -> tuple[np.ndarray, dict]:
+    def step(
+        self,
+        q: np.ndarray,
+        J_ee: np.ndarray,
+        xdot_task: np.ndarray,
+        V_ee: np.ndarray | None,
+        body_J: np.ndarray | None,
+        body_d: np.ndarray | None,
+        body_dir: np.ndarray | None,
+        stale: bool,
+        avoid: bool = True,
+    ) -> tuple[np.ndarray, dict]:
         """One control cycle. Returns the joint position command (n,) and a status dict.
 
         Args:

@@ -36,10 +36,26 @@ def run_demo(out_dir: str | Path | None = None) -> int:
     t0 = time.perf_counter()
     print("DepthGuard demo: RA-L'16 hexagon task, two simulated Kinects 4 m apart, a person carrying a box")
     print("(depth images 160x120 for speed; 1 kHz control, 30 Hz cameras, distance stage every 3 ms)\n")
-    on = run_scenario("ral-hexagon", quick=True, avoidance=True, cameras=2, out_dir=out / "avoidance_on",
-                      progress=True, variants=False, demo=True)
-    off = run_scenario("ral-hexagon", quick=True, avoidance=False, cameras=2, out_dir=out / "avoidance_off",
-                       progress=True, variants=False, demo=True)
+    on = run_scenario(
+        "ral-hexagon",
+        quick=True,
+        avoidance=True,
+        cameras=2,
+        out_dir=out / "avoidance_on",
+        progress=True,
+        variants=False,
+        demo=True,
+    )
+    off = run_scenario(
+        "ral-hexagon",
+        quick=True,
+        avoidance=False,
+        cameras=2,
+        out_dir=out / "avoidance_off",
+        progress=True,
+        variants=False,
+        demo=True,
+    )
     rows = [
         ("true min clearance [m]", "min_clearance", "", 3),
         ("collision steps (1 ms)", "collision_steps", "", 0),
@@ -63,9 +79,14 @@ def run_demo(out_dir: str | Path | None = None) -> int:
         for k, v in res.get("files", {}).items():
             print(f"  {k:14s} {v}")
     ok = on["collision_steps"] == 0 and off["collision_steps"] > 0
-    print(f"\ndemo finished in {time.perf_counter() - t0:.0f} s: "
-          + ("avoidance kept the robot clear; without it the robot hit the box."
-             if ok else "UNEXPECTED RESULT (see the metrics above)."))
+    print(
+        f"\ndemo finished in {time.perf_counter() - t0:.0f} s: "
+        + (
+            "avoidance kept the robot clear; without it the robot hit the box."
+            if ok
+            else "UNEXPECTED RESULT (see the metrics above)."
+        )
+    )
     sys.stdout.flush()
     return 0 if ok else 1
 

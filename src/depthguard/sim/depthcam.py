@@ -48,13 +48,27 @@ def kinect_camera(
     fx = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
     R, t = look_at(np.asarray(eye, float), np.asarray(target, float), np.asarray(up, float))
     return Camera(
-        width=width, height=height, fx=fx, fy=fx, cx=width / 2.0, cy=height / 2.0, R=R, t=t,
-        min_depth=0.5, max_depth=4.5,
+        width=width,
+        height=height,
+        fx=fx,
+        fy=fx,
+        cx=width / 2.0,
+        cy=height / 2.0,
+        R=R,
+        t=t,
+        min_depth=0.5,
+        max_depth=4.5,
     )
 
 
-def raycast_depth(model, data, camera: Camera, geomgroup: np.ndarray | None = None,
-                  bodyexclude: int = -1, rays: np.ndarray | None = None) -> np.ndarray:
+def raycast_depth(
+    model,
+    data,
+    camera: Camera,
+    geomgroup: np.ndarray | None = None,
+    bodyexclude: int = -1,
+    rays: np.ndarray | None = None,
+) -> np.ndarray:
     """Exact depth ``z_C`` (H, W) float64 by ``mj_multiRay``, NaN where nothing is hit.
 
     Args:
@@ -69,8 +83,9 @@ def raycast_depth(model, data, camera: Camera, geomgroup: np.ndarray | None = No
     geomid = np.empty(n, np.int32)
     dist = np.empty(n, np.float64)
     gg = None if geomgroup is None else np.asarray(geomgroup, np.uint8)
-    mujoco.mj_multiRay(model, data, np.asarray(camera.position, float), rays, gg, True, bodyexclude,
-                       geomid, dist, None, n, 1e3)
+    mujoco.mj_multiRay(
+        model, data, np.asarray(camera.position, float), rays, gg, True, bodyexclude, geomid, dist, None, n, 1e3
+    )
     dist[geomid < 0] = np.nan
     return dist.reshape(camera.height, camera.width)
 

@@ -147,8 +147,16 @@ class _Progress:
             sys.stderr.write("\n")
 
 
-def run_loop(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: DistanceStage,
-             ctrl: Controller, task: Task, cfg: LoopConfig, record_frames_every: int = 3) -> SimLog:
+def run_loop(
+    cell: Cell,
+    cams: list[KinectSim],
+    kin: Kinematics,
+    stage: DistanceStage,
+    ctrl: Controller,
+    task: Task,
+    cfg: LoopConfig,
+    record_frames_every: int = 3,
+) -> SimLog:
     """Run the cell for ``cfg.duration`` s of simulated time. Returns the :class:`SimLog`."""
     from depthguard.repulsion import repulsive_vectors
 
@@ -211,8 +219,9 @@ def run_loop(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: Distance
         x = cp.centres[0]
         xdot = task.velocity(x)
         if latest is not None:
-            q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, np.asarray(latest[1].distance, float),
-                                              latest[3], latest[0], cfg.avoid)
+            q_cmd, qd_cmd, status = ctrl.step(
+                t, q_meas, cell.qd(), xdot, cp, np.asarray(latest[1].distance, float), latest[3], latest[0], cfg.avoid
+            )
         else:
             q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, None, None, -1.0, cfg.avoid)
         log.wall_control.append(time.perf_counter() - w0)

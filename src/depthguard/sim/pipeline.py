@@ -125,8 +125,9 @@ class Kinematics:
         return self.model.link_capsules(q)
 
 
-def self_filter(camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics,
-                pad: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+def self_filter(
+    camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics, pad: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
     """Robot pixels of a depth image from the controller's model: ``(mask (H, W) bool, robot_depth (H, W))``.
 
     Uses the robot package's self-filter when installed; otherwise ray casts the model's capsules
@@ -151,27 +152,58 @@ class Controller:
         rho, vmax, alpha: end-effector repulsion (eq. 7). rho_body, alpha_body: body constraints (eqs. 12-14).
     """
 
-    def __init__(self, kin: Kinematics, q0: np.ndarray, rho: float, vmax: float, alpha: float,
-                 rho_body: float, alpha_body: float, dt: float = 1e-3, distance_timeout: float = 0.1) -> None:
+    def __init__(
+        self,
+        kin: Kinematics,
+        q0: np.ndarray,
+        rho: float,
+        vmax: float,
+        alpha: float,
+        rho_body: float,
+        alpha_body: float,
+        dt: float = 1e-3,
+        distance_timeout: float = 0.1,
+    ) -> None:
         self.kin = kin
         self.n = kin.n
         self.project = _HAVE_CONTROL and kin._impl is None
         self.distance_timeout = distance_timeout
         if self.project:
-            cfg = ControllerConfig(dt=dt, rho_ee=rho, alpha_ee=alpha, v_rep_max=vmax, rho_body=rho_body,
-                                   alpha_body=alpha_body, distance_timeout=distance_timeout)
+            cfg = ControllerConfig(
+                dt=dt,
+                rho_ee=rho,
+                alpha_ee=alpha,
+                v_rep_max=vmax,
+                rho_body=rho_body,
+                alpha_body=alpha_body,
+                distance_timeout=distance_timeout,
+            )
             self._c = _ProjectController(kin.points, cfg)
         else:
             from depthguard.sim.controller import AvoidanceController, ControlParams
 
-            self._c = AvoidanceController(kin.q_min, kin.q_max, kin.v_max, q0,
-                                          ControlParams(rho_body=rho_body, alpha_body=alpha_body,
-                                                        stale_timeout=distance_timeout), dt)
+            self._c = AvoidanceController(
+                kin.q_min,
+                kin.q_max,
+                kin.v_max,
+                q0,
+                ControlParams(rho_body=rho_body, alpha_body=alpha_body, stale_timeout=distance_timeout),
+                dt,
+            )
         self.vmax, self.rho, self.alpha = vmax, rho, alpha
 
-    def step(self, t: float, q: np.ndarray, qd: np.ndarray, xdot: np.ndarray, cp: CPState,
-             distances: np.ndarray | None, directions: np.ndarray | None, t_distances: float,
-             avoid: bool = True) -> tuple[np.ndarray, dict]:
+    def step(
+        self,
+        t: float,
+        q: np.ndarray,
+        qd: np.ndarray,
+        xdot: np.ndarray,
+        cp: CPState,
+        distances: np.ndarray | None,
+        directions: np.ndarray | None,
+        t_distances: float,
+        avoid: bool = True,
+    ) -> tuple[np.ndarray, dict]:
         """One cycle. ``distances`` (N,) / ``directions`` (N, 3) from the distance stage (None = none yet);
         with ``avoid=False`` the robot ignores them (no repulsion, no body constraints, no stale stop).
         Returns the joint position command (n,), velocity command (n,) and a status dict."""
@@ -193,8 +225,9 @@ class Controller:
             if np.isfinite(d0):
                 mag = self.vmax / (1.0 + np.exp((d0 * 2.0 / self.rho - 1.0) * self.alpha))
                 V = mag * np.nan_to_num(directions[0])
-            q_cmd, st = self._c.step(q, cp.jacobians[0], xdot, V, cp.jacobians[1:], distances[1:],
-                                     directions[1:], stale, avoid)
+            q_cmd, st = self._c.step(
+                q, cp.jacobians[0], xdot, V, cp.jacobians[1:], distances[1:], directions[1:], stale, avoid
+            )
         st["status"] = "STOP_STALE_DISTANCES" if st.get("stale") else ("OK" if st.get("scale", 1) >= 1 else "SCALED")
         return q_cmd, self._c.qd_cmd.copy(), st
 
@@ -211,8 +244,15 @@ class DistanceStage:
         workspace: (xmin, xmax, ymin, ymax, zmin, zmax) m, for fusion.
     """
 
-    def __init__(self, cameras: list[Camera], rho: float, mode: str = "hybrid", alpha: float = 6.0,
-                 workspace: tuple[float, ...] = (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5), dd: float = 0.01) -> None:
+    def __init__(
+        self,
+        cameras: list[Camera],
+        rho: float,
+        mode: str = "hybrid",
+        alpha: float = 6.0,
+        workspace: tuple[float, ...] = (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5),
+        dd: float = 0.01,
+    ) -> None:
         self.cameras = list(cameras)
         self.rho, self.mode, self.alpha = float(rho), mode, float(alpha)
         self.frames = None

@@ -75,8 +75,7 @@ def record_run(path: str | Path, cell, log) -> Path:
         w.start(profile="", library="depthguard")
 
         def channel(topic: str, schema: dict) -> int:
-            sid = w.register_schema(name=schema["title"], encoding="jsonschema",
-                                    data=json.dumps(schema).encode())
+            sid = w.register_schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
             return w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
 
         def put(ch: int, t: float, msg: dict) -> None:
@@ -86,31 +85,72 @@ def record_run(path: str | Path, cell, log) -> Path:
         for k, cam in enumerate(cell.cameras):
             ch = channel(f"/camera{k}/calibration", _CALIB)
             K = [cam.fx, 0, cam.cx, 0, cam.fy, cam.cy, 0, 0, 1]
-            put(ch, 0.0, {"timestamp": _ts(0.0), "frame_id": f"camera{k}", "width": cam.width, "height": cam.height,
-                          "distortion_model": "plumb_bob", "D": [0.0] * 5, "K": K, "R": cam.R.ravel().tolist(),
-                          "P": [cam.fx, 0, cam.cx, 0, 0, cam.fy, cam.cy, 0, 0, 0, 1, 0]})
+            put(
+                ch,
+                0.0,
+                {
+                    "timestamp": _ts(0.0),
+                    "frame_id": f"camera{k}",
+                    "width": cam.width,
+                    "height": cam.height,
+                    "distortion_model": "plumb_bob",
+                    "D": [0.0] * 5,
+                    "K": K,
+                    "R": cam.R.ravel().tolist(),
+                    "P": [cam.fx, 0, cam.cx, 0, 0, cam.fy, cam.cy, 0, 0, 0, 1, 0],
+                },
+            )
         img_ch = [channel(f"/camera{k}/depth", _RAW_IMAGE) for k in range(len(cell.cameras))]
         for t, depths, _masks in log.frames:
             for k, d in enumerate(depths):
                 mm = np.nan_to_num(np.asarray(d, float) * 1000.0, nan=0.0)
                 mm = np.clip(np.round(mm), 0, 65535).astype("<u2")
-                put(img_ch[k], t, {"timestamp": _ts(t), "frame_id": f"camera{k}", "width": int(d.shape[1]),
-                                   "height": int(d.shape[0]), "encoding": "16UC1", "step": int(d.shape[1]) * 2,
-                                   "data": base64.b64encode(mm.tobytes()).decode()})
-        js = channel("/joint_states", _plain("depthguard.JointState", {"t": {"type": "number"},
-                                                                       "name": {"type": "array"},
-                                                                       "position": {"type": "array"}}))
-        cp = channel("/control_points", _plain("depthguard.ControlPoints", {"names": {"type": "array"},
-                                                                             "centres": {"type": "array"},
-                                                                             "distance": {"type": "array"}}))
+                put(
+                    img_ch[k],
+                    t,
+                    {
+                        "timestamp": _ts(t),
+                        "frame_id": f"camera{k}",
+                        "width": int(d.shape[1]),
+                        "height": int(d.shape[0]),
+                        "encoding": "16UC1",
+                        "step": int(d.shape[1]) * 2,
+                        "data": base64.b64encode(mm.tobytes()).decode(),
+                    },
+                )
+        js = channel(
+            "/joint_states",
+            _plain(
+                "depthguard.JointState",
+                {"t": {"type": "number"}, "name": {"type": "array"}, "position": {"type": "array"}},
+            ),
+        )
+        cp = channel(
+            "/control_points",
+            _plain(
+                "depthguard.ControlPoints",
+                {"names": {"type": "array"}, "centres": {"type": "array"}, "distance": {"type": "array"}},
+            ),
+        )
         rep = channel("/repulsion", _plain("depthguard.Repulsion", {"v_ee": {"type": "array"}}))
-        clr = channel("/clearance", _plain("depthguard.Clearance", {"evaluated_min": {"type": ["number", "null"]},
-                                                                     "true_min": {"type": "number"}}))
+        clr = channel(
+            "/clearance",
+            _plain(
+                "depthguard.Clearance", {"evaluated_min": {"type": ["number", "null"]}, "true_min": {"type": "number"}}
+            ),
+        )
         names = list(cell.joint_names)
         for i, t in enumerate(log.t):
             put(js, t, {"t": t, "name": names, "position": _num(log.q[i])})
-            put(cp, t, {"names": list(log.point_names), "centres": np.asarray(log.centres[i]).round(5).tolist(),
-                        "distance": _num(log.eval_points[i])})
+            put(
+                cp,
+                t,
+                {
+                    "names": list(log.point_names),
+                    "centres": np.asarray(log.centres[i]).round(5).tolist(),
+                    "distance": _num(log.eval_points[i]),
+                },
+            )
             put(rep, t, {"v_ee": _num(log.v_ee[i])})
             put(clr, t, {"evaluated_min": _num([log.eval_min[i]])[0], "true_min": float(log.true_min[i])})
         w.finish()

@@ -135,8 +135,10 @@ def parse_urdf(text: str, source: str = "<string>", ee_link: str | None = None) 
                 b = xyz + rot[:, 2] * half
                 cyl.append((a, b, float(cy.get("radius"))))
         spheres = [
-            (np.array(_vec((c.find("origin").get("xyz") if c.find("origin") is not None else None))),
-             float(c.find("geometry/sphere").get("radius")))
+            (
+                np.array(_vec(c.find("origin").get("xyz") if c.find("origin") is not None else None)),
+                float(c.find("geometry/sphere").get("radius")),
+            )
             for c in lk.findall("collision")
             if c.find("geometry/sphere") is not None
         ]

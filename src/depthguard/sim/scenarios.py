@@ -102,9 +102,15 @@ def _build(sc: dict, *, quick: bool, cameras: int | None):
     people = []
     for p in sc.get("people", []):
         kfs = [
-            Keyframe(t=float(k["t"]), base=tuple(k["base"]), yaw=float(k.get("yaw", 0.0)),
-                     left_hand=hand(k, "left"), right_hand=hand(k, "right"), carry=k.get("carry"),
-                     carry_hand=k.get("carry_hand", "right"))
+            Keyframe(
+                t=float(k["t"]),
+                base=tuple(k["base"]),
+                yaw=float(k.get("yaw", 0.0)),
+                left_hand=hand(k, "left"),
+                right_hand=hand(k, "right"),
+                carry=k.get("carry"),
+                carry_hand=k.get("carry_hand", "right"),
+            )
             for k in p["keyframes"]
         ]
         people.append(PersonScript(p["name"], kfs, floor_z=floor_z))
@@ -145,8 +151,13 @@ def _task(sc: dict, ee0: np.ndarray):
         wps = np.array(t["waypoints"], float)
         if t.get("relative", False):
             wps = wps + ee0
-    return Task(kind=kind, waypoints=wps, speed=float(t.get("speed", 0.4)), tol=float(t.get("tol", 0.02)),
-                kp=float(t.get("kp", 3.0)))
+    return Task(
+        kind=kind,
+        waypoints=wps,
+        speed=float(t.get("speed", 0.4)),
+        tol=float(t.get("tol", 0.02)),
+        kp=float(t.get("kp", 3.0)),
+    )
 
 
 def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
@@ -208,8 +219,17 @@ def compute_metrics(log, task, cfg, backends: dict | None = None) -> dict[str, A
     return out
 
 
-def _run_one(sc: dict, *, quick: bool, avoidance: bool, cameras: int | None, progress: bool, label: str,
-             seed: int = 0, demo: bool = False):
+def _run_one(
+    sc: dict,
+    *,
+    quick: bool,
+    avoidance: bool,
+    cameras: int | None,
+    progress: bool,
+    label: str,
+    seed: int = 0,
+    demo: bool = False,
+):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
     from depthguard.sim.pipeline import Controller, DistanceStage
@@ -217,21 +237,39 @@ def _run_one(sc: dict, *, quick: bool, avoidance: bool, cameras: int | None, pro
     cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras)
     av = sc.get("avoidance", {})
     cams = [KinectSim(cell.model, c, i, seed=seed + i) for i, c in enumerate(cell.cameras)]
-    stage = DistanceStage(cell.cameras, rho=float(av.get("rho", 0.4)), mode=sc.get("mode", "hybrid"),
-                          alpha=float(av.get("alpha", 6.0)),
-                          workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))))
-    ctrl = Controller(kin, cell.q(), rho=float(av.get("rho", 0.4)), vmax=float(av.get("vmax", 2.0)),
-                      alpha=float(av.get("alpha", 6.0)), rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
-                      alpha_body=float(av.get("alpha", 6.0)))
+    stage = DistanceStage(
+        cell.cameras,
+        rho=float(av.get("rho", 0.4)),
+        mode=sc.get("mode", "hybrid"),
+        alpha=float(av.get("alpha", 6.0)),
+        workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
+    )
+    ctrl = Controller(
+        kin,
+        cell.q(),
+        rho=float(av.get("rho", 0.4)),
+        vmax=float(av.get("vmax", 2.0)),
+        alpha=float(av.get("alpha", 6.0)),
+        rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
+        alpha_body=float(av.get("alpha", 6.0)),
+    )
     task = _task(sc, ee0)
     duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
     if demo:
         duration = float(sc.get("demo_duration", duration))
-    cfg = LoopConfig(duration=duration, avoid=avoidance, rho=float(av.get("rho", 0.4)),
-                     vmax=float(av.get("vmax", 2.0)), alpha=float(av.get("alpha", 6.0)),
-                     pivot=bool(av.get("pivot", False)), dv_max=float(av.get("dv_max", 0.5)),
-                     pivot_c=float(av.get("c", 5.0)), progress=progress, label=label,
-                     distance_period=float(sc.get("distance_period", 0.003)))
+    cfg = LoopConfig(
+        duration=duration,
+        avoid=avoidance,
+        rho=float(av.get("rho", 0.4)),
+        vmax=float(av.get("vmax", 2.0)),
+        alpha=float(av.get("alpha", 6.0)),
+        pivot=bool(av.get("pivot", False)),
+        dv_max=float(av.get("dv_max", 0.5)),
+        pivot_c=float(av.get("c", 5.0)),
+        progress=progress,
+        label=label,
+        distance_period=float(sc.get("distance_period", 0.003)),
+    )
     log = run_loop(cell, cams, kin, stage, ctrl, task, cfg)
     for c in cams:
         c.close()
@@ -270,8 +308,15 @@ def run_scenario(
 
     sc = load_scenario(name)
     t0 = time.perf_counter()
-    cell, log, task, cfg = _run_one(sc, quick=quick, avoidance=avoidance, cameras=cameras, progress=progress,
-                                    label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})", demo=demo)
+    cell, log, task, cfg = _run_one(
+        sc,
+        quick=quick,
+        avoidance=avoidance,
+        cameras=cameras,
+        progress=progress,
+        label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})",
+        demo=demo,
+    )
     result: dict[str, Any] = {
         "scenario": sc["name"],
         "description": sc.get("description", ""),
@@ -294,8 +339,14 @@ def run_scenario(
                 sv["people"] = []
             if v.get("remove_boxes"):
                 sv["boxes"] = []
-            _, vlog, vtask, vcfg = _run_one(sv, quick=quick, avoidance=avoidance, cameras=cameras,
-                                            progress=progress, label=f"{sc['name']} [{v['name']}]")
+            _, vlog, vtask, vcfg = _run_one(
+                sv,
+                quick=quick,
+                avoidance=avoidance,
+                cameras=cameras,
+                progress=progress,
+                label=f"{sc['name']} [{v['name']}]",
+            )
             result["variants"][v["name"]] = compute_metrics(vlog, vtask, vcfg)
             runs[v["name"]] = (vlog, vtask)
     result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)

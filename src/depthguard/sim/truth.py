@@ -37,8 +37,9 @@ class TrueClearance:
         self._fromto = np.zeros(6)
         # the first moving link sits on the table by construction: not a collision
         first = cell.desc.actuated[0].child if cell.desc.actuated else ""
-        self.skip = np.array([[self.links[li] == first and nm == "table" for nm in self.obst_names]
-                              for li in self.link_of], bool).reshape(len(self.robot), len(self.obst))
+        self.skip = np.array(
+            [[self.links[li] == first and nm == "table" for nm in self.obst_names] for li in self.link_of], bool
+        ).reshape(len(self.robot), len(self.obst))
 
     def evaluate(self) -> tuple[np.ndarray, float, str, np.ndarray]:
         """Per-link clearance (L,) m, overall minimum, the nearest obstacle's name, nearest segment (6,).

@@ -45,8 +45,18 @@ def plot_run(out_dir: str | Path, runs: dict, title: str) -> dict[str, str]:
                 ax.plot(path[:, i], path[:, j], "k--", lw=1, label="nominal path")
                 xd = np.asarray(log.xdot_cmd)
                 step = max(1, len(ee) // 60)
-                ax.quiver(ee[::step, i], ee[::step, j], xd[::step, i], xd[::step, j], color="tab:green",
-                          angles="xy", scale_units="xy", scale=4.0, width=0.003, label="commanded velocity")
+                ax.quiver(
+                    ee[::step, i],
+                    ee[::step, j],
+                    xd[::step, i],
+                    xd[::step, j],
+                    color="tab:green",
+                    angles="xy",
+                    scale_units="xy",
+                    scale=4.0,
+                    width=0.003,
+                    label="commanded velocity",
+                )
             ax.set_title(lab)
             ax.set_aspect("equal", adjustable="datalim")
             ax.grid(True, alpha=0.3)
@@ -68,10 +78,20 @@ def plot_run(out_dir: str | Path, runs: dict, title: str) -> dict[str, str]:
     fig, ax = plt.subplots(figsize=(10, 4))
     ev = np.asarray(log.eval_points, float)
     for k in range(ev.shape[1]):
-        ax.plot(t, np.where(np.isfinite(ev[:, k]), ev[:, k], np.nan), lw=0.6, alpha=0.5,
-                color="tab:green" if k else "tab:blue")
-    ax.plot(t, np.where(np.isfinite(log.eval_min), log.eval_min, np.nan), color="tab:blue", lw=1.5,
-            label="evaluated minimum distance (sphere surfaces; thin: each control point, blue = end effector)")
+        ax.plot(
+            t,
+            np.where(np.isfinite(ev[:, k]), ev[:, k], np.nan),
+            lw=0.6,
+            alpha=0.5,
+            color="tab:green" if k else "tab:blue",
+        )
+    ax.plot(
+        t,
+        np.where(np.isfinite(log.eval_min), log.eval_min, np.nan),
+        color="tab:blue",
+        lw=1.5,
+        label="evaluated minimum distance (sphere surfaces; thin: each control point, blue = end effector)",
+    )
     ax.plot(t, np.asarray(log.true_min), color="k", lw=1.5, label="true minimum clearance (mj_geomDistance)")
     ax.axhline(0.0, color="tab:red", lw=1)
     ax.axhline(0.05, color="tab:red", lw=0.7, ls="--", label="5 cm margin")
