@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("mujoco")
 
 from depthguard.sim.cell import GROUP_ROBOT, CellSpec, build_cell  # noqa: E402
-from depthguard.sim.depthcam import KinectSim, egl_available, placement, raycast_depth  # noqa: E402
+from depthguard.sim.depthcam import KinectSim, placement, raycast_depth  # noqa: E402
 from depthguard.sim.people import Keyframe, PersonScript  # noqa: E402
 
 Q0 = (0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0)
@@ -22,27 +22,64 @@ def _cell(width=160, height=120):
     return build_cell(CellSpec(cameras=cams, people=[person], q0=Q0, room=(-1.1, 2.0, -1.1, 2.0)))
 
 
-@pytest.mark.skipif(not os.environ.get("MUJOCO_GL"), reason="set MUJOCO_GL=egl (or osmesa) for the renderer path")
+_RENDER_CHECK = r"""
+import json, sys
+import numpy as np
+from depthguard.sim.depthcam import KinectSim, egl_available
+sys.path.insert(0, sys.argv[1])
+from test_sim_depthcam import _cell
+if not egl_available():
+    print(json.dumps({"skip": True}))
+    sys.exit(0)
+cell = _cell()
+out = []
+for i, cam in enumerate(cell.cameras):
+    ray = KinectSim(cell.model, cam, i, backend="raycast").exact_depth(cell.data)
+    ren = KinectSim(cell.model, cam, i, backend="render")
+    gl = ren.exact_depth(cell.data)
+    ren.close()
+    both = np.isfinite(ray) & np.isfinite(gl)
+    diff = np.abs(ray[both] - gl[both])
+    a = KinectSim(cell.model, cam, i, seed=5).sensor_effects(ray)
+    b = KinectSim(cell.model, cam, i, seed=5).sensor_effects(gl)
+    ok = np.isfinite(a) & np.isfinite(b)
+    out.append({"both": float(both.mean()), "median": float(np.median(diff)), "frac1cm": float(np.mean(diff > 0.01)),
+                "noisy_p95": float(np.percentile(np.abs(a[ok] - b[ok]), 95))})
+print(json.dumps({"skip": False, "cams": out}))
+"""
+
+
 def test_render_and_raycast_agree():
-    if not egl_available():
+    """The OpenGL depth buffer (MUJOCO_GL=egl, run in a subprocess) and mj_multiRay give the same image
+    within the sensor noise. Skipped where no OpenGL context can be created."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ)
+    env.setdefault("MUJOCO_GL", "egl")
+    proc = subprocess.run(
+        [sys.executable, "-c", _RENDER_CHECK, str(Path(__file__).parent)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        pytest.skip(
+            f"renderer unavailable: {proc.stderr.strip().splitlines()[-1:] if proc.stderr else proc.returncode}"
+        )
+    res = json.loads(lines[-1])
+    if res["skip"]:
         pytest.skip("no OpenGL context (EGL/OSMesa) available")
-    cell = _cell()
-    for i, cam in enumerate(cell.cameras):
-        ray = KinectSim(cell.model, cam, i, backend="raycast").exact_depth(cell.data)
-        ren = KinectSim(cell.model, cam, i, backend="render")
-        gl = ren.exact_depth(cell.data)
-        ren.close()
-        both = np.isfinite(ray) & np.isfinite(gl)
-        assert both.mean() > 0.99
-        diff = np.abs(ray[both] - gl[both])
+    for cam in res["cams"]:
+        assert cam["both"] > 0.99
         # tessellated capsules/spheres and the depth buffer's resolution: millimetres, below the sensor noise
-        assert np.median(diff) < 1e-3
-        assert np.mean(diff > 0.01) < 0.005
-        # the same noise model on both gives frames that agree within the noise
-        k1 = KinectSim(cell.model, cam, i, seed=5)
-        a, b = k1.sensor_effects(ray), KinectSim(cell.model, cam, i, seed=5).sensor_effects(gl)
-        ok = np.isfinite(a) & np.isfinite(b)
-        assert np.percentile(np.abs(a[ok] - b[ok]), 95) < 0.01
+        assert cam["median"] < 1e-3
+        assert cam["frac1cm"] < 0.005
+        assert cam["noisy_p95"] < 0.01
 
 
 def test_raycast_frame_budget():
