@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+import mujoco  # noqa: F401  (ImportError here lets the CLI fall back to the static demo)
+
 __all__ = ["run_demo"]
 
 
