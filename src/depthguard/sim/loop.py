@@ -106,6 +106,7 @@ class SimLog:
     elbow: list = field(default_factory=list)
     true_min: list = field(default_factory=list)
     true_links: list = field(default_factory=list)
+    true_dynamic: list = field(default_factory=list)  # clearance to people and boxes only
     eval_min: list = field(default_factory=list)
     eval_points: list = field(default_factory=list)
     v_ee: list = field(default_factory=list)
@@ -241,6 +242,7 @@ def run_loop(
             log.elbow.append(cp.centres[elbow_idx[0]].copy() if elbow_idx else cell.data.xpos[5].copy())
             log.true_min.append(tmin)
             log.true_links.append(per_link)
+            log.true_dynamic.append(truth.last_dynamic)
             if latest is not None:
                 d = latest[1].distance
                 log.eval_min.append(float(np.min(d)))

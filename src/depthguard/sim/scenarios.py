@@ -195,6 +195,7 @@ def compute_metrics(log, task, cfg, backends: dict | None = None) -> dict[str, A
         "collision_steps": int(np.sum(steps <= 0.0)),
         "min_clearance": float(np.min(steps)) if len(steps) else None,
         "min_clearance_per_link": {n: float(v) for n, v in zip(log.links, links.min(axis=0), strict=True)},
+        "min_clearance_people_boxes": float(np.min(log.true_dynamic)) if log.true_dynamic else None,
         "time_below_margin_s": float(np.sum(steps < MARGIN) * cfg.control_dt),
         "path_error": float(np.sqrt(np.mean(pe**2))),
         "path_error_max": float(np.max(pe)),

@@ -34,6 +34,8 @@ class TrueClearance:
         self.rb_r = m.geom_rbound[self.robot]
         self.rb_o = m.geom_rbound[self.obst]
         self.obst_names = [cell.geom_names[g] for g in self.obst]
+        self.is_static = np.array([n == "table" for n in self.obst_names], bool)
+        self.last_dynamic = self.distmax  # clearance to people and boxes (not the table), last evaluate()
         self._fromto = np.zeros(6)
         # the first moving link sits on the table by construction: not a collision
         first = cell.desc.actuated[0].child if cell.desc.actuated else ""
@@ -56,6 +58,7 @@ class TrueClearance:
         lower[self.skip] = np.inf
         per_link = np.full(len(self.links), self.distmax)
         best, best_name, best_seg = self.distmax, "", np.full(6, np.nan)
+        dyn = self.distmax
         ii, jj = np.nonzero(lower < self.distmax)
         for i, j in zip(ii, jj, strict=True):
             dist = mujoco.mj_geomDistance(m, d, int(self.robot[i]), int(self.obst[j]), self.distmax, self._fromto)
@@ -64,4 +67,7 @@ class TrueClearance:
                 per_link[li] = dist
             if dist < best:
                 best, best_name, best_seg = dist, self.obst_names[j], self._fromto.copy()
+            if not self.is_static[j] and dist < dyn:
+                dyn = dist
+        self.last_dynamic = float(dyn)
         return per_link, float(best), best_name, best_seg

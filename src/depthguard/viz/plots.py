@@ -93,6 +93,14 @@ def plot_run(out_dir: str | Path, runs: dict, title: str) -> dict[str, str]:
         label="evaluated minimum distance (sphere surfaces; thin: each control point, blue = end effector)",
     )
     ax.plot(t, np.asarray(log.true_min), color="k", lw=1.5, label="true minimum clearance (mj_geomDistance)")
+    if getattr(log, "true_dynamic", None):
+        ax.plot(
+            t,
+            np.asarray(log.true_dynamic),
+            color="tab:orange",
+            lw=1.2,
+            label="true clearance to people and boxes (table excluded)",
+        )
     ax.axhline(0.0, color="tab:red", lw=1)
     ax.axhline(0.05, color="tab:red", lw=0.7, ls="--", label="5 cm margin")
     ax.set_xlabel("simulated time [s]")
