@@ -1,0 +1,451 @@
+"""Numba kernels of the depth grid: cell footprints, the off-line map, cell votes, the on-line query.
+
+All kernels use ``cache=True``: the first call on a new machine compiles them (about 10-20 s for the
+query kernel, a few seconds for the others); later processes load them from numba's on-disk cache.
+
+Conventions shared by every kernel (see :mod:`depthguard.depthgrid.fusion` for the method):
+
+* the principal camera's pixel-corner rays are ``c = ((u' - cx)/fx, (v' - cy)/fy, 1)``, ``u' = 0..W``;
+  for secondary camera k, ``corner_rays[k, v', u'] = M_k c`` and ``offsets[k] = b_k`` with
+  ``M_k = R_k R_0^T``, ``b_k = t_k - M_k t_0``, so the cell corner at depth ``d`` is ``X_k = d M_k c + b_k``;
+* a cell's footprint in camera k is the pixel bounding box ``[u0, u0+du] x [v0, v0+dv]`` of its 8
+  projected corners, and ``q`` its quantised far depth: ``d_end = q * DEND_SCALE >= max_k z`` (rounded up,
+  so conservatively far). ``u0 = -1`` marks a camera that is not involved (the cell is not entirely in
+  front of it and inside its image, or its footprint is wider than ``FOOT_MAX`` pixels);
+* principal pixel kinds: 0 nothing, 1 measured surface at ``start``, 2 unknown from ``start`` on
+  (missing pixel at the near limit), 3 robot at ``start`` (RA-L'16 case iv).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+DEND_SCALE = 2e-4  # metres per unit of the quantised far depth (uint16): 0.2 mm steps, up to 13.1 m
+FOOT_MAX = 255  # largest footprint extent (pixels - 1) a cell may have in a secondary camera
+KIND_NONE, KIND_SURFACE, KIND_UNKNOWN, KIND_ROBOT = 0, 1, 2, 3
+
+
+@nb.njit(cache=True, inline="always")
+def cell_footprint(k, u, v, d1, d2, corner_rays, offsets, intr, sizes):
+    """Footprint ``(u0, v0, du, dv, q)`` of principal cell ``(u, v, [d1, d2])`` in secondary camera k."""
+    fx = intr[k, 0]
+    fy = intr[k, 1]
+    cx = intr[k, 2]
+    cy = intr[k, 3]
+    bx = offsets[k, 0]
+    by = offsets[k, 1]
+    bz = offsets[k, 2]
+    umin = np.inf
+    umax = -np.inf
+    vmin = np.inf
+    vmax = -np.inf
+    zmax = 0.0
+    for j in range(2):
+        for i in range(2):
+            mx = corner_rays[k, v + j, u + i, 0]
+            my = corner_rays[k, v + j, u + i, 1]
+            mz = corner_rays[k, v + j, u + i, 2]
+            for s in range(2):
+                d = d1 if s == 0 else d2
+                Z = d * mz + bz
+                if Z <= 1e-6:
+                    return -1, 0, 0, 0, 0
+                X = d * mx + bx
+                Y = d * my + by
+                pu = fx * X / Z + cx
+                pv = fy * Y / Z + cy
+                umin = min(umin, pu)
+                umax = max(umax, pu)
+                vmin = min(vmin, pv)
+                vmax = max(vmax, pv)
+                zmax = max(zmax, Z)
+    W = sizes[k, 0]
+    H = sizes[k, 1]
+    if not (umin >= 0.0 and vmin >= 0.0 and umax < W and vmax < H):
+        return -1, 0, 0, 0, 0
+    iu0 = int(math.floor(umin))
+    iv0 = int(math.floor(vmin))
+    du = int(math.floor(umax)) - iu0
+    dv = int(math.floor(vmax)) - iv0
+    q = int(math.ceil(zmax / DEND_SCALE))
+    if du > FOOT_MAX or dv > FOOT_MAX or q > 65535:
+        return -1, 0, 0, 0, 0
+    return iu0, iv0, du, dv, q
+
+
+@nb.njit(cache=True, inline="always")
+def footprint_sees_past(k, u0, v0, du, dv, q, votes):
+    """True when camera k calls the cell free: every covered pixel's vote depth exceeds ``d_end``."""
+    if u0 < 0:
+        return False  # not involved: no vote
+    dend = q * DEND_SCALE
+    for pv in range(v0, v0 + dv + 1):
+        for pu in range(u0, u0 + du + 1):
+            if not votes[k, pv, pu] > dend:
+                return False
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def cell_occupied(u, v, g, d_min, dd, corner_rays, offsets, intr, sizes, stored,
+                  mu0, mv0, mdu, mdv, mq, votes):
+    """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely."""
+    K = offsets.shape[0]
+    for k in range(K):
+        if stored:
+            u0 = np.int64(mu0[k, v, u, g])
+            v0 = np.int64(mv0[k, v, u, g])
+            du = np.int64(mdu[k, v, u, g])
+            dv = np.int64(mdv[k, v, u, g])
+            q = np.int64(mq[k, v, u, g])
+        else:
+            d1 = d_min + g * dd
+            u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d1 + dd, corner_rays, offsets, intr, sizes)
+        if footprint_sees_past(k, u0, v0, du, dv, q, votes):
+            return False
+    return True
+
+
+@nb.njit(cache=True, parallel=True)
+def build_map(corner_rays, offsets, intr, sizes, d_min, dd, n_cells, mu0, mv0, mdu, mdv, mq):
+    """Fill the stored map (RA-L'16 §V) for every cell and secondary camera; rows in parallel."""
+    K = offsets.shape[0]
+    H = mu0.shape[1]
+    W = mu0.shape[2]
+    for v in nb.prange(H):
+        for k in range(K):
+            for u in range(W):
+                for g in range(n_cells):
+                    d1 = d_min + g * dd
+                    u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d1 + dd, corner_rays, offsets, intr,
+                                                       sizes)
+                    if u0 < 0:
+                        mu0[k, v, u, g] = -1
+                        mv0[k, v, u, g] = 0
+                        mdu[k, v, u, g] = 0
+                        mdv[k, v, u, g] = 0
+                        mq[k, v, u, g] = 0
+                    else:
+                        mu0[k, v, u, g] = u0
+                        mv0[k, v, u, g] = v0
+                        mdu[k, v, u, g] = du
+                        mdv[k, v, u, g] = dv
+                        mq[k, v, u, g] = q
+
+
+@nb.njit(cache=True)
+def tile_min(img, tile):
+    """Minimum of ``img`` over each ``tile x tile`` block."""
+    H, W = img.shape
+    th = (H + tile - 1) // tile
+    tw = (W + tile - 1) // tile
+    out = np.full((th, tw), np.inf, dtype=np.float32)
+    for v in range(H):
+        for u in range(W):
+            d = img[v, u]
+            if d < out[v // tile, u // tile]:
+                out[v // tile, u // tile] = d
+    return out
+
+
+@nb.njit(cache=True, inline="always")
+def _seg_lo_hi(g, g_start, s0, d_min, dd, n_cells):
+    """Depth interval of search segment g: cell g clipped to start at s0.
+
+    Segment -1 is ``[s0, d_min)`` and segment ``n_cells`` is ``[d_max, inf)`` (outside the grid)."""
+    if g < 0:
+        return s0, d_min
+    if g >= n_cells:
+        lo = d_min + n_cells * dd
+        return max(lo, s0), np.inf
+    lo = d_min + g * dd
+    return max(lo, s0), lo + dd
+
+
+@nb.njit(cache=True, inline="always")
+def _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi):
+    """Distance from P to the ray points ``s (a, b, 1)``, ``s`` in ``[lo, hi]``."""
+    s = s_line
+    if s < lo:
+        s = lo
+    if s > hi:
+        s = hi
+    dx = px - s * a
+    dy = py - s * b
+    dz = pz - s
+    return math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@nb.njit(cache=True)
+def column_search(u, v, a, b, s0, surface, px, py, pz, h, limit, d_min, dd, n_cells,
+                  corner_rays, offsets, intr, sizes, stored, mu0, mv0, mdu, mdv, mq, votes):
+    """RA-L'16 §VI cases iii/iv along one principal pixel: the nearest occupied depth interval.
+
+    Searches the cells of pixel (u, v) from ``s0`` on, nearest to P first (alternating outward from the
+    cell nearest P), and stops at the first occupied one or when every remaining cell is at least
+    ``limit`` away. Space before ``d_min`` and beyond ``d_max`` is outside the grid: no secondary camera
+    can clear it, so it stays occupied (gray). With ``surface`` the cell holding the measured surface at
+    ``s0`` is occupied without a vote (the principal camera measured it).
+
+    Returns:
+        ``(found, lo, hi)``: the depth interval of the occupied cell along the pixel.
+    """
+    rr = a * a + b * b + 1.0
+    s_line = (px * a + py * b + pz) / rr
+    if s0 < d_min:
+        g_start = -1
+    else:
+        g_start = int(math.floor((s0 - d_min) / dd))
+        if g_start > n_cells:
+            g_start = n_cells
+    s_c = s_line if s_line > s0 else s0
+    if s_c < d_min:
+        g_c = -1
+    else:
+        g_c = int(math.floor((s_c - d_min) / dd))
+        if g_c > n_cells:
+            g_c = n_cells
+    if g_c < g_start:
+        g_c = g_start
+    up = g_c
+    dn = g_c - 1
+    while True:
+        lu = np.inf
+        if up <= n_cells:
+            lo, hi = _seg_lo_hi(up, g_start, s0, d_min, dd, n_cells)
+            lu = _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi)
+        ld = np.inf
+        if dn >= g_start:
+            lo, hi = _seg_lo_hi(dn, g_start, s0, d_min, dd, n_cells)
+            ld = _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi)
+        if lu <= ld:
+            g = up
+            dr = lu
+            up += 1
+        else:
+            g = dn
+            dr = ld
+            dn -= 1
+        # every remaining segment is at ray distance >= dr: its frustum bound is >= dr (1 - h) - h pz
+        if not dr * (1.0 - h) - h * pz < limit:
+            return False, 0.0, 0.0
+        lo, hi = _seg_lo_hi(g, g_start, s0, d_min, dd, n_cells)
+        if g < 0 or g >= n_cells or (surface and g == g_start):
+            return True, lo, hi
+        if cell_occupied(u, v, g, d_min, dd, corner_rays, offsets, intr, sizes,
+                         stored, mu0, mv0, mdu, mdv, mq, votes):
+            return True, lo, hi
+
+
+@nb.njit(cache=True)
+def query_one(Pc, radius, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit, unseen,
+              d_min, dd, n_cells, corner_rays, offsets, intr, sizes, stored, mu0, mv0, mdu, mdv, mq, votes,
+              out):
+    """Fused distance query for one control sphere; out[0:9] = D, dir(3), nearest(3), count, cells.
+
+    Everything in the principal camera frame; D is measured from the sphere centre (the caller subtracts
+    the radius). ``mode``: 0 min, 1 all (ICRA'12 eq. 9), 2 hybrid (RA-L'16 eq. 11).
+    """
+    H, W = start.shape
+    px = Pc[0]
+    py = Pc[1]
+    pz = Pc[2]
+    reff = rho + radius
+    best = reff
+    bx = by = bz = 0.0
+    nx = ny = nz = np.nan
+    count = 0
+    sx = sy = sz = 0.0
+    h = 0.5 * math.sqrt(1.0 / (fx * fx) + 1.0 / (fy * fy))
+
+    # unseen space of the principal camera: outside its field of view and nearer than its near limit
+    # (DESIGN.md §5.2; identical to depthguard.depthspace so that one camera gives the same answer)
+    if unseen:
+        for k in range(5):
+            if k == 0:
+                a0 = (0.0 - cx) / fx
+                nrm = math.sqrt(1.0 + a0 * a0)
+                ux, uy, uz = 1.0 / nrm, 0.0, -a0 / nrm
+            elif k == 1:
+                a1 = (W - cx) / fx
+                nrm = math.sqrt(1.0 + a1 * a1)
+                ux, uy, uz = -1.0 / nrm, 0.0, a1 / nrm
+            elif k == 2:
+                b0 = (0.0 - cy) / fy
+                nrm = math.sqrt(1.0 + b0 * b0)
+                ux, uy, uz = 0.0, 1.0 / nrm, -b0 / nrm
+            elif k == 3:
+                b1 = (H - cy) / fy
+                nrm = math.sqrt(1.0 + b1 * b1)
+                ux, uy, uz = 0.0, -1.0 / nrm, b1 / nrm
+            else:
+                ux, uy, uz = 0.0, 0.0, 1.0
+            s = px * ux + py * uy + pz * uz
+            if k == 4:
+                s -= near_limit
+            if s < 0.0:
+                s = 0.0
+            if s < reff:
+                w = 1.0
+                if mode == 1:
+                    w = 1.0 / (1.0 + math.exp(((s - radius) * 2.0 / rho - 1.0) * alpha))
+                sx += w * ux
+                sy += w * uy
+                sz += w * uz
+                if s < best:
+                    best = s
+                    bx, by, bz = ux, uy, uz
+                    nx, ny, nz = px - s * ux, py - s * uy, pz - s * uz
+
+    # region of surveillance: pixel bounding box of the cube of side 2 reff around P (eq. 8, DESIGN.md §4)
+    u0, u1, v0, v1 = 0, W - 1, 0, H - 1
+    if pz - reff > 1e-6:
+        umin = vmin = np.inf
+        umax = vmax = -np.inf
+        for cxs in (-reff, reff):
+            for cys in (-reff, reff):
+                for czs in (-reff, reff):
+                    z = pz + czs
+                    qx = fx * (px + cxs) / z + cx
+                    qy = fy * (py + cys) / z + cy
+                    umin = min(umin, qx)
+                    umax = max(umax, qx)
+                    vmin = min(vmin, qy)
+                    vmax = max(vmax, qy)
+        u0 = max(0, int(math.floor(max(umin, -1.0))) - 1)
+        u1 = min(W - 1, int(math.floor(min(umax, W + 1.0))) + 1)
+        v0 = max(0, int(math.floor(max(vmin, -1.0))) - 1)
+        v1 = min(H - 1, int(math.floor(min(vmax, H + 1.0))) + 1)
+    cells = 0
+    if u0 <= u1 and v0 <= v1:
+        t_u0, t_u1 = u0 // tile, u1 // tile
+        t_v0, t_v1 = v0 // tile, v1 // tile
+        ntu = t_u1 - t_u0 + 1
+        ntiles = ntu * (t_v1 - t_v0 + 1)
+        lbs = np.empty(ntiles)
+        zmax = pz + reff
+        for k in range(ntiles):
+            tv = t_v0 + k // ntu
+            tu = t_u0 + k % ntu
+            dmin = tmin[tv, tu]
+            if dmin > zmax:
+                lbs[k] = np.inf
+                continue
+            # lower bound over the whole tile frustum beyond its minimum start depth
+            ua = tu * tile
+            ub = min(W, ua + tile)
+            va = tv * tile
+            vb = min(H, va + tile)
+            a = ((ua + ub) * 0.5 - cx) / fx
+            b = ((va + vb) * 0.5 - cy) / fy
+            hT = 0.5 * math.sqrt(((ub - ua) / fx) ** 2 + ((vb - va) / fy) ** 2)
+            dr = _ray_seg_dist(px, py, pz, a, b, (px * a + py * b + pz) / (a * a + b * b + 1.0), dmin, np.inf)
+            lbs[k] = dr * (1.0 - hT) - hT * pz
+        if mode == 0:
+            order = np.argsort(lbs)
+        else:
+            order = np.arange(ntiles)
+        for kk in range(ntiles):
+            k = order[kk]
+            if lbs[k] >= best:
+                if mode == 0:
+                    break  # nearest-first: every remaining tile is farther (ICRA'12 §III, shrinking region)
+                if lbs[k] >= reff:
+                    continue
+            tv = t_v0 + k // ntu
+            tu = t_u0 + k % ntu
+            for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
+                b = (v + 0.5 - cy) / fy
+                for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
+                    kd = kind[v, u]
+                    if kd == KIND_NONE:
+                        continue
+                    s0 = start[v, u]
+                    if s0 > zmax:
+                        continue  # case i: the obstacle and its gray area lie beyond the region
+                    a = (u + 0.5 - cx) / fx
+                    lim = best if mode == 0 else reff
+                    if kd == KIND_SURFACE and s0 >= pz:
+                        lo = s0  # case ii: the principal camera sees the obstacle beyond P
+                        hi = np.inf
+                    else:
+                        # cases iii (d_o < d_p, or unknown) and iv (robot at d_r): ask the other cameras
+                        cells += 1
+                        found, lo, hi = column_search(u, v, a, b, s0, kd == KIND_SURFACE, px, py, pz, h, lim,
+                                                      d_min, dd, n_cells, corner_rays, offsets, intr, sizes,
+                                                      stored, mu0, mv0, mdu, mdv, mq, votes)
+                        if not found:
+                            continue
+                    rr = a * a + b * b + 1.0
+                    s = (px * a + py * b + pz) / rr
+                    if s < lo:
+                        s = lo
+                    if s > hi:
+                        s = hi
+                    dx = px - s * a
+                    dy = py - s * b
+                    dz = pz - s
+                    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    zf = pz + dr
+                    if hi < zf:
+                        zf = hi
+                    D = dr - h * zf  # safe point-to-cell distance (RA-L'16 eqs. 5-7 with the pixel frustum)
+                    if D < 0.0:
+                        D = 0.0
+                    if D >= reff:
+                        continue
+                    count += 1
+                    if dr < 1e-12:  # the point sits on the ray: push away from the start of the interval
+                        dx = px - lo * a
+                        dy = py - lo * b
+                        dz = pz - lo
+                        dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+                        if dr < 1e-12:
+                            dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
+                    ix = dx / dr
+                    iy = dy / dr
+                    iz = dz / dr
+                    if mode == 1:
+                        w = 1.0 / (1.0 + math.exp(((D - radius) * 2.0 / rho - 1.0) * alpha))
+                        sx += w * ix
+                        sy += w * iy
+                        sz += w * iz
+                    elif mode == 2:
+                        sx += ix
+                        sy += iy
+                        sz += iz
+                    if D < best:
+                        best = D
+                        bx, by, bz = ix, iy, iz
+                        nx, ny, nz = s * a, s * b, s
+    if mode != 0:
+        nrm = math.sqrt(sx * sx + sy * sy + sz * sz)
+        if nrm > 1e-9:
+            bx, by, bz = sx / nrm, sy / nrm, sz / nrm
+    out[0] = best
+    out[1] = bx
+    out[2] = by
+    out[3] = bz
+    out[4] = nx
+    out[5] = ny
+    out[6] = nz
+    out[7] = count
+    out[8] = cells
+
+
+@nb.njit(cache=True, parallel=True)
+def query_many(R, t, centres, radii, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit,
+               unseen, d_min, dd, n_cells, corner_rays, offsets, intr, sizes, stored, mu0, mv0, mdu, mdv, mq,
+               votes):
+    """:func:`query_one` for N control spheres, in parallel over the spheres (prange)."""
+    n = centres.shape[0]
+    out = np.empty((n, 9))
+    for i in nb.prange(n):
+        Pc = R @ centres[i] + t
+        query_one(Pc, radii[i], rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit, unseen,
+                  d_min, dd, n_cells, corner_rays, offsets, intr, sizes, stored, mu0, mv0, mdu, mdv, mq,
+                  votes, out[i])
+    return out

@@ -1,0 +1,315 @@
+"""On-line fusion of several depth cameras through the depth grid (RA-L'16 §VI-VII).
+
+The principal camera (the first one) defines the depth grid; every query walks the principal camera's
+region of surveillance, pixel by pixel, with the cases of RA-L'16 §VI:
+
+i.   the pixel's obstacle (and its gray area) lies beyond ``d_p + ρ``: nothing to do;
+ii.  the principal camera sees the obstacle at ``d_o >= d_p``: the distance to the pixel frustum from
+     ``d_o`` on, no other camera needed;
+iii. ``d_o < d_p`` (or the pixel is unknown): the cells of the pixel from ``d_o`` on are searched nearest
+     to P first (alternating outward from the cell nearest P) and the first cell that the other cameras
+     do not clear is the obstacle;
+iv.  (§VII) a robot pixel at ``d_r``: nothing lies before ``d_r``; the cells from ``r(d_r)`` on are checked
+     with the other cameras exactly as in case iii (the paper starts at ``r(d_r) + 1``; we also check the
+     rest of the cell holding the robot surface, which costs one cell and misses nothing).
+
+The vote (DESIGN.md §4, conservative). Secondary camera k clears (calls free) a cell only when the cell
+lies entirely in front of camera k and inside its image and *every* pixel of its footprint measures a
+depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test ``d_o^k < d_start^k``
+(obstacle confirmed only in front of the cell's near depth) would clear a cell that contains the very
+surface camera k sees (``d_start <= d_o^k <= d_end``); ``tests/test_depthgrid_fusion.py`` shows such a
+case. A missing/unknown pixel of camera k never clears a cell; a cell that is not involved for camera k
+(partly outside its image or behind it) gets no vote from k. A cell is occupied when no involved camera
+clears it, so with one camera the result is the single-camera result.
+
+Robot pixels. In the principal camera: case iv. In a secondary camera a robot pixel never confirms an
+obstacle (DESIGN.md §4: the robot is not an obstacle to itself), so it counts as seeing past (default,
+``robot_occludes=False``): space hidden by the robot from *every* other camera is treated as free, the
+documented limit of the method (RA-L'16 §VI: occlusions cannot be removed in general). With
+``robot_occludes=True`` a secondary robot pixel counts as an obstacle at the robot's depth: it never
+clears what lies behind the robot, which is safe but keeps phantom obstacles right behind the robot links
+(every control sphere then touches them), so it is not the default.
+
+Cells the principal camera measured. The cell that contains the principal camera's measured surface
+``d_o`` is occupied without a vote (the paper asks the other cameras for it too): a measured surface is
+real, and a secondary camera whose frame lags or whose calibration is off by a pixel must not erase it.
+Space before ``d_min`` and beyond ``d_max`` is outside the grid; no other camera can clear it, so the
+principal camera's gray area there stays an obstacle, as for one camera.
+
+Point-to-cell distance (RA-L'16 eqs. 5-7), safe form. For the pixel-centre ray ``r = (a, b, 1)`` and the
+occupied depth interval ``[z0, z1]``: ``s* = clamp(P.r / r.r, z0, z1)``, ``d_ray = |P - s* r|``,
+``D = max(0, d_ray - h min(z1, d_p + d_ray))`` with ``h = ½ sqrt(fx⁻² + fy⁻²)``: every frustum point at
+depth z lies within ``h z`` of the ray point at depth z, so D never exceeds the distance to anything in
+the cell. (The literal eqs. 5-7 evaluate the pixel edge at the depth of P and over-estimate off-axis.)
+
+Declared tolerance (:meth:`DepthGridFusion.tolerance`): the fused distance is a lower bound of the true
+distance up to the sampling of one ray per pixel (one pixel footprint of each camera at the obstacle's
+depth) and never falls more than one cell length plus the frustum slack below the distance to the space
+that no camera has seen.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from depthguard.camera import Camera
+from depthguard.depthgrid import _kernels as K
+from depthguard.depthgrid.grid import DepthGrid
+from depthguard.depthgrid.gridmap import GridMap
+from depthguard.depthspace import (
+    INVALID_POLICIES,
+    MODES,
+    TILE,
+    PointDistances,
+    prepare_frame,
+    query_distances,
+)
+from depthguard.validation import check_points
+
+__all__ = ["DepthGridFusion", "fused_distances"]
+
+
+@nb.njit(cache=True)
+def _principal_arrays(obs, missing, robot, robot_depth, near_limit, conservative, start, kind):
+    H, W = obs.shape
+    for v in range(H):
+        for u in range(W):
+            if robot[v, u]:
+                d = robot_depth[v, u]
+                if d == d:  # not NaN
+                    start[v, u] = d
+                    kind[v, u] = K.KIND_ROBOT
+                elif conservative:
+                    start[v, u] = near_limit  # robot pixel without a reading: unknown behind the near limit
+                    kind[v, u] = K.KIND_ROBOT
+                else:
+                    start[v, u] = np.inf
+                    kind[v, u] = K.KIND_NONE
+                continue
+            d = obs[v, u]
+            if d == np.inf:
+                start[v, u] = np.inf
+                kind[v, u] = K.KIND_NONE
+            elif missing[v, u] and d == near_limit:
+                start[v, u] = d
+                kind[v, u] = K.KIND_UNKNOWN
+            else:
+                start[v, u] = d
+                kind[v, u] = K.KIND_SURFACE
+
+
+@nb.njit(cache=True)
+def _vote_image(obs, missing, robot, robot_depth, near_limit, robot_occludes, out):
+    H, W = obs.shape
+    for v in range(H):
+        for u in range(W):
+            if robot[v, u]:
+                if robot_occludes:
+                    d = robot_depth[v, u]
+                    out[v, u] = d if d == d else 0.0
+                else:
+                    out[v, u] = np.inf  # the robot never confirms an obstacle (DESIGN.md §4)
+                continue
+            d = obs[v, u]
+            if missing[v, u] and d == near_limit:
+                out[v, u] = 0.0  # unknown: never clears a cell
+            else:
+                out[v, u] = d
+
+
+class DepthGridFusion:
+    """Distances from control spheres to obstacles seen by several depth cameras (RA-L'16).
+
+    Args:
+        cameras: the cameras; the first one is the principal camera and must see the whole space of
+            interest (RA-L'16 §I, assumption 1). Any number >= 1.
+        dd: depth quantisation Δd of the grid, metres (eq. 4).
+        workspace: ``(xmin, xmax, ymin, ymax, zmin, zmax)`` world box (metres) that sets ``d_min`` and the
+            number of depth cells (§VIII); ``None``: the principal camera's ``[min_depth, max_depth]``.
+        map_mode: ``"onthefly"`` (default) or ``"stored"`` (:class:`GridMap`; identical answers).
+        cache_dir: disk cache of a stored map (``None``: ``~/.cache/depthguard/depthgrid``; ``False``: off).
+        fill_radius: hole-filling radius of :func:`depthguard.depthspace.prepare_frame`.
+        robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
+
+    Usage: :meth:`update` once per set of frames, then :meth:`query` as often as needed.
+    """
+
+    def __init__(
+        self,
+        cameras: list[Camera],
+        dd: float = 0.01,
+        workspace: tuple[float, float, float, float, float, float] | None = None,
+        map_mode: str = "onthefly",
+        cache_dir=None,
+        fill_radius: int = 4,
+        robot_occludes: bool = False,
+    ) -> None:
+        cameras = list(cameras)
+        if not cameras:
+            raise ValueError("cameras: at least one camera is needed (the first one is the principal camera)")
+        for i, c in enumerate(cameras):
+            if not isinstance(c, Camera):
+                raise ValueError(f"cameras[{i}] must be a depthguard.camera.Camera, got {type(c).__name__}")
+        self.cameras = cameras
+        self.grid = DepthGrid.from_workspace(cameras[0], dd, workspace)
+        self.map = GridMap(self.grid, cameras[1:], map_mode, cache_dir)
+        self.fill_radius = fill_radius
+        self.robot_occludes = bool(robot_occludes)
+        n = max(1, len(cameras) - 1)
+        hm = max([c.height for c in cameras[1:]], default=1)
+        wm = max([c.width for c in cameras[1:]], default=1)
+        self._votes = np.zeros((n, hm, wm), dtype=np.float32)
+        cam0 = cameras[0]
+        self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
+        self._kind = np.zeros(cam0.shape, dtype=np.uint8)
+        self._tmin = K.tile_min(self._start, TILE)
+        self._invalid = "conservative"
+        self.frames: list = []
+        self.last_cells = np.zeros(0, dtype=np.int64)
+
+    # ------------------------------------------------------------------ frame stage
+    def update(
+        self,
+        depths: list[np.ndarray],
+        masks: list[np.ndarray | None] | None = None,
+        invalid: str = "conservative",
+    ) -> None:
+        """Take one depth image per camera (per frame, camera rate).
+
+        Args:
+            depths: one (H, W) depth image per camera, ``z_C`` in metres; 0, NaN and inf mean no reading.
+            masks: ``None`` or one entry per camera: ``None`` or an (H, W) bool robot mask (True = robot
+                pixel; the depth image holds the robot's depth there, so ``d_r`` is known).
+            invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (DESIGN.md §4).
+        """
+        if invalid not in INVALID_POLICIES:
+            raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
+        if len(depths) != len(self.cameras):
+            raise ValueError(f"depths: got {len(depths)} images for {len(self.cameras)} cameras")
+        if masks is None:
+            masks = [None] * len(self.cameras)
+        if len(masks) != len(self.cameras):
+            raise ValueError(f"masks: got {len(masks)} entries for {len(self.cameras)} cameras")
+        frames = [
+            prepare_frame(c, d, m, invalid=invalid, fill_radius=self.fill_radius)
+            for c, d, m in zip(self.cameras, depths, masks, strict=True)
+        ]
+        conservative = invalid == "conservative"
+        for k, (cam, depth, fr) in enumerate(zip(self.cameras, depths, frames, strict=True)):
+            d = np.asarray(depth, dtype=np.float32)
+            missing = ~np.isfinite(d) | (d <= 0)
+            near = np.float32(cam.min_depth)
+            if k == 0:
+                _principal_arrays(
+                    fr.obstacle_depth, missing, fr.robot_mask, fr.robot_depth, near, conservative,
+                    self._start, self._kind,
+                )
+            else:
+                self._votes[k - 1, : cam.height, : cam.width] = 0.0
+                _vote_image(
+                    fr.obstacle_depth, missing, fr.robot_mask, fr.robot_depth, near, self.robot_occludes,
+                    self._votes[k - 1, : cam.height, : cam.width],
+                )
+        self._tmin = K.tile_min(self._start, TILE)
+        self._invalid = invalid
+        self.frames = frames
+
+    # ------------------------------------------------------------------ distance stage
+    def query(
+        self,
+        centres: np.ndarray,
+        radii: np.ndarray | float = 0.0,
+        rho: float = 0.4,
+        mode: str = "all",
+        alpha: float = 6.0,
+    ) -> PointDistances:
+        """Fused distances from N control spheres to the obstacles (RA-L'16 §VI, eq. 11).
+
+        Args:
+            centres: (N, 3) sphere centres, world frame, metres.
+            radii: (N,) sphere radii, metres (or one number).
+            rho: radius of surveillance ρ, metres, measured from the sphere surface.
+            mode: ``"min"``, ``"all"`` (ICRA'12 eq. 9) or ``"hybrid"`` (RA-L'16 eq. 11).
+            alpha: shape factor of the eq. 9 weights.
+        Returns:
+            :class:`depthguard.depthspace.PointDistances` (world frame); ``distance`` is a lower bound
+            of the true clearance within :meth:`tolerance`.
+        """
+        if not self.frames:
+            raise RuntimeError("DepthGridFusion.query: call update() with a set of frames first")
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        if not (np.isfinite(rho) and rho > 0):
+            raise ValueError(f"rho must be a positive number of metres, got {rho!r}")
+        c = np.atleast_2d(np.asarray(centres, dtype=float))
+        r = np.broadcast_to(np.asarray(radii, dtype=float), (c.shape[0],))
+        c, r = check_points(c, r)
+        cam = self.cameras[0]
+        g = self.grid
+        raw = K.query_many(
+            np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t), np.ascontiguousarray(c),
+            np.ascontiguousarray(r), float(rho), MODES.index(mode), float(alpha),
+            self._start, self._kind, self._tmin, TILE, cam.fx, cam.fy, cam.cx, cam.cy,
+            float(cam.min_depth), self._invalid == "conservative",
+            g.d_min, g.dd, g.n_cells, *self.map.kernel_args(), self._votes,
+        )
+        self.last_cells = raw[:, 8].astype(np.int64)
+        found = raw[:, 0] < rho + r
+        dist = np.where(found, np.maximum(raw[:, 0] - r, 0.0), np.inf)
+        direction = np.where(found[:, None], cam.vector_to_world(raw[:, 1:4]), np.nan)
+        nearest = np.where(found[:, None], cam.camera_to_world(np.nan_to_num(raw[:, 4:7])), np.nan)
+        return PointDistances(dist, direction, nearest, raw[:, 7].astype(np.int64))
+
+    def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
+        """Declared tolerance (metres) of the fused distance at each of N centres.
+
+        One cell length along the ray (``Δd sqrt(1 + a² + b²)``), plus the frustum slack and one pixel
+        footprint of the principal camera at depth ``d_p + ρ``, plus two pixel footprints of the
+        farthest secondary camera (its pixel boxes are rounded outward, and it samples one ray per pixel).
+        """
+        c = np.atleast_2d(np.asarray(centres, dtype=float))
+        cam0 = self.cameras[0]
+        pc = cam0.world_to_camera(c)
+        z0 = np.maximum(pc[:, 2], 0.0) + rho
+        a = np.abs(pc[:, 0]) / np.maximum(pc[:, 2], 1e-9)
+        b = np.abs(pc[:, 1]) / np.maximum(pc[:, 2], 1e-9)
+        lateral = np.minimum(a * a + b * b, 1.0)
+        tol = self.grid.dd * np.sqrt(1.0 + lateral) + 3.0 * z0 / min(cam0.fx, cam0.fy)
+        sec = np.zeros(len(c))
+        for cam in self.cameras[1:]:
+            zk = np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + rho
+            sec = np.maximum(sec, 2.0 * zk / min(cam.fx, cam.fy))
+        return tol + sec
+
+    @property
+    def map_nbytes(self) -> int:
+        """Memory of the off-line map, bytes."""
+        return self.map.nbytes
+
+
+def fused_distances(
+    cameras: list[Camera],
+    depths: list[np.ndarray],
+    masks: list[np.ndarray | None] | None,
+    centres: np.ndarray,
+    radii: np.ndarray | float,
+    rho: float = 0.4,
+    mode: str = "all",
+    invalid: str = "conservative",
+    dd: float = 0.01,
+    workspace: tuple[float, float, float, float, float, float] | None = None,
+    map_mode: str = "onthefly",
+) -> PointDistances:
+    """One-shot fused distances for the command line (``depthguard distance`` with several cameras).
+
+    With one camera this is :func:`depthguard.depthspace.query_distances`; with two or more it builds a
+    :class:`DepthGridFusion` (the first camera is the principal one), updates it once and queries it.
+    """
+    cameras = list(cameras)
+    if len(cameras) == 1:
+        frame = prepare_frame(cameras[0], depths[0], None if masks is None else masks[0], invalid=invalid)
+        return query_distances(frame, centres, radii, rho=rho, mode=mode)
+    fusion = DepthGridFusion(cameras, dd=dd, workspace=workspace, map_mode=map_mode)
+    fusion.update(depths, masks, invalid=invalid)
+    return fusion.query(centres, radii, rho=rho, mode=mode)
