@@ -91,9 +91,15 @@ def footprint_sees_past(k, u0, v0, du, dv, q, votes):
 
 @nb.njit(cache=True, inline="always")
 def cell_occupied(u, v, g, d_min, dd, corner_rays, offsets, intr, sizes, stored,
-                  mu0, mv0, mdu, mdv, mq, votes):
-    """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely."""
+                  mu0, mv0, mdu, mdv, mq, votes, need_vote):
+    """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely.
+
+    With ``need_vote`` (case iv, behind a robot pixel of the principal camera) at least one secondary
+    camera must be involved: space that only the robot hides from the principal camera and that no
+    other camera watches stays unseen (DESIGN.md §4), as with one camera.
+    """
     K = offsets.shape[0]
+    involved = False
     for k in range(K):
         if stored:
             u0 = np.int64(mu0[k, v, u, g])
@@ -104,9 +110,11 @@ def cell_occupied(u, v, g, d_min, dd, corner_rays, offsets, intr, sizes, stored,
         else:
             d1 = d_min + g * dd
             u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d1 + dd, corner_rays, offsets, intr, sizes)
+        if u0 >= 0:
+            involved = True
         if footprint_sees_past(k, u0, v0, du, dv, q, votes):
             return False
-    return True
+    return involved or not need_vote
 
 
 @nb.njit(cache=True, parallel=True)
@@ -180,14 +188,15 @@ def _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi):
 
 
 @nb.njit(cache=True)
-def column_search(u, v, a, b, s0, surface, px, py, pz, h, limit, d_min, dd, n_cells,
+def column_search(u, v, a, b, s0, surface, robot, px, py, pz, h, limit, d_min, dd, n_cells,
                   corner_rays, offsets, intr, sizes, stored, mu0, mv0, mdu, mdv, mq, votes):
     """RA-L'16 §VI cases iii/iv along one principal pixel: the nearest occupied depth interval.
 
     Searches the cells of pixel (u, v) from ``s0`` on, nearest to P first (alternating outward from the
     cell nearest P), and stops at the first occupied one or when every remaining cell is at least
     ``limit`` away. Space before ``d_min`` and beyond ``d_max`` is outside the grid: no secondary camera
-    can clear it, so it stays occupied (gray). With ``surface`` the cell holding the measured surface at
+    can clear it, so it stays occupied (gray), except behind a robot pixel (``robot``, case iv), where only
+    a secondary camera can confirm an obstacle. With ``surface`` the cell holding the measured surface at
     ``s0`` is occupied without a vote (the principal camera measured it).
 
     Returns:
@@ -233,10 +242,14 @@ def column_search(u, v, a, b, s0, surface, px, py, pz, h, limit, d_min, dd, n_ce
         if not dr * (1.0 - h) - h * pz < limit:
             return False, 0.0, 0.0
         lo, hi = _seg_lo_hi(g, g_start, s0, d_min, dd, n_cells)
-        if g < 0 or g >= n_cells or (surface and g == g_start):
+        if g < 0 or g >= n_cells:
+            if robot:
+                continue
+            return True, lo, hi
+        if surface and g == g_start:
             return True, lo, hi
         if cell_occupied(u, v, g, d_min, dd, corner_rays, offsets, intr, sizes,
-                         stored, mu0, mv0, mdu, mdv, mq, votes):
+                         stored, mu0, mv0, mdu, mdv, mq, votes, robot):
             return True, lo, hi
 
 
@@ -374,7 +387,8 @@ def query_one(Pc, radius, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx,
                     else:
                         # cases iii (d_o < d_p, or unknown) and iv (robot at d_r): ask the other cameras
                         cells += 1
-                        found, lo, hi = column_search(u, v, a, b, s0, kd == KIND_SURFACE, px, py, pz, h, lim,
+                        found, lo, hi = column_search(u, v, a, b, s0, kd == KIND_SURFACE, kd == KIND_ROBOT,
+                                                      px, py, pz, h, lim,
                                                       d_min, dd, n_cells, corner_rays, offsets, intr, sizes,
                                                       stored, mu0, mv0, mdu, mdv, mq, votes)
                         if not found:
