@@ -262,24 +262,23 @@ class DepthGridFusion:
         return PointDistances(dist, direction, nearest, raw[:, 7].astype(np.int64))
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
-        """Declared tolerance (metres) of the fused distance at each of N centres.
+        """Declared tolerance (metres) of the fused distance at each of N centres: Δd + pixel footprints.
 
-        One cell length along the ray (``Δd sqrt(1 + a² + b²)``), plus the frustum slack and one pixel
-        footprint of the principal camera at depth ``d_p + ρ``, plus two pixel footprints of the
-        farthest secondary camera (its pixel boxes are rounded outward, and it samples one ray per pixel).
+        The fused distance never exceeds the true clearance by more than this: one depth cell ``Δd``
+        plus one pixel footprint of the principal camera at depth ``d_p + ρ`` and one of the secondary
+        camera with the coarsest pixels there (each camera samples one ray per pixel, so a surface can
+        hide up to a pixel away from the sampled rays). On the other side the fused distance is a lower
+        bound of the distance to the space that no camera has seen, within one cell and the pixel
+        frustum slack ``2 h (d_p + ρ)`` (:func:`depthguard.depthspace.lower_bound_slack`).
         """
         c = np.atleast_2d(np.asarray(centres, dtype=float))
         cam0 = self.cameras[0]
-        pc = cam0.world_to_camera(c)
-        z0 = np.maximum(pc[:, 2], 0.0) + rho
-        a = np.abs(pc[:, 0]) / np.maximum(pc[:, 2], 1e-9)
-        b = np.abs(pc[:, 1]) / np.maximum(pc[:, 2], 1e-9)
-        lateral = np.minimum(a * a + b * b, 1.0)
-        tol = self.grid.dd * np.sqrt(1.0 + lateral) + 3.0 * z0 / min(cam0.fx, cam0.fy)
+        z0 = np.maximum(cam0.world_to_camera(c)[:, 2], 0.0) + rho
+        tol = self.grid.dd + z0 / min(cam0.fx, cam0.fy)
         sec = np.zeros(len(c))
         for cam in self.cameras[1:]:
             zk = np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + rho
-            sec = np.maximum(sec, 2.0 * zk / min(cam.fx, cam.fy))
+            sec = np.maximum(sec, zk / min(cam.fx, cam.fy))
         return tol + sec
 
     @property
