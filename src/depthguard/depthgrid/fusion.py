@@ -131,6 +131,9 @@ class DepthGridFusion:
         cache_dir: disk cache of a stored map (``None``: ``~/.cache/depthguard/depthgrid``; ``False``: off).
         fill_radius: hole-filling radius of :func:`depthguard.depthspace.prepare_frame`.
         robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
+        parallel: spread the control points over numba's threads (``prange``). Off by default: a query
+            takes tens to hundreds of microseconds, and on a loaded machine waking a second thread can
+            cost milliseconds (measured on the 2-core benchmark machine).
 
     Usage: :meth:`update` once per set of frames, then :meth:`query` as often as needed.
     """
@@ -144,6 +147,7 @@ class DepthGridFusion:
         cache_dir=None,
         fill_radius: int = 4,
         robot_occludes: bool = False,
+        parallel: bool = False,
     ) -> None:
         cameras = list(cameras)
         if not cameras:
@@ -156,6 +160,7 @@ class DepthGridFusion:
         self.map = GridMap(self.grid, cameras[1:], map_mode, cache_dir)
         self.fill_radius = fill_radius
         self.robot_occludes = bool(robot_occludes)
+        self.parallel = bool(parallel)
         n = max(1, len(cameras) - 1)
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
@@ -166,7 +171,8 @@ class DepthGridFusion:
         self._tmin = K.tile_min(self._start, TILE)
         self._invalid = "conservative"
         self.frames: list = []
-        self.last_cells = np.zeros(0, dtype=np.int64)
+        self.last_cells = np.zeros(0, dtype=np.int64)  # per point: column searches (cases iii/iv)
+        self.last_votes = np.zeros(0, dtype=np.int64)  # per point: cell and block votes taken
 
     # ------------------------------------------------------------------ frame stage
     def update(
@@ -247,7 +253,8 @@ class DepthGridFusion:
         c, r = check_points(c, r)
         cam = self.cameras[0]
         g = self.grid
-        raw = K.query_many(
+        kernel = K.query_many if self.parallel else K.query_many_serial
+        raw = kernel(
             np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t), np.ascontiguousarray(c),
             np.ascontiguousarray(r), float(rho), MODES.index(mode), float(alpha),
             self._start, self._kind, self._tmin, TILE, cam.fx, cam.fy, cam.cx, cam.cy,
@@ -255,6 +262,7 @@ class DepthGridFusion:
             g.d_min, g.dd, g.n_cells, *self.map.kernel_args(), self._votes,
         )
         self.last_cells = raw[:, 8].astype(np.int64)
+        self.last_votes = raw[:, 9].astype(np.int64)
         found = raw[:, 0] < rho + r
         dist = np.where(found, np.maximum(raw[:, 0] - r, 0.0), np.inf)
         direction = np.where(found[:, None], cam.vector_to_world(raw[:, 1:4]), np.nan)
