@@ -22,7 +22,9 @@ def test_look_at_points_optical_axis_at_target():
 
 @settings(max_examples=200, deadline=None)
 @given(
-    st.floats(0, 639.99), st.floats(0, 479.99), st.floats(0.5, 4.5),
+    st.floats(0, 639.99),
+    st.floats(0, 479.99),
+    st.floats(0.5, 4.5),
 )
 def test_project_unproject_round_trip(px, py, d):
     cam = _cam()

@@ -1,21 +1,299 @@
-"""Command line: a thin layer over the library (``depthguard --help``)."""
+"""Command line: a thin layer over the library (``depthguard --help``).
+
+Errors (bad files, bad options) go to stderr with exit code 2.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+from pathlib import Path
+
+import numpy as np
 
 
+class _Exit(Exception):
+    """Raised by commands for a clean error exit."""
+
+
+def _parse_workspace(text: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--workspace must be xmin,xmax,ymin,ymax,zmin,zmax numbers, got {text!r}"
+        ) from None
+    if len(vals) != 6 or any(vals[2 * i] >= vals[2 * i + 1] for i in range(3)):
+        raise argparse.ArgumentTypeError(
+            f"--workspace must be xmin,xmax,ymin,ymax,zmin,zmax with min < max, got {text!r}"
+        ) from None
+    return vals
+
+
+def _positive_float(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (np.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    return x
+
+
+def _positive_int(text: str) -> int:
+    try:
+        x = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if x < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    return x
+
+
+# ----------------------------------------------------------------------------------------------- distance
+def _cmd_distance(args: argparse.Namespace) -> int:
+    from depthguard.io import read_camera, read_depth, read_mask, read_points
+
+    if len(args.camera) != len(args.depth):
+        raise _Exit(
+            f"give one --depth per --camera: got {len(args.camera)} camera(s) and {len(args.depth)} depth image(s)"
+        ) from None
+    if args.mask and len(args.mask) != len(args.camera):
+        raise _Exit(
+            f"give one --mask per --camera (in the same order): got {len(args.mask)} for {len(args.camera)}"
+        ) from None
+    cameras = [read_camera(p) for p in args.camera]
+    depths = [read_depth(p, cam) for p, cam in zip(args.depth, cameras, strict=True)]
+    masks = (
+        [read_mask(p, cam) for p, cam in zip(args.mask, cameras, strict=True)] if args.mask else [None] * len(cameras)
+    )
+    points = read_points(args.points)
+    if not points:
+        raise _Exit(f"{args.points}: the points file holds no points") from None
+    names = [p.name for p in points]
+    centres = np.array([p.position for p in points])
+    radii = np.array([p.radius for p in points])
+
+    if len(cameras) == 1:
+        from depthguard.depthspace import prepare_frame, query_distances
+
+        frame = prepare_frame(cameras[0], depths[0], masks[0], invalid=args.invalid, fill_radius=args.fill_radius)
+
+        def query():
+            return query_distances(frame, centres, radii, rho=args.rho, mode=args.mode, model=args.model)
+    else:
+        try:
+            from depthguard.depthgrid import DepthGridFusion
+        except ImportError:
+            raise _Exit(
+                "several cameras need the depth-grid fusion module (depthguard.depthgrid), not installed"
+            ) from None
+        fusion = DepthGridFusion(cameras, dd=args.grid_dd, workspace=args.workspace)
+        fusion.update(depths, masks, invalid=args.invalid)
+
+        def query():
+            return fusion.query(centres, radii, rho=args.rho, mode=args.mode)
+
+    result = query()
+    out: dict = {"points": result.to_json(names)}
+    if args.repeat:
+        from depthguard.bench.timing import time_calls
+
+        t = time_calls(query, args.repeat)
+        out["timing"] = {"us_median": t["us_median"], "us_p99": t["us_p99"]}
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"{'point':>12} {'distance [m]':>13} {'obstacle px':>12}  direction (world)")
+        for p in out["points"]:
+            d = f"{p['distance']:13.4f}" if p["distance"] is not None else f"{'none':>13}"
+            dirn = np.array2string(np.array(p["direction"]), precision=3) if p["direction"] else "-"
+            print(f"{p['name']:>12} {d} {p['obstacle_pixels']:12d}  {dirn}")
+        if "timing" in out:
+            print(f"query time: median {out['timing']['us_median']:.1f} us, p99 {out['timing']['us_p99']:.1f} us")
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------- scenario
+def _cmd_scenario(args: argparse.Namespace) -> int:
+    if args.name == "pivot":
+        from depthguard.scenarios.pivot import run_pivot_scenario
+
+        res = run_pivot_scenario()
+        out = {k: {"min_distance": v["min_distance"], "collided": v["collided"]} for k, v in res.items()}
+        if args.out:
+            _save_pivot_plot(res, Path(args.out))
+    else:
+        try:
+            from depthguard.sim.scenarios import run_scenario
+        except ImportError as exc:
+            raise _Exit(f"scenario {args.name!r} needs the simulator: pip install 'depthguard[sim]' ({exc})") from None
+        out = run_scenario(
+            args.name,
+            quick=args.quick,
+            avoidance=not args.no_avoidance,
+            cameras=args.cameras,
+            out_dir=args.out,
+            progress=not args.json,
+        )
+    if args.json:
+        print(json.dumps(out, default=float))
+    else:
+        print(json.dumps(out, indent=2, default=float))
+    return 0
+
+
+def _save_pivot_plot(res: dict, out_dir: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    for ax, key in zip(axes, ("direct", "pivot"), strict=True):
+        tp, to = res[key]["trace_point"], res[key]["trace_obstacle"]
+        ax.plot(to[:, 0], to[:, 1] + to[:, 2], "b-", label="obstacle (1 m/s)")
+        ax.plot(tp[:, 0], tp[:, 1] + tp[:, 2], "r-", lw=2, label="control point (max 0.8 m/s)")
+        ax.set_title(
+            f"{key}: min distance {res[key]['min_distance']:.3f} m" + (" (collision)" if res[key]["collided"] else "")
+        )
+        ax.set_aspect("equal")
+        ax.legend(fontsize=7)
+    axes[-1].set_xlabel("x [m]")
+    fig.tight_layout()
+    fig.savefig(out_dir / "pivot_fig7.png")
+    plt.close(fig)
+
+
+# -------------------------------------------------------------------------------------------------- bench
+def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "distance":
+        from depthguard.bench.distance import run_distance_benchmark
+
+        out = run_distance_benchmark(quick=args.quick)
+    else:
+        try:
+            from depthguard.bench.control import run_control_benchmark
+        except ImportError as exc:
+            raise _Exit(
+                f"the control benchmark needs the robot extra: pip install 'depthguard[robot]' ({exc})"
+            ) from None
+        out = run_control_benchmark(quick=args.quick)
+    print(json.dumps(out, indent=None if args.json else 2, default=float))
+    return 0
+
+
+# --------------------------------------------------------------------------------------------------- demo
+def _cmd_demo(args: argparse.Namespace) -> int:
+    if not args.static:
+        try:
+            from depthguard.sim.demo import run_demo
+        except ImportError:
+            print("(the simulated cell is not available: running the static one-camera demo)", file=sys.stderr)
+        else:
+            return int(run_demo(out_dir=args.out) or 0)
+    from depthguard.demo_static import run_static_demo
+
+    run_static_demo(out_dir=args.out or "runs/demo-static")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="depthguard", description="Depth-space human-robot collision avoidance")
-    parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("distance", help="distances from control points to the obstacles in depth image(s)")
+    p.add_argument(
+        "--camera",
+        action="append",
+        required=True,
+        metavar="CAM.json",
+        help="camera JSON; repeat for several cameras, the first is the principal one",
+    )
+    p.add_argument(
+        "--depth",
+        action="append",
+        required=True,
+        metavar="DEPTH.png|npy",
+        help="depth image (16-bit PNG in mm or .npy float32 m), one per --camera",
+    )
+    p.add_argument("--points", required=True, metavar="POINTS.json", help="control points JSON")
+    p.add_argument("--rho", type=_positive_float, default=0.4, help="radius of surveillance in m (default 0.4)")
+    p.add_argument(
+        "--mode",
+        choices=["min", "all", "hybrid"],
+        default="min",
+        help="min: nearest obstacle; all: ICRA'12 eq. 9 direction; hybrid: RA-L'16 eq. 11",
+    )
+    p.add_argument(
+        "--invalid",
+        choices=["conservative", "ignore"],
+        default="conservative",
+        help="missing-depth policy (default conservative: unknown space is an obstacle)",
+    )
+    p.add_argument(
+        "--mask",
+        action="append",
+        default=[],
+        metavar="MASK.png",
+        help="robot mask (nonzero = robot), once per camera in the same order",
+    )
+    p.add_argument(
+        "--repeat", type=_positive_int, default=0, metavar="N", help="also time N repeated queries (I/O excluded)"
+    )
+    p.add_argument(
+        "--model",
+        choices=["frustum", "icra"],
+        default="frustum",
+        help="point-to-pixel distance: frustum lower bound (default) or ICRA'12 eq. 4",
+    )
+    p.add_argument("--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4)")
+    p.add_argument(
+        "--grid-dd", type=_positive_float, default=0.01, help="depth-grid quantisation in m (several cameras)"
+    )
+    p.add_argument(
+        "--workspace",
+        type=_parse_workspace,
+        default=None,
+        metavar="xmin,xmax,ymin,ymax,zmin,zmax",
+        help="workspace box in m (world frame) for the depth grid",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_distance)
+
+    p = sub.add_parser("scenario", help="run a scenario (pivot, icra-exp1..4, ral-hexagon, ral-shadow, ral-hidden)")
+    p.add_argument("name")
+    p.add_argument("--quick", action="store_true", help="short, low-resolution form (for CI)")
+    p.add_argument("--no-avoidance", action="store_true", help="run without collision avoidance")
+    p.add_argument("--cameras", type=int, choices=[1, 2], default=None, help="number of cameras")
+    p.add_argument("--out", default=None, metavar="DIR", help="run folder (metrics, plots, recording)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_scenario)
+
+    p = sub.add_parser("bench", help="benchmarks (JSON with machine info, medians and p99s)")
+    p.add_argument("what", choices=["distance", "control"])
+    p.add_argument("--quick", action="store_true", help="fewer repetitions")
+    p.add_argument("--json", action="store_true", help="compact JSON")
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("demo", help="the main demo (the simulated cell; --static for the one-camera picture)")
+    p.add_argument("--static", action="store_true", help="the static one-camera demo")
+    p.add_argument("--out", default=None, metavar="DIR", help="output folder")
+    p.set_defaults(func=_cmd_demo)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    return int(args.func(args) or 0)
+    try:
+        return int(args.func(args) or 0)
+    except (_Exit, ValueError) as exc:
+        print(f"depthguard {args.command}: error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -130,7 +130,7 @@ class Box:
         t2 = np.where(np.isnan(t2), _INF, t2)
         tmin = np.max(np.minimum(t1, t2), axis=1)
         tmax = np.min(np.maximum(t1, t2), axis=1)
-        hit = (tmax >= np.maximum(tmin, 0.0))
+        hit = tmax >= np.maximum(tmin, 0.0)
         return np.where(hit, np.maximum(tmin, 0.0), _INF)
 
 

@@ -1,0 +1,120 @@
+"""``depthguard bench distance``: single-camera depth-space distances vs. a KD-tree baseline (issue 2),
+plus the multi-camera depth grid vs. a voxel baseline when available (issue 3).
+
+Scene (:mod:`depthguard.bench.scenes`): 640x480, fx = fy = 525, a person reaching towards an arm about 2 m
+from the camera, a wall at 3.5 m, 2 % missing pixels, Kinect-like noise, 9 control spheres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from depthguard.bench.scenes import arm_chain_points, bench_cameras, noisy_depth, person_scene
+from depthguard.bench.timing import machine_info, time_calls
+from depthguard.depthspace import prepare_frame, query_distances
+
+__all__ = ["run_distance_benchmark"]
+
+
+def _kdtree_build(camera, depth):
+    """Back-project the valid pixels and build a KD-tree (scipy's fastest build settings)."""
+    valid = np.isfinite(depth)
+    v, u = np.nonzero(valid)
+    pts = camera.unproject(u + 0.5, v + 0.5, depth[valid])
+    return cKDTree(pts, balanced_tree=False, compact_nodes=False)
+
+
+def _kdtree_query(camera, depth, centres, radii):
+    """Baseline: a new frame means a new tree; then the nearest point for each of the 9 spheres."""
+    d, _ = _kdtree_build(camera, depth).query(centres, k=1)
+    return d - radii
+
+
+def run_distance_benchmark(quick: bool = False, include_grid: bool = True) -> dict:
+    """Run the distance benchmark; returns the JSON-able result object.
+
+    Args:
+        quick: fewer repetitions (for CI smoke runs); the figures are noisier.
+        include_grid: also run the multi-camera depth-grid benchmark if that module is installed.
+    """
+    repeat = 50 if quick else 500
+    cam = bench_cameras()[0]
+    scene = person_scene()
+    depth = noisy_depth(cam, scene, seed=1)
+    names, centres, radii = arm_chain_points()
+    frame = prepare_frame(cam, depth)
+    results = []
+    for rho in (0.4, 0.2):
+        for mode in ("min", "all"):
+            query_distances(frame, centres, radii, rho=rho, mode=mode)  # JIT warm-up
+            t = time_calls(
+                lambda rho=rho, mode=mode: query_distances(frame, centres, radii, rho=rho, mode=mode), repeat
+            )
+            results.append(
+                {
+                    "name": f"depthspace-1cam-{mode}",
+                    "rho": rho,
+                    "hz_median": t["hz_median"],
+                    "us_median": t["us_median"],
+                    "us_p99": t["us_p99"],
+                }
+            )
+    t_kd = time_calls(lambda: _kdtree_query(cam, depth, centres, radii), max(10, repeat // 10))
+    for rho in (0.4, 0.2):
+        results.append(
+            {
+                "name": "kdtree-1cam",
+                "rho": rho,
+                "hz_median": t_kd["hz_median"],
+                "us_median": t_kd["us_median"],
+                "us_p99": t_kd["us_p99"],
+            }
+        )
+    tree = _kdtree_build(cam, depth)
+    t_kdq = time_calls(lambda: tree.query(centres, k=1), repeat)
+    results.append(
+        {
+            "name": "kdtree-1cam-query-only",
+            "rho": None,
+            "hz_median": t_kdq["hz_median"],
+            "us_median": t_kdq["us_median"],
+            "us_p99": t_kdq["us_p99"],
+        }
+    )
+    t_prep = time_calls(lambda: prepare_frame(cam, depth), max(10, repeat // 10))
+    ratios = {
+        r["name"] + f"@{r['rho']}": r["hz_median"] / t_kd["hz_median"]
+        for r in results
+        if r["name"].startswith("depthspace")
+    }
+    out = {
+        "benchmark": "distance",
+        "machine": machine_info(),
+        "parameters": {
+            "width": cam.width,
+            "height": cam.height,
+            "fx": cam.fx,
+            "points": len(centres),
+            "missing_fraction": 0.02,
+            "repeat": repeat,
+            "quick": quick,
+        },
+        "results": results,
+        "per_frame": {"prepare_frame_us_median": t_prep["us_median"], "prepare_frame_us_p99": t_prep["us_p99"]},
+        "ratios_vs_kdtree": ratios,
+        "notes": "depthspace times are per query (the frame is prepared once per camera frame, see per_frame); "
+        "kdtree-1cam includes the tree build, since a new frame means a new tree; kdtree-1cam-query-only reuses "
+        "one tree (information only: it ignores the gray area and missing pixels, so it over-reports distances).",
+    }
+    if include_grid:
+        try:
+            from depthguard.bench.grid import run_grid_benchmark
+        except ImportError:
+            pass
+        else:
+            grid = run_grid_benchmark(quick=quick)
+            out["results"].extend(grid["results"] if isinstance(grid, dict) else grid)
+            if isinstance(grid, dict):
+                out["grid"] = {k: v for k, v in grid.items() if k != "results"}
+    return out

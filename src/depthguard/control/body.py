@@ -1,0 +1,122 @@
+"""Collision avoidance for the robot body: joint-velocity bounds from Cartesian constraints.
+
+ICRA'12 §V-C, eqs. 12-14. For each body control point C with distance ``D`` (from its sphere surface,
+m) to the nearest obstacle and the repulsive unit direction ``n = D/||D||`` (from the obstacle towards
+the point, DESIGN.md §3):
+
+* risk (eq. 12, DESIGN.md §4 reading): ``f(D) = 1 / (1 + exp((D 2/rho - 1) alpha))``, about 1 at contact
+  and about 0 at ``rho``;
+* influence (eq. 13): ``s = J_C^T n f(D)``; ``s_i > 0`` means that a positive velocity of joint i moves
+  C along n, away from the obstacle, so the *negative* direction of joint i moves C towards it;
+* bounds (eq. 14): the joint motion towards the obstacle is limited to ``V_max,i (1 - f(D))``:
+  ``s_i > 0 -> qdot_min,i = -V_max,i (1 - f)``, ``s_i < 0 -> qdot_max,i = V_max,i (1 - f)``.
+  The paper writes eq. 14 with the opposite sign because its D points from the point to the obstacle;
+  with our repulsive convention this is the reading under which motion towards the obstacle slows
+  down (tests/test_controller.py checks it). Motion away from the obstacle keeps its full bound.
+
+For each joint the most restrictive bound over all points is taken. Two additions to the paper:
+
+* joints that cannot move the point along n (``|J_C^T n|_i <= influence_eps``, e.g. joints after C in
+  the chain) are not restricted by that point (the paper's ``s_i >= 0`` would also cap them);
+* at or below ``contact_distance`` the motion towards the obstacle is denied completely (bound 0):
+  f(0) = 1/(1 + e^-alpha) < 1, so eq. 14 alone would still allow ``V_max (1 - f(0))`` at contact.
+
+Points with ``D = inf`` (nothing within rho) impose nothing.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from depthguard.repulsion import risk  # ICRA'12 eq. 12, shared with the distance stage
+
+__all__ = ["risk", "body_velocity_bounds"]
+
+
+@njit(cache=True)
+def _body_bounds(
+    jac: np.ndarray,
+    dist: np.ndarray,
+    dirs: np.ndarray,
+    use: np.ndarray,
+    v_max: np.ndarray,
+    rho: float,
+    alpha: float,
+    contact_distance: float,
+    influence_eps: float,
+    qmin: np.ndarray,
+    qmax: np.ndarray,
+) -> None:
+    N, _, n = jac.shape
+    for k in range(N):
+        if not use[k]:
+            continue
+        d = dist[k]
+        if not np.isfinite(d) or d >= rho:
+            continue
+        if d <= contact_distance:
+            keep = 0.0
+        else:
+            f = 1.0 / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
+            keep = 1.0 - f
+        for i in range(n):
+            g = jac[k, 0, i] * dirs[k, 0] + jac[k, 1, i] * dirs[k, 1] + jac[k, 2, i] * dirs[k, 2]
+            if g > influence_eps:  # negative qdot_i moves C towards the obstacle
+                b = -v_max[i] * keep
+                if b > qmin[i]:
+                    qmin[i] = b
+            elif g < -influence_eps:  # positive qdot_i moves C towards the obstacle
+                b = v_max[i] * keep
+                if b < qmax[i]:
+                    qmax[i] = b
+
+
+def body_velocity_bounds(
+    jacobians: np.ndarray,
+    distances: np.ndarray,
+    directions: np.ndarray,
+    v_max: np.ndarray,
+    rho: float,
+    alpha: float,
+    *,
+    use: np.ndarray | None = None,
+    contact_distance: float = 0.0,
+    influence_eps: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint-velocity bounds reshaped by the body constraints (ICRA'12 eqs. 12-14).
+
+    Args:
+        jacobians: (N, 3, n) positional Jacobians of the control points.
+        distances: (N,) distances from the sphere surfaces to the nearest obstacle, m (inf = none).
+        directions: (N, 3) unit repulsive directions, from the obstacle towards the point.
+        v_max: (n,) original joint velocity bounds ``V_max,i`` (> 0), rad/s.
+        rho: distance of influence, m; alpha: steepness of the risk function.
+        use: (N,) bool, points that take part (default all); the end effector is usually excluded
+            because it is handled by the repulsive velocity (eqs. 10-11).
+        contact_distance: at or below it the motion towards the obstacle is denied, m.
+        influence_eps: ``|J_C^T n|_i`` below this (m/rad) counts as no influence.
+    Returns:
+        ``(qdot_min, qdot_max)``, each (n,), with ``-v_max <= qdot_min <= 0 <= qdot_max <= v_max``.
+    """
+    jac = np.ascontiguousarray(jacobians, dtype=np.float64)
+    if jac.ndim != 3 or jac.shape[1] != 3:
+        raise ValueError(f"jacobians must have shape (N, 3, n), got {jac.shape}")
+    N, _, n = jac.shape
+    dist = np.ascontiguousarray(distances, dtype=np.float64)
+    dirs = np.ascontiguousarray(directions, dtype=np.float64)
+    vmax = np.ascontiguousarray(v_max, dtype=np.float64)
+    if dist.shape != (N,):
+        raise ValueError(f"distances must have shape ({N},), got {dist.shape}")
+    if dirs.shape != (N, 3):
+        raise ValueError(f"directions must have shape ({N}, 3), got {dirs.shape}")
+    if vmax.shape != (n,) or np.any(~(vmax > 0)):
+        raise ValueError(f"v_max must be ({n},) positive numbers, got {v_max!r}")
+    if np.any(np.isnan(dist)) or np.any(dist < 0):
+        raise ValueError("distances must be >= 0 (inf for none), without NaN")
+    if not (rho > 0 and alpha > 0):
+        raise ValueError(f"rho and alpha must be > 0, got rho={rho}, alpha={alpha}")
+    use_a = np.ones(N, dtype=np.bool_) if use is None else np.ascontiguousarray(use, dtype=np.bool_)
+    qmin, qmax = -vmax.copy(), vmax.copy()
+    _body_bounds(jac, dist, dirs, use_a, vmax, rho, alpha, contact_distance, influence_eps, qmin, qmax)
+    return qmin, qmax

@@ -1,0 +1,69 @@
+"""End-effector collision avoidance (ICRA'12 §V-A, eqs. 7, 10, 11) with damped least squares.
+
+* repulsive velocity (eq. 7, DESIGN.md §4 reading): ``V_R = v(D) n`` with
+  ``v(D) = V_max / (1 + exp((D 2/rho - 1) alpha))`` and ``n`` the unit direction from the obstacle to
+  the end effector (DESIGN.md §3); ``V_R = 0`` for ``D = inf``;
+* commanded task velocity (eq. 10): ``xdot_c = xdot_d + V_R(P_EE)``;
+* joint velocity (eq. 11): ``qdot = J^#(q) xdot_c``. Near singularities ``J^#`` is replaced by damped
+  least squares ``J^T (J J^T + lambda^2 I)^-1`` with the damping of Maciejewski & Klein / Chiaverini:
+  ``lambda^2 = (1 - (sigma_min/eps)^2) lambda_max^2`` when the smallest singular value ``sigma_min`` is
+  below ``eps``, else 0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_inverse"]
+
+
+def repulsive_velocity(
+    distance: float, direction: np.ndarray, v_max: float, rho: float, alpha: float
+) -> np.ndarray:
+    """Repulsive velocity vector ``V_R`` (3,) in m/s (ICRA'12 eq. 7); zero for ``distance = inf``.
+
+    Args:
+        distance: D from the control sphere's surface to the obstacle, m (>= 0, inf = none).
+        direction: (3,) unit vector from the obstacle towards the point.
+        v_max: largest repulsive speed, m/s; rho: m; alpha: steepness.
+    """
+    d = float(distance)
+    if not np.isfinite(d):
+        return np.zeros(3)
+    mag = v_max / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
+    nrm = float(np.linalg.norm(direction))
+    if nrm == 0.0:
+        return np.zeros(3)
+    return (mag / nrm) * np.asarray(direction, dtype=float)
+
+
+def commanded_task_velocity(xdot_d: np.ndarray, v_repulsive: np.ndarray) -> np.ndarray:
+    """ICRA'12 eq. 10: ``xdot_c = xdot_d + V_R(P_EE)``; with a 6-D task V_R adds to the linear part."""
+    xc = np.array(xdot_d, dtype=float)
+    xc[:3] += v_repulsive
+    return xc
+
+
+@njit(cache=True)
+def _dls_damping(J: np.ndarray, eps: float, lambda_max: float) -> float:
+    if J.shape[0] > J.shape[1]:
+        smin = 0.0
+    else:
+        smin = np.sqrt(max(np.linalg.eigvalsh(J @ J.T)[0], 0.0))
+    if smin >= eps:
+        return 0.0
+    return lambda_max * np.sqrt(1.0 - (smin / eps) ** 2)
+
+
+def dls_damping(J: np.ndarray, eps: float = 0.02, lambda_max: float = 0.05) -> float:
+    """Damping factor lambda (>= 0) for J (m, n): 0 unless the smallest singular value is below eps."""
+    return float(_dls_damping(np.ascontiguousarray(J, dtype=np.float64), float(eps), float(lambda_max)))
+
+
+def dls_inverse(J: np.ndarray, damping: float) -> np.ndarray:
+    """(n, m) damped least-squares inverse ``J^T (J J^T + damping^2 I)^-1`` (the pseudo-inverse at 0)."""
+    if damping == 0.0:
+        return np.linalg.pinv(J)
+    m = J.shape[0]
+    return J.T @ np.linalg.inv(J @ J.T + damping**2 * np.eye(m))

@@ -1,0 +1,129 @@
+"""Jerk-limited on-line trajectory generation (ICRA'12 §V-B) with Ruckig in velocity mode.
+
+Ruckig (Berscheid & Kröger, RSS 2021) computes, every control cycle, the time-optimal jerk-limited
+motion from the current state (velocity, acceleration) to a target velocity, within per-joint
+acceleration and jerk limits. In velocity mode it does not enforce joint *position* limits, so
+:func:`position_limited_velocity_bounds` shrinks the velocity bounds near the position limits first,
+to speeds from which the joint can still brake in time:
+
+``v_b(d) = a (-(a/(2j) + T) + sqrt((a/(2j) + T)^2 + 2 d / a))``, the largest v with
+``v^2/(2a) + v a/(2j) + v T <= d``: braking distance under acceleration limit a and jerk limit j
+(an upper bound of the exact jerk-limited braking distance), plus T seconds of latency. ``d`` is the
+distance to the limit (less a margin) and a is a fraction ``brake_fraction`` of the acceleration limit,
+which leaves room for an acceleration that is still building up when braking starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["OtgState", "JointOtg", "position_limited_velocity_bounds"]
+
+
+def position_limited_velocity_bounds(
+    q: np.ndarray,
+    q_min: np.ndarray,
+    q_max: np.ndarray,
+    a_max: np.ndarray,
+    j_max: np.ndarray,
+    latency: float,
+    margin: float = 0.0,
+    brake_fraction: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity bounds (n,), (n,) from which every joint can stop before its position limits.
+
+    Args:
+        q: (n,) joint positions, rad; q_min, q_max: (n,) limits, rad.
+        a_max, j_max: (n,) acceleration (rad/s^2) and jerk (rad/s^3) limits.
+        latency: seconds before braking starts (e.g. two control cycles).
+        margin: stop this far (rad) inside the limits.
+        brake_fraction: share of ``a_max`` assumed for braking, in (0, 1].
+    Returns:
+        ``(lo, hi)`` with ``lo <= 0 <= hi``: ``hi = v_b(q_max - margin - q)``,
+        ``lo = -v_b(q - q_min - margin)``, 0 where the joint is at or beyond the (margin-reduced) limit.
+    """
+    a = np.asarray(a_max, dtype=float) * brake_fraction
+    c = a / (2.0 * np.asarray(j_max, dtype=float)) + latency
+
+    def vb(d: np.ndarray) -> np.ndarray:
+        d = np.maximum(d, 0.0)
+        return a * (-c + np.sqrt(c * c + 2.0 * d / a))
+
+    return -vb(q - q_min - margin), vb(q_max - margin - q)
+
+
+class OtgState(NamedTuple):
+    """Motion state that the trajectory generator carries from one cycle to the next.
+
+    Attributes:
+        position: (n,) rad; velocity: (n,) rad/s; acceleration: (n,) rad/s^2.
+    """
+
+    position: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+
+@dataclass
+class JointOtg:
+    """Ruckig in velocity mode for n joints with cycle time ``dt`` (s).
+
+    ``synchronization``: "none" (each joint time-optimal, the default), "time" or "phase".
+
+    ``step`` is a function of its arguments (the Ruckig object only caches the last trajectory).
+    """
+
+    n: int
+    dt: float
+    a_max: np.ndarray
+    j_max: np.ndarray
+    synchronization: str = "none"
+
+    def __post_init__(self) -> None:
+        import ruckig
+
+        self._ruckig = ruckig
+        self.a_max = np.broadcast_to(np.asarray(self.a_max, dtype=float), (self.n,)).copy()
+        self.j_max = np.broadcast_to(np.asarray(self.j_max, dtype=float), (self.n,)).copy()
+        if not (np.all(self.a_max > 0) and np.all(self.j_max > 0)):
+            raise ValueError("a_max and j_max must be > 0")
+        if not self.dt > 0:
+            raise ValueError(f"dt must be > 0, got {self.dt}")
+        sync = {
+            "time": ruckig.Synchronization.Time,
+            "phase": ruckig.Synchronization.Phase,
+            "none": ruckig.Synchronization.No,
+        }
+        if self.synchronization not in sync:
+            raise ValueError(f"synchronization must be one of {sorted(sync)}, got {self.synchronization!r}")
+        self._otg = ruckig.Ruckig(self.n, self.dt)
+        self._inp = ruckig.InputParameter(self.n)
+        self._out = ruckig.OutputParameter(self.n)
+        self._inp.control_interface = ruckig.ControlInterface.Velocity
+        self._inp.synchronization = sync[self.synchronization]
+        self._inp.max_velocity = [1e9] * self.n  # unused in velocity mode; the targets carry the bounds
+        self._inp.max_acceleration = self.a_max.tolist()
+        self._inp.max_jerk = self.j_max.tolist()
+        self._inp.target_acceleration = [0.0] * self.n
+
+    def step(self, state: OtgState, target_velocity: np.ndarray) -> tuple[OtgState, np.ndarray, int]:
+        """Advance one cycle towards ``target_velocity`` (n,).
+
+        Returns:
+            the new state, the jerk (n,) applied, and Ruckig's result code (``ruckig.Result``:
+            0 Working, 1 Finished, negative = error). On error the state is returned unchanged.
+        """
+        inp, out = self._inp, self._out
+        inp.current_position = state.position.tolist()
+        inp.current_velocity = state.velocity.tolist()
+        inp.current_acceleration = np.clip(state.acceleration, -self.a_max, self.a_max).tolist()
+        inp.target_velocity = np.asarray(target_velocity, dtype=float).tolist()
+        res = self._otg.update(inp, out)
+        code = int(res.value) if hasattr(res, "value") else int(res)
+        if code < 0:
+            return state, np.zeros(self.n), code
+        new = OtgState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration))
+        return new, np.array(out.new_jerk), code

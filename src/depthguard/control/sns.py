@@ -1,0 +1,358 @@
+"""Saturation in the Null Space (SNS) at the velocity level.
+
+F. Flacco, A. De Luca, O. Khatib, "Motion control of redundant robots under joint constraints:
+Saturation in the Null Space", ICRA 2012, Algorithm 1 (and its task-scaling procedure, Algorithm 2).
+
+Given a task Jacobian ``J`` (m, n), a desired task velocity ``xdot`` (m,) and box bounds on the joint
+velocities, SNS finds ``qdot`` with ``qmin <= qdot <= qmax`` and ``J qdot = s xdot``, keeping the task
+scale ``s`` at 1 whenever it can and otherwise as large as its greedy search finds:
+
+1. ``qdot = qdot_N + (J W)^# (xdot - J qdot_N)``, with ``W`` the diagonal 0/1 selection of the joints
+   not yet saturated and ``qdot_N`` the saturated joints' velocities (at their bounds).
+2. If some joint leaves its bounds, compute the largest task scale that the free joints allow
+   (``qdot(s) = s a + b`` with ``a = (J W)^# xdot``), remember the best scale seen so far, saturate the
+   most critical joint at the bound it hits and repeat.
+3. If the free joints can no longer realise the task (``rank(J W) < m``), fall back to the best scaled
+   solution found.
+
+A final guard returns ``qdot = 0`` with ``s = 0`` if rounding ever left a bound violated, so the
+bounds always hold; for that, zero must be feasible (``qmin <= 0 <= qmax``), which
+:func:`sns_velocity` requires.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["sns_velocity", "sns_velocity_unchecked"]
+
+
+@njit(cache=True)
+def _damped_pinv(A: np.ndarray, damping: float, rcond: float) -> tuple[np.ndarray, int]:
+    """Damped pseudo-inverse ``V diag(s / (s^2 + damping^2)) U^T`` of ``A`` (m, n) and its numerical rank."""
+    m, n = A.shape
+    U, s, Vt = np.linalg.svd(A, full_matrices=False)
+    smax = s[0] if s.shape[0] > 0 else 0.0
+    rank = 0
+    k = s.shape[0]
+    P = np.zeros((n, m))
+    for i in range(k):
+        if s[i] > rcond * max(smax, 1e-300) and s[i] > 1e-12:
+            rank += 1
+            g = s[i] / (s[i] * s[i] + damping * damping)
+            for r in range(n):
+                for c in range(m):
+                    P[r, c] += Vt[i, r] * g * U[c, i]
+    return P, rank
+
+
+@njit(cache=True)
+def _task_scale(
+    a: np.ndarray, b: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, free: np.ndarray
+) -> tuple[float, int]:
+    """Largest s in [0, 1] with ``qmin <= s a + b <= qmax`` on the free joints (SNS Algorithm 2).
+
+    Returns the scale (0 when no s in [0, 1] is feasible) and the most critical joint (-1 if none).
+    """
+    lo, hi, crit = -np.inf, np.inf, -1
+    for i in range(a.shape[0]):
+        if not free[i]:
+            continue
+        smin = qmin[i] - b[i]
+        smax = qmax[i] - b[i]
+        if a[i] > 1e-12:
+            l_i, h_i = smin / a[i], smax / a[i]
+        elif a[i] < -1e-12:
+            l_i, h_i = smax / a[i], smin / a[i]
+        else:
+            continue
+        if l_i > lo:
+            lo = l_i
+        if h_i < hi:
+            hi, crit = h_i, i
+    if hi > 1.0:
+        hi = 1.0
+    if lo > hi or hi < 0.0:
+        return 0.0, crit
+    return hi, crit
+
+
+@njit(cache=True)
+def _violates(qdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, tol: float) -> bool:
+    for i in range(qdot.shape[0]):
+        if qdot[i] < qmin[i] - tol or qdot[i] > qmax[i] + tol:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _sns_greedy(
+    J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float
+) -> tuple[np.ndarray, float]:
+    """SNS Algorithm 1 (greedy saturation of the most critical joint)."""
+    m, n = J.shape
+    tol = 1e-10
+    free = np.ones(n, dtype=np.bool_)
+    qN = np.zeros(n)
+    best_s, best_free, best_qN = -1.0, free.copy(), qN.copy()
+    rank0 = -1
+    for _ in range(n + 1):
+        JW = J * free.astype(np.float64)[None, :]
+        P, rank = _damped_pinv(JW, damping, 1e-10)
+        if rank0 < 0:
+            rank0 = rank
+        elif rank < rank0:
+            break  # the free joints cannot realise the task any more: use the best scaled solution
+        qdot = qN + P @ (xdot - J @ qN)
+        if not _violates(qdot, qmin, qmax, tol):
+            return qdot, 1.0
+        a = P @ xdot
+        b = qdot - a
+        s, j = _task_scale(a, b, qmin, qmax, free)
+        if s > best_s:
+            best_s, best_free, best_qN = s, free.copy(), qN.copy()
+        # saturate the most critical joint (or, failing that, the worst violator) at the bound it hits
+        if j < 0:
+            worst = 0.0
+            for i in range(n):
+                v = max(qdot[i] - qmax[i], qmin[i] - qdot[i])
+                if free[i] and v > worst:
+                    worst, j = v, i
+            if j < 0:
+                break
+        if qdot[j] > qmax[j]:
+            qN[j] = qmax[j]
+        elif qdot[j] < qmin[j]:
+            qN[j] = qmin[j]
+        else:
+            qN[j] = qmax[j] if a[j] > 0 else qmin[j]
+        free[j] = False
+        if not free.any():
+            break
+    if best_s < 0.0:
+        return np.zeros(n), 0.0
+    JW = J * best_free.astype(np.float64)[None, :]
+    P, _ = _damped_pinv(JW, damping, 1e-10)
+    qdot = best_qN + P @ (best_s * xdot - J @ best_qN)
+    if _violates(qdot, qmin, qmax, 1e-9):
+        return np.zeros(n), 0.0
+    for i in range(n):  # remove rounding below the tolerance
+        qdot[i] = min(max(qdot[i], qmin[i]), qmax[i])
+    return qdot, best_s
+
+
+@njit(cache=True)
+def _facet_normal(J: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Unit normal of the span of the m-1 columns ``cols`` of J (m, n); zeros if they are dependent."""
+    m = J.shape[0]
+    nrm = np.zeros(m)
+    if m == 1:
+        nrm[0] = 1.0
+        return nrm
+    if m == 2:
+        nrm[0], nrm[1] = -J[1, cols[0]], J[0, cols[0]]
+    elif m == 3:
+        u, v = J[:, cols[0]], J[:, cols[1]]
+        nrm[0] = u[1] * v[2] - u[2] * v[1]
+        nrm[1] = u[2] * v[0] - u[0] * v[2]
+        nrm[2] = u[0] * v[1] - u[1] * v[0]
+    else:  # generalised cross product by cofactors
+        A = np.empty((m - 1, m))
+        for r in range(m - 1):
+            A[r] = J[:, cols[r]]
+        for i in range(m):
+            minor = np.empty((m - 1, m - 1))
+            c = 0
+            for k in range(m):
+                if k != i:
+                    minor[:, c] = A[:, k]
+                    c += 1
+            nrm[i] = (-1.0) ** i * np.linalg.det(minor)
+    norm = np.sqrt(np.sum(nrm * nrm))
+    scale = 1.0
+    for k in range(cols.shape[0]):
+        scale = max(scale, np.sqrt(np.sum(J[:, cols[k]] ** 2)))
+    if norm <= 1e-9 * scale ** (m - 1):
+        return np.zeros(m)
+    return nrm / norm
+
+
+@njit(cache=True)
+def _ray_exit(
+    J: np.ndarray, origin: np.ndarray, d: np.ndarray, qmin: np.ndarray, qmax: np.ndarray
+) -> tuple[float, np.ndarray]:
+    """Largest t with ``origin + t d`` in the zonotope ``Z = {J qdot : qmin <= qdot <= qmax}``.
+
+    Z is the intersection of the slabs normal to its facets, and each facet normal is orthogonal to
+    m-1 independent columns of J, so enumerating the (m-1)-subsets of columns is exact (J of full row
+    rank, ``origin`` in Z). Returns t (inf if the ray never leaves Z) and the outward normal (m,) of
+    the facet where it leaves (zeros if none).
+    """
+    m, n = J.shape
+    best, best_n = np.inf, np.zeros(m)
+    k = m - 1
+    cols = np.arange(k).astype(np.int64)
+    while True:
+        nrm = _facet_normal(J, cols)
+        if np.any(nrm != 0.0):
+            nd = np.dot(nrm, d)
+            if abs(nd) > 1e-15:
+                if nd < 0:
+                    nrm, nd = -nrm, -nd
+                h = 0.0
+                for j in range(n):
+                    g = np.dot(nrm, np.ascontiguousarray(J[:, j]))
+                    h += max(g * qmax[j], g * qmin[j])
+                t = (h - np.dot(nrm, origin)) / nd
+                if t < best:
+                    best, best_n = max(t, 0.0), nrm
+        i = k - 1  # next combination of k out of n
+        while i >= 0 and cols[i] == n - k + i:
+            i -= 1
+        if i < 0:
+            break
+        cols[i] += 1
+        for r in range(i + 1, k):
+            cols[r] = cols[r - 1] + 1
+    return best, best_n
+
+
+@njit(cache=True)
+def _facet_solution(
+    J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, nrm: np.ndarray
+) -> np.ndarray:
+    """A qdot with ``J qdot = target`` for a target on the facet of Z with outward normal ``nrm``.
+
+    Joints whose column has a component along ``nrm`` sit at the bound that maximises it; the joints
+    parallel to the facet realise the rest (least squares; SNS if that leaves the bounds).
+    """
+    m, n = J.shape
+    qdot = np.zeros(n)
+    par = np.zeros(n, dtype=np.bool_)
+    scale = 0.0
+    for j in range(n):
+        scale = max(scale, np.sqrt(np.sum(J[:, j] ** 2)))
+    for j in range(n):
+        g = np.dot(nrm, np.ascontiguousarray(J[:, j]))
+        if abs(g) <= 1e-9 * max(scale, 1e-300):
+            par[j] = True
+        else:
+            qdot[j] = qmax[j] if g > 0 else qmin[j]
+    rest = target - J @ qdot
+    Jp = J * par.astype(np.float64)[None, :]
+    P, _ = _damped_pinv(Jp, 0.0, 1e-10)
+    qp = P @ rest
+    lo = np.where(par, qmin, 0.0)
+    hi = np.where(par, qmax, 0.0)
+    if _violates(qp, lo, hi, 1e-9):
+        qp, _ = _sns_greedy(Jp, rest, lo, hi, 0.0)
+    return qdot + qp
+
+
+@njit(cache=True)
+def _zonotope_point(J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: np.ndarray) -> np.ndarray:
+    """A qdot in the box with ``J qdot = target`` for a target inside Z (finite bounds).
+
+    The ray from Z's centre ``J qc`` (qc = box centre) through the target leaves Z on a facet at
+    ``t >= 1``; the facet point has a solution (:func:`_facet_solution`), and the target is the convex
+    combination ``(1 - 1/t) qc + (1/t) q_facet`` of two points of the box.
+    """
+    qc = 0.5 * (qmin + qmax)
+    c = J @ qc
+    d = target - c
+    if np.sqrt(np.sum(d * d)) <= 1e-15:
+        return qc
+    t, nrm = _ray_exit(J, c, d, qmin, qmax)
+    if not np.isfinite(t) or t <= 0.0:
+        return qc
+    qf = _facet_solution(J, c + t * d, qmin, qmax, nrm)
+    return qc + (qf - qc) / t
+
+
+@njit(cache=True)
+def sns_velocity_unchecked(
+    J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 0.0
+) -> tuple[np.ndarray, float]:
+    """SNS without input validation, for the real-time path (arrays must be float64, C-contiguous).
+
+    Runs SNS Algorithm 1. Its greedy saturation may scale a task more than needed, so when it scales
+    (s < 1) the exact largest feasible scale s* is computed from the facets of the zonotope
+    ``{J qdot : qmin <= qdot <= qmax}``; if s* is larger, SNS is re-run on the feasible task
+    ``s* xdot`` and, should it still scale, an exact point of the zonotope is constructed
+    (:func:`_zonotope_point`). ``damping`` > 0 replaces the pseudo-inverse by damped least squares near
+    singularities; then ``J qdot = s xdot`` holds only approximately, while the bounds still hold.
+    """
+    m, n = J.shape
+    qdot, s = _sns_greedy(J, xdot, qmin, qmax, damping)
+    qdot = np.minimum(np.maximum(qdot, qmin), qmax)  # rounding below the 1e-10 tolerance
+    if s >= 1.0 or m > n:
+        return qdot, s
+    t, _ = _ray_exit(J, np.zeros(m), xdot, qmin, qmax)
+    s_opt = min(t, 1.0)
+    if s_opt <= s + 1e-9:
+        return qdot, s
+    target = s_opt * xdot
+    q2, s2 = _sns_greedy(J, target, qmin, qmax, damping)
+    if s2 >= 1.0:
+        return np.minimum(np.maximum(q2, qmin), qmax), s_opt
+    lo = np.maximum(qmin, -1e9)
+    hi = np.minimum(qmax, 1e9)
+    q3 = _zonotope_point(J, target, lo, hi)
+    err = np.sqrt(np.sum((J @ q3 - target) ** 2))
+    if _violates(q3, qmin, qmax, 1e-9) or err > 1e-8 * (1.0 + np.sqrt(np.sum(xdot * xdot))):
+        return qdot, s
+    for i in range(n):
+        q3[i] = min(max(q3[i], qmin[i]), qmax[i])
+    return q3, s_opt
+
+
+def sns_velocity(
+    J: np.ndarray, xdot: np.ndarray, qdot_min: np.ndarray, qdot_max: np.ndarray
+) -> tuple[np.ndarray, float]:
+    """Joint velocities for a task under joint-velocity bounds by Saturation in the Null Space.
+
+    Args:
+        J: (m, n) task Jacobian.
+        xdot: (m,) desired task velocity.
+        qdot_min, qdot_max: (n,) joint velocity bounds (``-inf``/``inf`` allowed). They must satisfy
+            ``qdot_min <= 0 <= qdot_max``: standing still must be feasible, so that a solution that
+            respects the bounds always exists (with scale 0 in the worst case). Bounds that exclude
+            zero raise ``ValueError``; shrink them to include zero first.
+    Returns:
+        ``(qdot, scale)``: ``qdot`` (n,) within the bounds, and the task scale in [0, 1] with
+        ``J qdot = scale * xdot`` (exactly up to rounding when ``J`` has full row rank). ``scale == 1``
+        whenever the plain pseudo-inverse solution ``J^# xdot`` is within the bounds, in which case it is
+        that solution.
+    """
+    J = np.array(J, dtype=np.float64, order="C")
+    if J.ndim != 2 or J.shape[0] < 1 or J.shape[1] < 1:
+        raise ValueError(f"J must be a 2-D (m, n) array, got shape {J.shape}")
+    if not np.all(np.isfinite(J)):
+        raise ValueError("J must be finite (no NaN or inf)")
+    m, n = J.shape
+    xdot = np.array(xdot, dtype=np.float64)
+    if xdot.shape != (m,):
+        raise ValueError(f"xdot must have shape ({m},) to match J {J.shape}, got {np.shape(xdot)}")
+    if not np.all(np.isfinite(xdot)):
+        raise ValueError("xdot must be finite (no NaN or inf)")
+    bounds = []
+    for name, v in (("qdot_min", qdot_min), ("qdot_max", qdot_max)):
+        arr = np.array(v, dtype=np.float64)
+        if arr.shape != (n,):
+            raise ValueError(f"{name} must have shape ({n},) to match J {J.shape}, got {arr.shape}")
+        if np.any(np.isnan(arr)):
+            raise ValueError(f"{name} must not contain NaN")
+        bounds.append(arr)
+    qmin, qmax = bounds
+    if np.any(qmin > qmax):
+        i = int(np.argmax(qmin > qmax))
+        raise ValueError(f"qdot_min must be <= qdot_max; joint {i}: {qmin[i]} > {qmax[i]}")
+    if np.any(qmin > 0) or np.any(qmax < 0):
+        i = int(np.argmax((qmin > 0) | (qmax < 0)))
+        raise ValueError(
+            f"the bounds must contain zero (qdot_min <= 0 <= qdot_max) so that stopping is feasible; "
+            f"joint {i} has [{qmin[i]}, {qmax[i]}]"
+        )
+    qdot, scale = sns_velocity_unchecked(J, xdot, qmin, qmax, 0.0)
+    return qdot, float(scale)

@@ -1,0 +1,198 @@
+"""Control points: spheres that bound the robot's links (ICRA'12 §IV-B, Fig. 8; RA-L'16 §VII-VIII).
+
+Each link capsule (segment ``a``-``b`` of length L, radius r; see :mod:`depthguard.robot.model`) is
+covered by ``k`` spheres:
+
+* ``k = 1``: one sphere at the segment's midpoint with radius ``L/2 + r``;
+* ``k >= 2``: centres at ``a + i/(k-1) (b - a)``, ``i = 0..k-1``, all with radius
+  ``sqrt(r^2 + (L / (2 (k-1)))^2)``. Neighbouring spheres then cover the cylinder between them and the
+  end spheres cover the hemispherical caps, so the union of the spheres contains the capsule.
+
+The sphere centres are the control points; a reported distance is measured from the sphere surface
+(DESIGN.md §3). The end-effector point is a sphere of radius ``ee_radius`` centred at the model's
+end-effector frame; it is always point 0.
+
+Presets for the shipped LWR (:func:`depthguard.robot.model.load_lwr4`):
+
+* ``"icra-exp3"``: ICRA'12 Exp. 3, the end effector plus five points on the arm and forearm
+  (upper arm A2-A4: three, forearm A4-A6: two; the base and shoulder are not considered).
+* ``"ral-9"``: RA-L'16 §VIII, nine points including the end effector (upper arm three, forearm four,
+  wrist one, plus the end effector).
+
+For any other robot pass a ``{link_name: count}`` mapping.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from depthguard.robot.model import RobotModel
+
+__all__ = ["PRESETS", "ControlPointSet", "ControlPointState", "bounding_spheres", "control_points"]
+
+PRESETS: dict[str, dict[str, int]] = {
+    "icra-exp3": {"lwr_link_2": 1, "lwr_link_3": 2, "lwr_link_4": 1, "lwr_link_5": 1},
+    "ral-9": {"lwr_link_2": 1, "lwr_link_3": 2, "lwr_link_4": 2, "lwr_link_5": 2, "lwr_link_6": 1},
+}
+
+
+def bounding_spheres(a: np.ndarray, b: np.ndarray, radius: float, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` spheres whose union contains the capsule ``a``-``b`` (3,) of ``radius`` (m).
+
+    Returns:
+        centres (k, 3) in the frame of ``a``, ``b``, and radii (k,), metres.
+    """
+    if k < 1:
+        raise ValueError(f"sphere count per link must be >= 1, got {k}")
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    L = float(np.linalg.norm(b - a))
+    if k == 1:
+        return (0.5 * (a + b))[None], np.array([0.5 * L + radius])
+    t = np.linspace(0.0, 1.0, k)
+    centres = a + t[:, None] * (b - a)
+    return centres, np.full(k, np.hypot(radius, 0.5 * L / (k - 1)))
+
+
+@njit(cache=True)
+def _assemble(
+    H: np.ndarray, slot: np.ndarray, offsets: np.ndarray, Jw: np.ndarray, support: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centres (N, 3) and Jacobians (N, 3, n) from the parent joints' poses H (U, 4, 4) and the WORLD
+    joint Jacobian Jw (6, n): a body point c moves with ``v_O + w x c``, so ``J_c = J_lin + J_ang x c``
+    over the joints that support it."""
+    N, n = slot.shape[0], Jw.shape[1]
+    centres = np.empty((N, 3))
+    jac = np.zeros((N, 3, n))
+    for k in range(N):
+        M = H[slot[k]]
+        for i in range(3):
+            centres[k, i] = M[i, 0] * offsets[k, 0] + M[i, 1] * offsets[k, 1] + M[i, 2] * offsets[k, 2] + M[i, 3]
+        c0, c1, c2 = centres[k, 0], centres[k, 1], centres[k, 2]
+        for j in range(n):
+            if support[k, j]:
+                w0, w1, w2 = Jw[3, j], Jw[4, j], Jw[5, j]
+                jac[k, 0, j] = Jw[0, j] + w1 * c2 - w2 * c1
+                jac[k, 1, j] = Jw[1, j] + w2 * c0 - w0 * c2
+                jac[k, 2, j] = Jw[2, j] + w0 * c1 - w1 * c0
+    return centres, jac
+
+
+class ControlPointState(NamedTuple):
+    """Control points at one configuration.
+
+    Attributes:
+        centres: (N, 3) sphere centres in the world frame, m.
+        radii: (N,) sphere radii, m.
+        jacobians: (N, 3, n) positional Jacobians, ``d centre / dq`` (m/rad).
+        names: N names; ``names[0] == "ee"``.
+    """
+
+    centres: np.ndarray
+    radii: np.ndarray
+    jacobians: np.ndarray
+    names: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ControlPointSet:
+    """A fixed set of control spheres on a robot; build once, evaluate every cycle.
+
+    Attributes:
+        model: the robot.
+        names: N point names, ``"ee"`` first, then ``"<link>/<i>"``.
+        joints: (N,) pinocchio parent-joint index of each point.
+        offsets: (N, 3) centre in the parent joint frame, m.
+        radii: (N,) sphere radii, m.
+        support: (N, n) bool, the joint coordinates that move each point.
+    """
+
+    model: RobotModel
+    names: tuple[str, ...]
+    joints: np.ndarray
+    offsets: np.ndarray
+    radii: np.ndarray
+    support: np.ndarray
+
+    @classmethod
+    def build(
+        cls, model: RobotModel, counts: str | Mapping[str, int] = "ral-9", ee_radius: float = 0.06
+    ) -> ControlPointSet:
+        """Cover the links named in ``counts`` (a preset name or ``{link: spheres}``) plus the end effector.
+
+        Links with several capsules get ``count`` spheres per capsule.
+        """
+        if isinstance(counts, str):
+            if counts not in PRESETS:
+                raise ValueError(f"unknown control-point preset '{counts}'; known: {sorted(PRESETS)}")
+            counts = PRESETS[counts]
+        links = {c.link for c in model.capsules}
+        unknown = [name for name in counts if name not in links]
+        if unknown:
+            raise ValueError(
+                f"control-point links {unknown} have no collision capsule; links: {sorted(links)}"
+            )
+        if not np.isfinite(ee_radius) or ee_radius < 0:
+            raise ValueError(f"ee_radius must be a finite number >= 0, got {ee_radius!r}")
+        ee = model.model.frames[model.ee_frame_id]
+        names, joints = ["ee"], [int(ee.parentJoint)]
+        offsets, radii = [np.array(ee.placement.translation)], [float(ee_radius)]
+        for link, k in counts.items():
+            frame = model.model.frames[model.frame_id(link)]
+            M = frame.placement
+            caps = [c for c in model.capsules if c.link == link]
+            for ci, cap in enumerate(caps):
+                centres, rr = bounding_spheres(cap.a, cap.b, cap.radius, int(k))
+                for i, (c, r) in enumerate(zip(centres, rr, strict=True)):
+                    suffix = f"{i}" if len(caps) == 1 else f"{ci}.{i}"
+                    names.append(f"{link}/{suffix}")
+                    joints.append(int(frame.parentJoint))
+                    offsets.append(M.rotation @ c + M.translation)
+                    radii.append(float(r))
+        joints_a = np.array(joints, dtype=np.int64)
+        support = np.array([model.joint_support_mask(j) for j in joints_a])
+        return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)
+
+    @cached_property
+    def _unique_joints(self) -> list[int]:
+        return sorted({int(j) for j in self.joints})
+
+    @cached_property
+    def _joint_slot(self) -> np.ndarray:
+        u = self._unique_joints
+        return np.array([u.index(int(j)) for j in self.joints], dtype=np.int64)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.names)
+
+    def evaluate(self, q: np.ndarray, *, updated: bool = False) -> ControlPointState:
+        """Centres, radii and Jacobians of all points at ``q`` (n,) in one call.
+
+        Args:
+            q: joint positions (n,), rad.
+            updated: True if ``model.update(q)`` has already run for this ``q`` (skips it).
+        """
+        if not updated:
+            self.model.update(self.model.check_q(q))
+        oMi = self.model.data.oMi
+        H = np.array([oMi[j].homogeneous for j in self._unique_joints])  # (U, 4, 4)
+        Jw = np.asarray(self.model.data.J)  # (6, n): linear part at the world origin, angular part
+        centres, jac = _assemble(H, self._joint_slot, self.offsets, Jw, self.support)
+        return ControlPointState(centres, self.radii.copy(), jac, self.names)
+
+
+def control_points(
+    model: RobotModel, q: np.ndarray, preset: str | Mapping[str, int] = "ral-9", ee_radius: float = 0.06
+) -> ControlPointState:
+    """One-shot convenience: build the set named ``preset`` and evaluate it at ``q`` (n,).
+
+    For a control loop build a :class:`ControlPointSet` once and call :meth:`ControlPointSet.evaluate`.
+    """
+    return ControlPointSet.build(model, preset, ee_radius).evaluate(q)

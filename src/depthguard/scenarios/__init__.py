@@ -1,0 +1,1 @@
+"""Scenarios that need no simulator (the MuJoCo ones live in depthguard.sim)."""

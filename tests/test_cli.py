@@ -1,0 +1,148 @@
+"""The command-line contract of issue 2 (kept exactly; checks outside the suite rely on it)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from depthguard.camera import Camera, look_at
+from depthguard.cli import main
+from depthguard.io import ControlPoint, write_camera, write_depth, write_points
+from depthguard.scene import HalfSpace, Scene, Sphere, render_depth
+
+
+@pytest.fixture
+def files(tmp_path):
+    R, t = look_at([0, 0, 0], [0, 0, 1], up=[0, -1, 0])
+    cam = Camera(width=160, height=120, fx=131.25, fy=131.25, cx=80, cy=60, R=R, t=t)
+    scene = Scene((Sphere(np.array([0.0, 0.0, 2.0]), 0.2), HalfSpace(np.array([0, 0, 3.5]), np.array([0, 0, -1.0]))))
+    write_camera(tmp_path / "cam.json", cam)
+    write_depth(tmp_path / "d.png", render_depth(cam, scene))
+    write_points(
+        tmp_path / "pts.json",
+        [ControlPoint("near", np.array([0.0, 0.0, 1.6]), 0.05), ControlPoint("far", np.array([0.0, 0.0, 1.15]), 0.05)],
+    )
+    return tmp_path
+
+
+def test_distance_json_contract(files, capsys):
+    rc = main(
+        [
+            "distance",
+            "--camera",
+            str(files / "cam.json"),
+            "--depth",
+            str(files / "d.png"),
+            "--points",
+            str(files / "pts.json"),
+            "--json",
+        ]
+    )
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert list(out) == ["points"]
+    near, far = out["points"]
+    assert set(near) == {"name", "distance", "direction", "nearest", "obstacle_pixels"}
+    assert near["name"] == "near" and near["distance"] == pytest.approx(0.2 - 0.05, abs=0.01)
+    assert near["direction"][2] < -0.99 and len(near["nearest"]) == 3 and near["obstacle_pixels"] > 0
+    assert far == {"name": "far", "distance": None, "direction": None, "nearest": None, "obstacle_pixels": 0}
+
+
+def test_distance_options_and_timing(files, capsys):
+    rc = main(
+        [
+            "distance",
+            "--camera",
+            str(files / "cam.json"),
+            "--depth",
+            str(files / "d.png"),
+            "--points",
+            str(files / "pts.json"),
+            "--rho",
+            "0.2",
+            "--mode",
+            "all",
+            "--invalid",
+            "ignore",
+            "--repeat",
+            "20",
+            "--json",
+        ]
+    )
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["points"][0]["distance"] == pytest.approx(0.15, abs=0.01)
+    assert set(out["timing"]) == {"us_median", "us_p99"} and out["timing"]["us_median"] > 0
+
+
+def test_distance_errors_exit_2_with_the_field(files):
+    bad = files / "bad.json"
+    bad.write_text(
+        json.dumps(
+            {"width": 160, "height": 120, "fx": -1, "fy": 1, "cx": 0, "cy": 0, "R": np.eye(3).tolist(), "t": [0, 0, 0]}
+        )
+    )
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "depthguard.cli",
+            "distance",
+            "--camera",
+            str(bad),
+            "--depth",
+            str(files / "d.png"),
+            "--points",
+            str(files / "pts.json"),
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 2 and "fx" in proc.stderr and proc.stdout == ""
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "depthguard.cli",
+            "distance",
+            "--camera",
+            str(files / "cam.json"),
+            "--depth",
+            str(files / "d.png"),
+            "--points",
+            str(files / "pts.json"),
+            "--mode",
+            "median",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 2 and "--mode" in proc.stderr
+
+
+def test_wrong_image_size_is_an_error(files, capsys):
+    write_depth(files / "small.npy", np.ones((10, 10)))
+    rc = main(
+        [
+            "distance",
+            "--camera",
+            str(files / "cam.json"),
+            "--depth",
+            str(files / "small.npy"),
+            "--points",
+            str(files / "pts.json"),
+            "--json",
+        ]
+    )
+    assert rc == 2 and "shape" in capsys.readouterr().err
+
+
+def test_scenario_pivot_json(capsys):
+    assert main(["scenario", "pivot", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"direct", "pivot"}
+    assert out["direct"]["collided"] is True and out["pivot"]["collided"] is False
+    assert isinstance(out["pivot"]["min_distance"], float)

@@ -1,0 +1,132 @@
+"""SNS (saturation in the null space): bounds, task preservation, optimal scaling (checked with linprog)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linprog
+
+from depthguard.control import sns_velocity
+
+
+def _max_feasible_scale(J: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """Independent reference: max s in [0, 1] s.t. J q = s x, lo <= q <= hi (a linear program)."""
+    m, n = J.shape
+    res = linprog(
+        np.r_[np.zeros(n), -1.0],
+        A_eq=np.hstack([J, -x[:, None]]),
+        b_eq=np.zeros(m),
+        bounds=[(a, b) for a, b in zip(lo, hi, strict=True)] + [(0.0, 1.0)],
+        method="highs",
+    )
+    assert res.status == 0
+    return float(res.x[-1])
+
+
+@st.composite
+def problems(draw, max_m: int = 3, max_n: int = 7):
+    m = draw(st.integers(1, max_m))
+    n = draw(st.integers(m, max_n))
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(m, n))
+    x = rng.normal(size=m) * draw(st.floats(0.05, 10.0))
+    lo = -rng.uniform(0.0, 2.0, n)
+    hi = rng.uniform(0.0, 2.0, n)
+    if draw(st.booleans()):  # some joints may only move one way (as body constraints produce)
+        k = rng.integers(n)
+        if rng.uniform() < 0.5:
+            lo[k] = 0.0
+        else:
+            hi[k] = 0.0
+    return J, x, lo, hi
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(problems(max_m=6, max_n=9))
+def test_bounds_always_respected(p) -> None:
+    J, x, lo, hi = p
+    q, s = sns_velocity(J, x, lo, hi)
+    assert q.shape == (J.shape[1],)
+    assert 0.0 <= s <= 1.0
+    assert np.all(q >= lo - 1e-12) and np.all(q <= hi + 1e-12)
+
+
+@settings(max_examples=300, deadline=None)
+@given(problems())
+def test_task_direction_and_scale_preserved(p) -> None:
+    J, x, lo, hi = p
+    if np.linalg.cond(J) > 1e3:
+        return
+    q, s = sns_velocity(J, x, lo, hi)
+    np.testing.assert_allclose(J @ q, s * x, atol=1e-6 * np.linalg.norm(x))
+
+
+@settings(max_examples=300, deadline=None)
+@given(problems())
+def test_matches_pseudo_inverse_when_nothing_saturates(p) -> None:
+    J, x, lo, hi = p
+    q_pinv = np.linalg.pinv(J) @ x
+    q, s = sns_velocity(J, x, lo, hi)
+    if np.all(q_pinv >= lo) and np.all(q_pinv <= hi):
+        assert s == 1.0
+        np.testing.assert_allclose(q, q_pinv, atol=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(problems())
+def test_no_larger_feasible_scale_exists(p) -> None:
+    J, x, lo, hi = p
+    if np.linalg.matrix_rank(J) < J.shape[0]:
+        return
+    _, s = sns_velocity(J, x, lo, hi)
+    s_lp = _max_feasible_scale(J, x, lo, hi)
+    assert s >= s_lp - 1e-6  # scaling only as much as the task is infeasible
+    assert s <= s_lp + 1e-6
+
+
+def test_null_space_compensates_a_saturated_joint() -> None:
+    # x = q1 + q2 = 1.2, q1 <= 0.4: the pseudo-inverse gives (0.6, 0.6); SNS saturates q1 at 0.4
+    # and the null space gives q2 = 0.8, so the task is kept without scaling.
+    q, s = sns_velocity(np.array([[1.0, 1.0]]), np.array([1.2]), np.array([-1.0, -1.0]), np.array([0.4, 1.0]))
+    assert s == 1.0
+    np.testing.assert_allclose(q, [0.4, 0.8], atol=1e-12)
+    # x = 2 needs 0.4 + 1.0 = 1.4 at most: scale 0.7
+    q, s = sns_velocity(np.array([[1.0, 1.0]]), np.array([2.0]), np.array([-1.0, -1.0]), np.array([0.4, 1.0]))
+    assert s == pytest.approx(0.7)
+    np.testing.assert_allclose(q, [0.4, 1.0], atol=1e-12)
+
+
+def test_zero_task_and_zero_bounds() -> None:
+    J = np.random.default_rng(0).normal(size=(3, 7))
+    q, s = sns_velocity(J, np.zeros(3), -np.ones(7), np.ones(7))
+    assert s == 1.0 and np.all(q == 0)
+    q, s = sns_velocity(J, np.ones(3), np.zeros(7), np.zeros(7))
+    assert s == 0.0 and np.all(q == 0)
+
+
+def test_infinite_bounds_are_allowed() -> None:
+    J = np.random.default_rng(1).normal(size=(3, 7))
+    q, s = sns_velocity(J, np.ones(3), np.full(7, -np.inf), np.full(7, np.inf))
+    assert s == 1.0
+    np.testing.assert_allclose(J @ q, np.ones(3))
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        ((np.ones(3), np.ones(1), -np.ones(3), np.ones(3)), "J must be a 2-D"),
+        ((np.ones((2, 3)), np.ones(3), -np.ones(3), np.ones(3)), "xdot must have shape"),
+        ((np.ones((2, 3)), np.ones(2), -np.ones(4), np.ones(3)), "qdot_min must have shape"),
+        ((np.ones((2, 3)), np.ones(2), np.ones(3), -np.ones(3)), "qdot_min must be <= qdot_max"),
+        ((np.ones((2, 3)), np.ones(2), np.array([0.1, -1, -1]), np.ones(3)), "contain zero"),
+        ((np.full((2, 3), np.nan), np.ones(2), -np.ones(3), np.ones(3)), "J must be finite"),
+        ((np.ones((2, 3)), np.array([1.0, np.nan]), -np.ones(3), np.ones(3)), "xdot must be finite"),
+        ((np.ones((2, 3)), np.ones(2), np.array([np.nan, -1, -1]), np.ones(3)), "NaN"),
+    ],
+)
+def test_bad_inputs_raise_clear_errors(args, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        sns_velocity(*args)
