@@ -203,3 +203,19 @@ def test_fused_distances_helper_and_errors():
     fusion.update(depths)
     with pytest.raises(ValueError, match="mode"):
         fusion.query(P, mode="mean")
+
+
+def test_voxel_baseline_agrees_on_the_shadow_scene():
+    """The voxel baseline (bench) sees the same fused free space: the shadow is cleared there too."""
+    from depthguard.depthgrid.voxel import VoxelFusion
+
+    cams = two_cameras()
+    P = np.array([[0.0, 0.0, 1.0]])
+    scene = Scene((Sphere(np.array([0.4, 0.0, 1.0]), 0.1), *WALLS))
+    depths = [render_depth(c, scene) for c in cams]
+    voxel = VoxelFusion(cams, (-0.6, 0.6, -0.6, 0.6, 0.5, 1.5), res=0.02)
+    voxel.update(depths)
+    res = voxel.query(P, 0.0, rho=0.4, mode="all")
+    assert 0.3 - 0.04 <= res.distance[0] <= 0.3 + 1e-9
+    voxel.update([depths[0], np.full_like(depths[1], np.nan)])  # blind second camera: the shadow stays
+    assert voxel.query(P, 0.0, rho=0.4, mode="min").distance[0] < 0.03
