@@ -239,11 +239,14 @@ def tile_min(img, tile):
     th = (H + tile - 1) // tile
     tw = (W + tile - 1) // tile
     out = np.full((th, tw), np.inf, dtype=np.float32)
-    for v in range(H):
-        for u in range(W):
-            d = img[v, u]
-            if d < out[v // tile, u // tile]:
-                out[v // tile, u // tile] = d
+    for tv in range(th):
+        for v in range(tv * tile, min(H, tv * tile + tile)):
+            for tu in range(tw):
+                m = out[tv, tu]
+                for u in range(tu * tile, min(W, tu * tile + tile)):
+                    if img[v, u] < m:
+                        m = img[v, u]
+                out[tv, tu] = m
     return out
 
 
