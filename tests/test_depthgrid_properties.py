@@ -56,9 +56,13 @@ def random_scene(rng: np.random.Generator) -> Scene:
 def setup(seed: int):
     rng = np.random.default_rng(seed)
     az0 = rng.uniform(0, 2 * np.pi)
-    cams = [random_camera(rng, az0 + off) for off in (0.0, rng.uniform(1.2, 2.2), rng.uniform(-2.6, -1.4))]
+    cams = [random_camera(rng, az0), random_camera(rng, az0 + rng.uniform(1.2, 2.2)),
+            random_camera(rng, az0 + rng.uniform(-2.6, -1.4), w=100, h=80, f=85.0)]
     scene = random_scene(rng)
     depths = [render_depth(c, scene) for c in cams]
+    if rng.random() < 0.5:  # dropouts: filled or unknown, never free
+        for d in depths:
+            d[rng.random(d.shape) < 0.05] = np.nan
     P = rng.uniform([-0.7, -0.7, 0.1], [0.7, 0.7, 1.5], size=(12, 3))
     radii = rng.uniform(0.0, 0.1, 12)
     return cams, scene, depths, P, radii
@@ -94,6 +98,11 @@ def test_fusion_bounds(seed, mode):
     # a third camera can only clear cells: distances never drop (up to the tile-bound slack)
     h = 0.5 * np.sqrt(cams[0].fx ** -2 + cams[0].fy ** -2)
     assert np.all(d3 >= d2 - 2 * h * 4.0)
+    # the distance does not depend on the aggregation mode (min mode prunes whole tiles by their bound)
+    other = f3.query(P, radii, rho=RHO, mode="min" if mode == "all" else "all").distance
+    assert np.array_equal(np.isfinite(other), np.isfinite(d3))
+    ok = np.isfinite(d3)
+    assert np.allclose(other[ok], d3[ok], atol=2 * h * 4.0)
 
 
 @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
