@@ -294,14 +294,34 @@ def column_search(u, v, a, b, s0, surface, robot, px, py, pz, h, limit, d_min, d
         ``(found, lo, hi, tests)``: the depth interval of the occupied cell along the pixel, and the
         number of cell and block votes taken.
     """
+    # |P - s r|^2 = l2 + rr (s - s_line)^2: the ray distance grows with |s - s_line|, so the cells are
+    # visited by their depth gap to s_line, and only within the gap delta_max where the frustum bound
+    # d_ray (1 - h) - h d_p stays below ``limit``
     rr = a * a + b * b + 1.0
-    s_line = (px * a + py * b + pz) / rr
+    pr = px * a + py * b + pz
+    s_line = pr / rr
+    l2 = px * px + py * py + pz * pz - pr * s_line
+    if l2 < 0.0:
+        l2 = 0.0
+    T = (limit + h * pz) / (1.0 - h)
+    if not l2 < T * T:
+        return False, 0.0, 0.0, 0
+    delta_max = math.sqrt((T * T - l2) / rr)
+    s_hi = s_line + delta_max
+    if s_hi < s0:
+        return False, 0.0, 0.0, 0
     if s0 < d_min:
         g_start = -1
     else:
         g_start = int(math.floor((s0 - d_min) / dd))
         if g_start > n_cells:
             g_start = n_cells
+    if s_hi < d_min:
+        g_end = -1
+    else:
+        g_end = int(math.floor((s_hi - d_min) / dd))
+        if g_end > n_cells:
+            g_end = n_cells
     s_c = s_line if s_line > s0 else s0
     if s_c < d_min:
         g_c = -1
@@ -311,32 +331,32 @@ def column_search(u, v, a, b, s0, surface, robot, px, py, pz, h, limit, d_min, d
             g_c = n_cells
     if g_c < g_start:
         g_c = g_start
+    s_lo = s_line - delta_max
     up = g_c
     dn = g_c - 1
     bu = BLOCK  # current block size in each direction: shrinks where blocks fail, near obstacles
     bd = BLOCK
     tests = 0
     while True:
-        lu = np.inf
-        if up <= n_cells:
-            lo, hi = _seg_lo_hi(up, g_start, s0, d_min, dd, n_cells)
-            lu = _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi)
-        ld = np.inf
+        # depth gap between s_line and the next segment in each direction (inf when exhausted)
+        gu = np.inf
+        if up <= g_end:
+            lo_u = s0 if up < 0 else max(d_min + up * dd, s0)
+            gu = lo_u - s_line if lo_u > s_line else 0.0
+        gd = np.inf
         if dn >= g_start:
-            lo, hi = _seg_lo_hi(dn, g_start, s0, d_min, dd, n_cells)
-            ld = _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi)
-        going_up = lu <= ld
+            hi_d = d_min if dn < 0 else d_min + (dn + 1) * dd
+            if hi_d >= s_lo:
+                gd = s_line - hi_d if hi_d < s_line else 0.0
+        if gu == np.inf and gd == np.inf:
+            return False, 0.0, 0.0, tests
+        going_up = gu <= gd
         if going_up:
             g = up
-            dr = lu
             up += 1
         else:
             g = dn
-            dr = ld
             dn -= 1
-        # every remaining segment is at ray distance >= dr: its frustum bound is >= dr (1 - h) - h pz
-        if not dr * (1.0 - h) - h * pz < limit:
-            return False, 0.0, 0.0, tests
         lo, hi = _seg_lo_hi(g, g_start, s0, d_min, dd, n_cells)
         if g < 0 or g >= n_cells:
             if robot:
