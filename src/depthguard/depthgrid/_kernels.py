@@ -35,6 +35,8 @@ FOOT_MAX = 255  # largest footprint extent (pixels - 1) a cell may have in a sec
 KIND_NONE, KIND_SURFACE, KIND_UNKNOWN, KIND_ROBOT = 0, 1, 2, 3
 BLOCK = 8  # first block size (cells) tried along a column; then 2, then single cells
 TILE_BLOCK = 8  # depth cells per tile-wide block
+# fast-math for the query loop, without the no-NaN / no-inf assumptions (inf marks "nothing" everywhere)
+_FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
 @nb.njit(cache=True, _nrt=False)
@@ -404,7 +406,7 @@ def column_search(u, v, a, b, s0, surface, robot, px, py, pz, h, limit, d_min, d
             return True, lo, hi, tests
 
 
-@nb.njit(cache=True, error_model="numpy", _nrt=False)
+@nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=_FAST)
 def query_one(Pc, radius, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit, unseen,
               d_min, dd, n_cells, corner_rays, centre_rays, cams, stored, pmap, votes, lbs, tstate, out):
     """Fused distance query for one control sphere; out[0:10] = D, dir(3), nearest(3), count,
