@@ -113,6 +113,35 @@ def test_hidden_obstacle_behind_the_robot_is_found():
     assert blind2.query(P, 0.0, mode="min").distance[0] < 0.02
 
 
+def test_robot_pixel_without_depth_is_checked_from_the_near_limit():
+    cams, depths, masks, obstacles, P = hidden_obstacle_setup()
+    depths[0] = np.where(masks[0], np.nan, depths[0])  # the robot is masked but has no reading
+    fusion = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    fusion.update(depths, masks)
+    res = fusion.query(P, 0.0, rho=0.4, mode="min")
+    tol = fusion.tolerance(P)[0]
+    assert 0.2 - tol <= res.distance[0] <= 0.2 + 1e-9
+
+
+def test_robot_in_the_secondary_camera_sees_past_unless_robot_occludes():
+    """DESIGN.md §4: a secondary robot pixel never confirms an obstacle. So space hidden by an obstacle
+    from the principal camera and by the robot from the other camera is free by default (the documented
+    limit), and an obstacle (gray area) with ``robot_occludes=True``."""
+    cams = two_cameras()
+    P = np.array([[0.0, 0.0, 1.0]])
+    obstacle = Sphere(np.array([0.4, 0.0, 1.0]), 0.1)  # shadows P from the principal camera
+    robot = Scene((Box(np.array([0.0, 0.5, 1.0]), np.array([0.3, 0.05, 0.3])),))  # hides P from camera 2
+    full = Scene((obstacle, *robot.primitives, *WALLS))
+    depths, masks = zip(*(robot_mask(c, robot, full) for c in cams), strict=True)
+    masks = [np.zeros_like(masks[0]), masks[1]]  # the robot is not in the principal camera's way
+    free = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    free.update(list(depths), masks)
+    assert free.query(P, 0.0, mode="min").distance[0] > 0.25
+    occl = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE, robot_occludes=True)
+    occl.update(list(depths), masks)
+    assert occl.query(P, 0.0, mode="min").distance[0] < 0.02
+
+
 def test_vote_needs_d_end_not_d_start():
     """The paper's confirmation test d_o^k < d_start^k would clear the cell holding the hand's surface.
 
