@@ -88,9 +88,7 @@ def test_braking_bound_lets_the_joint_stop_in_time(d: float) -> None:
 
 def test_bounds_contain_zero_and_vanish_beyond_the_limits() -> None:
     q = np.array([-2.0, 0.0, 2.0])
-    lo, hi = position_limited_velocity_bounds(
-        q, -np.ones(3), np.ones(3), np.full(3, 10.0), np.full(3, 500.0), 0.002
-    )
+    lo, hi = position_limited_velocity_bounds(q, -np.ones(3), np.ones(3), np.full(3, 10.0), np.full(3, 500.0), 0.002)
     assert np.all(lo <= 0) and np.all(hi >= 0)
     assert lo[0] == 0.0 and hi[2] == 0.0  # beyond a limit: only motion back inside
     assert hi[0] > 0 and lo[2] < 0

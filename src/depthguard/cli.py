@@ -175,12 +175,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         out = run_distance_benchmark(quick=args.quick)
     else:
         try:
-            from depthguard.bench.control import run_control_benchmark
+            from depthguard.bench.control import run_control_benchmark, run_selffilter_benchmark
         except ImportError as exc:
             raise _Exit(
-                f"the control benchmark needs the robot extra: pip install 'depthguard[robot]' ({exc})"
+                f"the {args.what} benchmark needs the robot extra: pip install 'depthguard[robot]' ({exc})"
             ) from None
-        out = run_control_benchmark(quick=args.quick)
+        run = run_control_benchmark if args.what == "control" else run_selffilter_benchmark
+        out = run(quick=args.quick)
     print(json.dumps(out, indent=None if args.json else 2, default=float))
     return 0
 
@@ -274,7 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_scenario)
 
     p = sub.add_parser("bench", help="benchmarks (JSON with machine info, medians and p99s)")
-    p.add_argument("what", choices=["distance", "control"])
+    p.add_argument("what", choices=["distance", "control", "selffilter"])
     p.add_argument("--quick", action="store_true", help="fewer repetitions")
     p.add_argument("--json", action="store_true", help="compact JSON")
     p.set_defaults(func=_cmd_bench)

@@ -28,6 +28,7 @@ def _machine() -> dict:
         pass
     return info
 
+
 __all__ = ["run_control_benchmark", "run_selffilter_benchmark"]
 
 Q_BENCH = np.array([0.3, 0.6, 0.0, -1.3, 0.2, 0.9, 0.0])

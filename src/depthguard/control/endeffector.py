@@ -18,9 +18,7 @@ from numba import njit
 __all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_inverse"]
 
 
-def repulsive_velocity(
-    distance: float, direction: np.ndarray, v_max: float, rho: float, alpha: float
-) -> np.ndarray:
+def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
     """Repulsive velocity vector ``V_R`` (3,) in m/s (ICRA'12 eq. 7); zero for ``distance = inf``.
 
     Args:

@@ -135,9 +135,7 @@ class ControlPointSet:
         links = {c.link for c in model.capsules}
         unknown = [name for name in counts if name not in links]
         if unknown:
-            raise ValueError(
-                f"control-point links {unknown} have no collision capsule; links: {sorted(links)}"
-            )
+            raise ValueError(f"control-point links {unknown} have no collision capsule; links: {sorted(links)}")
         if not np.isfinite(ee_radius) or ee_radius < 0:
             raise ValueError(f"ee_radius must be a finite number >= 0, got {ee_radius!r}")
         ee = model.model.frames[model.ee_frame_id]

@@ -114,8 +114,7 @@ def _parse_capsules(urdf_path: Path, default_radius: float) -> list[LinkCapsule]
                 caps.append((p - R[:, k] * h[k], p + R[:, k] * h[k], float(np.hypot(*h[others]))))
         for c, r in spheres:
             absorbed = any(
-                r <= rc + 1e-9 and min(np.linalg.norm(c - a), np.linalg.norm(c - b)) < 1e-6
-                for a, b, rc in caps
+                r <= rc + 1e-9 and min(np.linalg.norm(c - a), np.linalg.norm(c - b)) < 1e-6 for a, b, rc in caps
             )
             if not absorbed:
                 caps.append((c, c.copy(), r))
@@ -123,9 +122,7 @@ def _parse_capsules(urdf_path: Path, default_radius: float) -> list[LinkCapsule]
             ends = child_origins.get(lname, []) or [np.zeros(3)]
             caps = [(np.zeros(3), e, default_radius) for e in ends]
         for k, (a, b, r) in enumerate(caps):
-            out.append(
-                LinkCapsule(f"{lname}/{k}", lname, np.asarray(a, float), np.asarray(b, float), float(r))
-            )
+            out.append(LinkCapsule(f"{lname}/{k}", lname, np.asarray(a, float), np.asarray(b, float), float(r)))
     return out
 
 
@@ -141,9 +138,7 @@ class RobotModel:
         capsules: tuple of :class:`LinkCapsule`, the collision geometry.
     """
 
-    def __init__(
-        self, urdf_path: str | Path, ee_frame: str | None = None, default_radius: float = 0.05
-    ) -> None:
+    def __init__(self, urdf_path: str | Path, ee_frame: str | None = None, default_radius: float = 0.05) -> None:
         import pinocchio as pin
 
         self._pin = pin
@@ -181,9 +176,7 @@ class RobotModel:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_urdf(
-        cls, path: str | Path, ee_frame: str | None = None, default_radius: float = 0.05
-    ) -> RobotModel:
+    def from_urdf(cls, path: str | Path, ee_frame: str | None = None, default_radius: float = 0.05) -> RobotModel:
         """Load any fixed-base URDF. ``ee_frame`` defaults to the last link; see the module docstring
         for how collision geometry becomes capsules (``default_radius`` for mesh-only links, m)."""
         return cls(path, ee_frame=ee_frame, default_radius=default_radius)
@@ -192,9 +185,7 @@ class RobotModel:
     def frame_id(self, name: str) -> int:
         """Pinocchio frame index of ``name``; ``ValueError`` if the model has no such frame."""
         if not self.model.existFrame(name):
-            raise ValueError(
-                f"frame '{name}' is not in the model; frames: {[f.name for f in self.model.frames]}"
-            )
+            raise ValueError(f"frame '{name}' is not in the model; frames: {[f.name for f in self.model.frames]}")
         return int(self.model.getFrameId(name))
 
     def _parent_joint(self, link: str) -> int:
@@ -225,9 +216,7 @@ class RobotModel:
         """(6, n) Jacobian of ``frame``'s origin, world-aligned: rows 0-2 linear m/s, 3-5 angular rad/s."""
         q = self.check_q(q)
         fid = self.ee_frame_id if frame is None else self.frame_id(frame)
-        return np.array(
-            self._pin.computeFrameJacobian(self.model, self.data, q, fid, self._pin.LOCAL_WORLD_ALIGNED)
-        )
+        return np.array(self._pin.computeFrameJacobian(self.model, self.data, q, fid, self._pin.LOCAL_WORLD_ALIGNED))
 
     def point_jacobian(
         self, q: np.ndarray, frame: str | None = None, point: np.ndarray | None = None
