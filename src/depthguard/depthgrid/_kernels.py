@@ -19,8 +19,10 @@ Conventions shared by every kernel (see :mod:`depthguard.depthgrid.fusion` for t
   (missing pixel at the near limit), 3 robot at ``start`` (RA-L'16 case iv).
 
 Performance notes: the helpers are compiled with ``_nrt=False`` (no reference counting: every array
-argument of a call would otherwise cost two atomic operations, which dominated the run time) and take
-few array arguments (each costs a dozen machine words per call).
+argument of a call would otherwise cost two atomic operations, which dominated the run time), take few
+array arguments (each costs a dozen machine words per call), and the per-cell helpers are inlined into
+the column search at numba IR level (``inline="always"``). None of the footprint code is compiled with
+fast-math, so the stored map and the on-the-fly footprints are bit-identical.
 """
 
 from __future__ import annotations
@@ -40,13 +42,13 @@ TILE_BLOCK = 8  # depth cells per tile-wide block
 _FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, _nrt=False, inline="always")
 def cell_footprint(k, u, v, d1, d2, corner_rays, cams):
     """Footprint ``(u0, v0, du, dv, q)`` of principal cell ``(u, v, [d1, d2])`` in secondary camera k."""
     return rect_footprint(k, u, v, u + 1, v + 1, d1, d2, corner_rays, cams)
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, _nrt=False, inline="always")
 def rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams):
     """Footprint in camera k of the principal frustum over pixels ``[ua, ub) x [va, vb)``, depths [d1, d2]."""
     bx = cams[k, 0]
@@ -141,7 +143,7 @@ def centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
     return votes[k, int(pv), int(pu)] > Z
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, _nrt=False, inline="always")
 def cell_occupied(u, v, g, d_min, dd, corner_rays, centre_rays, cams, stored, pmap, votes, need_vote):
     """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely.
 
@@ -166,7 +168,7 @@ def cell_occupied(u, v, g, d_min, dd, corner_rays, centre_rays, cams, stored, pm
     return involved or not need_vote
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, _nrt=False, inline="always")
 def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes):
     """True when one secondary camera clears every cell ``g0 <= g < g1`` of pixel (u, v) at once.
 
@@ -187,7 +189,7 @@ def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes
     return False
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, _nrt=False, inline="always")
 def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, votes):
     """True when one secondary camera clears the cells ``g0 <= g < g1`` of every pixel of a tile at once.
 
