@@ -209,6 +209,44 @@ def test_one_camera_with_robot_mask_reduces_to_the_single_camera_module():
     assert np.allclose(res.distance[ok], ref.distance[ok], atol=0.5 * 0.5 * np.sqrt(2.0) / cams[0].fx)
 
 
+@pytest.mark.parametrize("invalid", ["conservative", "ignore"])
+def test_frame_preparation_matches_prepare_frame(invalid):
+    """update() prepares each image in one pass; it must agree with depthspace.prepare_frame."""
+    from depthguard.depthgrid import _kernels as K
+
+    rng = np.random.default_rng(5)
+    cams = two_cameras()
+    depths, masks = [], []
+    for cam in cams:
+        d = rng.uniform(0.6, 4.0, cam.shape).astype(np.float32)
+        d[rng.random(cam.shape) < 0.1] = np.nan
+        d[rng.random(cam.shape) < 0.02] = 0.0
+        d[30:50, 40:70] = np.nan  # a hole too big to fill
+        m = rng.random(cam.shape) < 0.05
+        m[60:80, 100:120] = True
+        depths.append(d)
+        masks.append(m)
+    fusion = DepthGridFusion(cams, dd=0.05, fill_radius=3)
+    fusion.update(depths, masks, invalid=invalid)
+    f0 = prepare_frame(cams[0], depths[0], masks[0], invalid=invalid, fill_radius=3)
+    f1 = prepare_frame(cams[1], depths[1], masks[1], invalid=invalid, fill_radius=3)
+    near = np.float32(cams[0].min_depth)
+    missing0 = ~np.isfinite(depths[0]) | (depths[0] <= 0)
+    unknown0 = missing0 & (f0.obstacle_depth == near) & (invalid == "conservative")
+    robot_start = np.where(np.isfinite(f0.robot_depth), f0.robot_depth,
+                           near if invalid == "conservative" else np.inf)
+    start = np.where(f0.robot_mask, robot_start, f0.obstacle_depth)
+    kind = np.where(f0.robot_mask, np.where(np.isfinite(robot_start), K.KIND_ROBOT, K.KIND_NONE),
+                    np.where(np.isinf(f0.obstacle_depth), K.KIND_NONE,
+                             np.where(unknown0, K.KIND_UNKNOWN, K.KIND_SURFACE)))
+    assert np.array_equal(fusion._start, start.astype(np.float32))
+    assert np.array_equal(fusion._kind, kind)
+    missing1 = ~np.isfinite(depths[1]) | (depths[1] <= 0)
+    votes = np.where(missing1 & (f1.obstacle_depth == near), 0.0, f1.obstacle_depth)
+    assert np.array_equal(fusion._votes[0], votes.astype(np.float32))
+    assert (kind == K.KIND_UNKNOWN).sum() > 0 if invalid == "conservative" else True
+
+
 def test_fused_distances_helper_and_errors():
     cams = two_cameras()
     P = np.array([[0.0, 0.0, 1.0]])
@@ -229,6 +267,8 @@ def test_fused_distances_helper_and_errors():
         fusion.update([depths[0], depths[1][:, :10]])
     with pytest.raises(ValueError, match="at least one camera"):
         DepthGridFusion([])
+    with pytest.raises(ValueError, match="fill_radius"):
+        DepthGridFusion(cams, fill_radius=-1)
     fusion.update(depths)
     with pytest.raises(ValueError, match="mode"):
         fusion.query(P, mode="mean")

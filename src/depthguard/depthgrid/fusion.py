@@ -70,52 +70,81 @@ from depthguard.validation import check_points
 __all__ = ["DepthGridFusion", "fused_distances"]
 
 
+@nb.njit(cache=True, inline="always")
+def _filled(depth, missing, robot, has_mask, v, u, r):
+    """DESIGN.md §4 hole filling, as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
+    non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
+    H, W = depth.shape
+    best = np.inf
+    for vv in range(max(0, v - r), min(H, v + r + 1)):
+        for uu in range(max(0, u - r), min(W, u + r + 1)):
+            if not missing[vv, uu] and not (has_mask and robot[vv, uu]) and depth[vv, uu] < best:
+                best = depth[vv, uu]
+    return best
+
+
 @nb.njit(cache=True)
-def _principal_arrays(obs, missing, robot, robot_depth, near_limit, conservative, start, kind):
-    H, W = obs.shape
+def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
+    """One pass over the principal image: start depth and kind of every pixel (see ``_kernels``)."""
+    H, W = depth.shape
+    missing = np.empty((H, W), dtype=np.bool_)
     for v in range(H):
         for u in range(W):
-            if robot[v, u]:
-                d = robot_depth[v, u]
-                if d == d:  # not NaN
-                    start[v, u] = d
+            d = depth[v, u]
+            missing[v, u] = not (d > 0.0 and d < np.inf)
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            if has_mask and robot[v, u]:
+                if not missing[v, u]:
+                    start[v, u] = d  # case iv: the robot at d_r
                     kind[v, u] = K.KIND_ROBOT
                 elif conservative:
-                    start[v, u] = near_limit  # robot pixel without a reading: unknown behind the near limit
+                    start[v, u] = near_limit  # a robot pixel without a reading: unknown from the near limit
                     kind[v, u] = K.KIND_ROBOT
                 else:
                     start[v, u] = np.inf
                     kind[v, u] = K.KIND_NONE
-                continue
-            d = obs[v, u]
-            if d == np.inf:
-                start[v, u] = np.inf
-                kind[v, u] = K.KIND_NONE
-            elif missing[v, u] and d == near_limit:
-                start[v, u] = d
-                kind[v, u] = K.KIND_UNKNOWN
-            else:
+            elif not missing[v, u]:
                 start[v, u] = d
                 kind[v, u] = K.KIND_SURFACE
+            elif not conservative:
+                start[v, u] = np.inf
+                kind[v, u] = K.KIND_NONE
+            else:
+                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
+                if best < np.inf:
+                    start[v, u] = best
+                    kind[v, u] = K.KIND_SURFACE
+                else:
+                    start[v, u] = near_limit
+                    kind[v, u] = K.KIND_UNKNOWN
 
 
 @nb.njit(cache=True)
-def _vote_image(obs, missing, robot, robot_depth, near_limit, robot_occludes, out):
-    H, W = obs.shape
+def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_occludes, out):
+    """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``)."""
+    H, W = depth.shape
+    missing = np.empty((H, W), dtype=np.bool_)
     for v in range(H):
         for u in range(W):
-            if robot[v, u]:
+            d = depth[v, u]
+            missing[v, u] = not (d > 0.0 and d < np.inf)
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            if has_mask and robot[v, u]:
                 if robot_occludes:
-                    d = robot_depth[v, u]
-                    out[v, u] = d if d == d else 0.0
+                    out[v, u] = 0.0 if missing[v, u] else d
                 else:
                     out[v, u] = np.inf  # the robot never confirms an obstacle (DESIGN.md §4)
-                continue
-            d = obs[v, u]
-            if missing[v, u] and d == near_limit:
-                out[v, u] = 0.0  # unknown: never clears a cell
-            else:
+            elif not missing[v, u]:
                 out[v, u] = d
+            elif not conservative:
+                out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
+            else:
+                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
+                out[v, u] = best if best < np.inf else 0.0  # unknown: never clears a cell
 
 
 class DepthGridFusion:
@@ -129,7 +158,8 @@ class DepthGridFusion:
             number of depth cells (§VIII); ``None``: the principal camera's ``[min_depth, max_depth]``.
         map_mode: ``"onthefly"`` (default) or ``"stored"`` (:class:`GridMap`; identical answers).
         cache_dir: disk cache of a stored map (``None``: ``~/.cache/depthguard/depthgrid``; ``False``: off).
-        fill_radius: hole-filling radius of :func:`depthguard.depthspace.prepare_frame`.
+        fill_radius: hole-filling radius in pixels; the images are prepared exactly as
+            :func:`depthguard.depthspace.prepare_frame` does (DESIGN.md §4), in one pass per camera.
         robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
         parallel: spread the control points over numba's threads (``prange``). Off by default: a query
             takes tens to hundreds of microseconds, and on a loaded machine waking a second thread can
@@ -158,7 +188,9 @@ class DepthGridFusion:
         self.cameras = cameras
         self.grid = DepthGrid.from_workspace(cameras[0], dd, workspace)
         self.map = GridMap(self.grid, cameras[1:], map_mode, cache_dir)
-        self.fill_radius = fill_radius
+        if isinstance(fill_radius, bool) or not isinstance(fill_radius, int | np.integer) or fill_radius < 0:
+            raise ValueError(f"fill_radius must be an integer >= 0, got {fill_radius!r}")
+        self.fill_radius = int(fill_radius)
         self.robot_occludes = bool(robot_occludes)
         self.parallel = bool(parallel)
         n = max(1, len(cameras) - 1)
@@ -170,7 +202,7 @@ class DepthGridFusion:
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
         self._tmin = K.tile_min(self._start, TILE)
         self._invalid = "conservative"
-        self.frames: list = []
+        self._ready = False
         self.last_cells = np.zeros(0, dtype=np.int64)  # per point: column searches (cases iii/iv)
         self.last_votes = np.zeros(0, dtype=np.int64)  # per point: cell and block votes taken
 
@@ -197,29 +229,21 @@ class DepthGridFusion:
             masks = [None] * len(self.cameras)
         if len(masks) != len(self.cameras):
             raise ValueError(f"masks: got {len(masks)} entries for {len(self.cameras)} cameras")
-        frames = [
-            prepare_frame(c, d, m, invalid=invalid, fill_radius=self.fill_radius)
-            for c, d, m in zip(self.cameras, depths, masks, strict=True)
-        ]
         conservative = invalid == "conservative"
-        for k, (cam, depth, fr) in enumerate(zip(self.cameras, depths, frames, strict=True)):
-            d = np.asarray(depth, dtype=np.float32)
-            missing = ~np.isfinite(d) | (d <= 0)
-            near = np.float32(cam.min_depth)
+        for k, (cam, depth, mask) in enumerate(zip(self.cameras, depths, masks, strict=True)):
+            d = np.ascontiguousarray(cam.check_image(depth, "depth"), dtype=np.float32)
+            has_mask = mask is not None
+            robot = (np.ascontiguousarray(cam.check_image(mask, "mask"), dtype=np.bool_) if has_mask
+                     else np.zeros((1, 1), dtype=np.bool_))
             if k == 0:
-                _principal_arrays(
-                    fr.obstacle_depth, missing, fr.robot_mask, fr.robot_depth, near, conservative,
-                    self._start, self._kind,
-                )
+                _prepare_principal(d, robot, has_mask, self.fill_radius, np.float32(cam.min_depth),
+                                   conservative, self._start, self._kind)
             else:
-                self._votes[k - 1, : cam.height, : cam.width] = 0.0
-                _vote_image(
-                    fr.obstacle_depth, missing, fr.robot_mask, fr.robot_depth, near, self.robot_occludes,
-                    self._votes[k - 1, : cam.height, : cam.width],
-                )
+                _prepare_secondary(d, robot, has_mask, self.fill_radius, conservative, self.robot_occludes,
+                                   self._votes[k - 1, : cam.height, : cam.width])
         self._tmin = K.tile_min(self._start, TILE)
         self._invalid = invalid
-        self.frames = frames
+        self._ready = True
 
     # ------------------------------------------------------------------ distance stage
     def query(
@@ -242,7 +266,7 @@ class DepthGridFusion:
             :class:`depthguard.depthspace.PointDistances` (world frame); ``distance`` is a lower bound
             of the true clearance within :meth:`tolerance`.
         """
-        if not self.frames:
+        if not self._ready:
             raise RuntimeError("DepthGridFusion.query: call update() with a set of frames first")
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
