@@ -142,6 +142,19 @@ def test_robot_in_the_secondary_camera_sees_past_unless_robot_occludes():
     assert occl.query(P, 0.0, mode="min").distance[0] < 0.02
 
 
+def test_parallel_query_gives_the_same_answers():
+    cams, depths, masks, _, _ = hidden_obstacle_setup()
+    rng = np.random.default_rng(6)
+    P = rng.uniform([-0.3, -0.5, 0.5], [0.8, 0.5, 1.5], size=(16, 3))
+    serial = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    par = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE, parallel=True)
+    for f in (serial, par):
+        f.update(depths, masks)
+    for mode in ("min", "all", "hybrid"):
+        for a, b in zip(serial.query(P, 0.05, mode=mode), par.query(P, 0.05, mode=mode), strict=True):
+            assert np.array_equal(a, b, equal_nan=True)
+
+
 def test_vote_needs_d_end_not_d_start():
     """The paper's confirmation test d_o^k < d_start^k would clear the cell holding the hand's surface.
 

@@ -165,7 +165,8 @@ class DepthGridFusion:
             takes tens to hundreds of microseconds, and on a loaded machine waking a second thread can
             cost milliseconds (measured on the 2-core benchmark machine).
 
-    Usage: :meth:`update` once per set of frames, then :meth:`query` as often as needed.
+    Usage: :meth:`update` once per set of frames, then :meth:`query` as often as needed, from one thread
+    (``update`` rewrites the per-frame images in place; the object is not thread-safe).
     """
 
     def __init__(
