@@ -142,6 +142,22 @@ def test_robot_in_the_secondary_camera_sees_past_unless_robot_occludes():
     assert occl.query(P, 0.0, mode="min").distance[0] < 0.02
 
 
+def test_vote_margin_only_lowers_distances():
+    cams, depths, masks, obstacles, P = hidden_obstacle_setup()
+    rng = np.random.default_rng(7)
+    Q = np.concatenate([P, rng.uniform([-0.3, -0.5, 0.5], [0.8, 0.5, 1.5], size=(20, 3))])
+    plain = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    careful = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE, vote_margin=0.03)
+    for f in (plain, careful):
+        f.update(depths, masks)
+    a = plain.query(Q, 0.0, mode="min").distance
+    b = careful.query(Q, 0.0, mode="min").distance
+    assert np.all(b <= a + 1e-3)
+    assert np.any(b < a - 0.005)
+    with pytest.raises(ValueError, match="vote_margin"):
+        DepthGridFusion(cams, vote_margin=-0.01)
+
+
 def test_parallel_query_gives_the_same_answers():
     cams, depths, masks, _, _ = hidden_obstacle_setup()
     rng = np.random.default_rng(6)

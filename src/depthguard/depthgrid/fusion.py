@@ -122,7 +122,7 @@ def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conserva
 
 
 @nb.njit(cache=True)
-def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_occludes, out):
+def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_occludes, margin, out):
     """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``)."""
     H, W = depth.shape
     missing = np.empty((H, W), dtype=np.bool_)
@@ -135,16 +135,16 @@ def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_
             d = depth[v, u]
             if has_mask and robot[v, u]:
                 if robot_occludes:
-                    out[v, u] = 0.0 if missing[v, u] else d
+                    out[v, u] = 0.0 if missing[v, u] else d - margin
                 else:
                     out[v, u] = np.inf  # the robot never confirms an obstacle (DESIGN.md §4)
             elif not missing[v, u]:
-                out[v, u] = d
+                out[v, u] = d - margin
             elif not conservative:
                 out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
             else:
                 best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
-                out[v, u] = best if best < np.inf else 0.0  # unknown: never clears a cell
+                out[v, u] = best - margin if best < np.inf else 0.0  # unknown: never clears a cell
 
 
 class DepthGridFusion:
@@ -161,6 +161,9 @@ class DepthGridFusion:
         fill_radius: hole-filling radius in pixels; the images are prepared exactly as
             :func:`depthguard.depthspace.prepare_frame` does (DESIGN.md §4), in one pass per camera.
         robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
+        vote_margin: a secondary camera clears a cell only if it measures at least this much (metres)
+            beyond the cell's far depth; 0 (default) as in the paper, about twice the depth noise of the
+            secondary cameras for extra safety against noisy readings behind a surface.
         parallel: spread the control points over numba's threads (``prange``). Off by default: a query
             takes tens to hundreds of microseconds, and on a loaded machine waking a second thread can
             cost milliseconds (measured on the 2-core benchmark machine).
@@ -179,6 +182,7 @@ class DepthGridFusion:
         fill_radius: int = 4,
         robot_occludes: bool = False,
         parallel: bool = False,
+        vote_margin: float = 0.0,
     ) -> None:
         cameras = list(cameras)
         if not cameras:
@@ -194,6 +198,9 @@ class DepthGridFusion:
         self.fill_radius = int(fill_radius)
         self.robot_occludes = bool(robot_occludes)
         self.parallel = bool(parallel)
+        if not (np.isfinite(vote_margin) and vote_margin >= 0):
+            raise ValueError(f"vote_margin must be a number of metres >= 0, got {vote_margin!r}")
+        self.vote_margin = float(vote_margin)
         n = max(1, len(cameras) - 1)
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
@@ -241,7 +248,7 @@ class DepthGridFusion:
                                    conservative, self._start, self._kind)
             else:
                 _prepare_secondary(d, robot, has_mask, self.fill_radius, conservative, self.robot_occludes,
-                                   self._votes[k - 1, : cam.height, : cam.width])
+                                   np.float32(self.vote_margin), self._votes[k - 1, : cam.height, : cam.width])
         self._tmin = K.tile_min(self._start, TILE)
         self._invalid = invalid
         self._ready = True
