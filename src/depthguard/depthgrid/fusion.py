@@ -10,8 +10,20 @@ iii. ``d_o < d_p`` (or the pixel is unknown): the cells of the pixel from ``d_o`
      to P first (alternating outward from the cell nearest P) and the first cell that the other cameras
      do not clear is the obstacle;
 iv.  (§VII) a robot pixel at ``d_r``: nothing lies before ``d_r``; the cells from ``r(d_r)`` on are checked
-     with the other cameras exactly as in case iii (the paper starts at ``r(d_r) + 1``; we also check the
-     rest of the cell holding the robot surface, which costs one cell and misses nothing).
+     with the other cameras as in case iii (the paper starts at ``r(d_r) + 1``; we also check the rest of
+     the cell holding the robot surface, which costs one cell and misses nothing). Here an obstacle needs
+     a witness: a cell is occupied only if at least one other camera is involved and none clears it, so
+     with one camera the space behind the robot stays unseen, exactly as in the single-camera module
+     (otherwise every control sphere would touch the phantom space right behind its own link). A robot
+     pixel without a reading is searched from the near limit.
+
+The search along a column visits cells by their depth gap to the point of the ray nearest P and stops at
+the first occupied cell or where the frustum bound reaches the current limit (ρ, or in ``"min"`` mode
+the best distance so far; tiles of 16x16 pixels are pruned by their own bound, nearest tile first in
+``"min"`` mode). Free space is skipped in blocks: first an 8-cell block shared by the whole tile (one
+footprint test for 256 columns), then an 8-cell and a 2-cell block of the column, then single cells. A
+cleared block contains each of its cells' footprints and far depths, so the answers are exactly those
+of the cell-by-cell search.
 
 The vote (DESIGN.md §4, conservative). Secondary camera k clears (calls free) a cell only when the cell
 lies entirely in front of camera k and inside its image and *every* pixel of its footprint measures a
@@ -43,9 +55,16 @@ depth z lies within ``h z`` of the ray point at depth z, so D never exceeds the 
 the cell. (The literal eqs. 5-7 evaluate the pixel edge at the depth of P and over-estimate off-axis.)
 
 Declared tolerance (:meth:`DepthGridFusion.tolerance`): the fused distance is a lower bound of the true
-distance up to the sampling of one ray per pixel (one pixel footprint of each camera at the obstacle's
-depth) and never falls more than one cell length plus the frustum slack below the distance to the space
-that no camera has seen.
+distance up to ``Δd`` plus the sampling of one ray per pixel (one pixel footprint of the principal and of
+the coarsest secondary camera at the point's depth), plus the cameras' own depth noise; it never falls
+more than one cell length plus the frustum slack below the distance to the space that no camera has
+seen. Space outside the principal camera's field of view or nearer than its near limit counts as an
+obstacle (DESIGN.md §5.2), as for one camera: the principal camera must see the whole space of interest
+(RA-L'16 §I, assumption 1).
+
+Speed (2 Kinect-like cameras, 640x480, 345 depth cells, 9 spheres, ρ = 0.4, one thread of a shared 2-core
+machine): about 1.3 kHz in ``"all"`` mode and 7.5 kHz in ``"min"`` mode; ``update`` about 2 ms per frame
+pair. See ``depthguard.bench.grid``.
 """
 
 from __future__ import annotations
