@@ -195,6 +195,11 @@ def test_vote_needs_d_end_not_d_start():
     conservative_clears = bool(np.all(seen > fp["d_end"]))
     assert not paper_confirms  # the paper would call the cell free ...
     assert not conservative_clears  # ... the d_end test does not
+    from depthguard.depthgrid import _kernels as K
+
+    g_ = fusion.grid
+    occupied = K.cell_occupied(u, v, g, g_.d_min, g_.dd, *fusion.map.kernel_args(), fusion._votes, True)
+    assert occupied  # and neither does the kernel
     res = fusion.query(P, 0.0, mode="min")
     assert res.distance[0] < 0.21
 
