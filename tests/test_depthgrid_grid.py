@@ -137,3 +137,5 @@ def test_map_mode_error():
     grid = DepthGrid.from_workspace(cams[0], 0.05, None)
     with pytest.raises(ValueError, match="map_mode"):
         GridMap(grid, cams[1:], "lazy")
+    with pytest.raises(ValueError, match="onthefly"):
+        GridMap(grid, cams[1:], "stored", cache_dir=False, max_bytes=1000)

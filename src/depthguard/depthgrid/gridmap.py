@@ -97,6 +97,7 @@ class GridMap:
         secondaries: the other cameras (any number >= 0).
         mode: ``"onthefly"`` or ``"stored"`` (identical answers; see the module docstring).
         cache_dir: where a stored map is cached (default :func:`default_cache_dir`); ``False``: no cache.
+        max_bytes: refuse to build a stored map larger than this (default 4 GiB).
 
     Attributes:
         build_seconds: time to build (or load) the map, seconds.
@@ -110,6 +111,7 @@ class GridMap:
         secondaries: list[Camera],
         mode: str = "onthefly",
         cache_dir: str | os.PathLike | bool | None = None,
+        max_bytes: int = 4 * 2**30,
     ) -> None:
         if mode not in MAP_MODES:
             raise ValueError(f"map_mode must be one of {MAP_MODES}, got {mode!r}")
@@ -122,6 +124,13 @@ class GridMap:
         self.corner_rays, self.centre_rays, self.cams = _projection_tables(grid, self.secondaries)
         self.packed = np.zeros((1, 1, 1, 1), dtype=np.int64)  # (K, H, W, n_cells) when stored
         if mode == "stored" and self.secondaries:
+            need = 8 * grid.size * len(self.secondaries)
+            if need > max_bytes:
+                raise ValueError(
+                    f"a stored map of {grid.size} cells x {len(self.secondaries)} camera(s) needs "
+                    f"{need / 2**30:.2f} GiB (limit {max_bytes / 2**30:.2f} GiB): use map_mode='onthefly' "
+                    "(identical answers), a coarser dd or a smaller workspace"
+                )
             self.packed = self._load_or_build(cache_dir)
         self.build_seconds = time.perf_counter() - t0
 
