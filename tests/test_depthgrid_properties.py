@@ -1,0 +1,122 @@
+"""Property tests of the fusion over random scenes and camera placements (ground truth: exact distances).
+
+* fused >= single-camera - tolerance (fusion only removes gray area);
+* fused <= truth + tolerance (no obstacle is lost; a distance is a lower bound);
+* adding a camera never raises a distance beyond the truth, and never lowers it (it can only clear cells);
+* the stored and the on-the-fly map give identical answers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from depthguard.camera import Camera, look_at
+from depthguard.depthgrid import DepthGridFusion
+from depthguard.depthspace import prepare_frame, query_distances
+from depthguard.scene import Box, Capsule, HalfSpace, Scene, Sphere, render_depth
+
+RHO = 0.4
+WORKSPACE = (-1.0, 1.0, -1.0, 1.0, -0.2, 1.6)
+ROOM = (
+    HalfSpace(np.array([0.0, 0.0, -0.5]), np.array([0.0, 0.0, 1.0])),
+    HalfSpace(np.array([-3.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])),
+    HalfSpace(np.array([3.0, 0.0, 0.0]), np.array([-1.0, 0.0, 0.0])),
+    HalfSpace(np.array([0.0, -3.0, 0.0]), np.array([0.0, 1.0, 0.0])),
+    HalfSpace(np.array([0.0, 3.0, 0.0]), np.array([0.0, -1.0, 0.0])),
+)
+
+
+def random_camera(rng: np.random.Generator, azimuth: float, w=120, h=90, f=100.0) -> Camera:
+    dist = rng.uniform(1.8, 2.5)
+    eye = np.array([dist * np.cos(azimuth), dist * np.sin(azimuth), rng.uniform(0.6, 2.2)])
+    target = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.4, 1.0)])
+    R, t = look_at(eye, target)
+    return Camera(width=w, height=h, fx=f, fy=f * rng.uniform(0.95, 1.05), cx=w / 2 + rng.uniform(-3, 3),
+                  cy=h / 2 + rng.uniform(-3, 3), R=R, t=t, min_depth=0.3, max_depth=6.0)
+
+
+def random_scene(rng: np.random.Generator) -> Scene:
+    prims = []
+    for _ in range(rng.integers(1, 4)):
+        c = rng.uniform([-0.6, -0.6, 0.2], [0.6, 0.6, 1.4])
+        kind = rng.integers(0, 3)
+        if kind == 0:
+            prims.append(Sphere(c, rng.uniform(0.08, 0.25)))
+        elif kind == 1:
+            prims.append(Capsule(c, c + rng.uniform(-0.4, 0.4, 3), rng.uniform(0.06, 0.15)))
+        else:
+            q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            q *= np.sign(np.linalg.det(q))
+            prims.append(Box(c, rng.uniform(0.06, 0.25, 3), q))
+    return Scene((*prims, *ROOM))
+
+
+def setup(seed: int):
+    rng = np.random.default_rng(seed)
+    az0 = rng.uniform(0, 2 * np.pi)
+    cams = [random_camera(rng, az0), random_camera(rng, az0 + rng.uniform(1.2, 2.2)),
+            random_camera(rng, az0 + rng.uniform(-2.6, -1.4), w=100, h=80, f=85.0)]
+    scene = random_scene(rng)
+    depths = [render_depth(c, scene) for c in cams]
+    if rng.random() < 0.5:  # dropouts: filled or unknown, never free
+        for d in depths:
+            d[rng.random(d.shape) < 0.05] = np.nan
+    P = rng.uniform([-0.7, -0.7, 0.1], [0.7, 0.7, 1.5], size=(12, 3))
+    radii = rng.uniform(0.0, 0.1, 12)
+    return cams, scene, depths, P, radii
+
+
+def check_upper(fused, truth, tol):
+    """fused <= truth + tol, where inf means 'nothing within ρ'."""
+    found = np.isfinite(fused)
+    assert np.all(fused[found] <= truth[found] + tol[found]), (fused, truth, tol)
+    assert np.all(truth[~found] + tol[~found] >= RHO), (fused, truth, tol)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1), mode=st.sampled_from(["min", "all"]))
+def test_fusion_bounds(seed, mode):
+    cams, scene, depths, P, radii = setup(seed)
+    truth = np.maximum(scene.distance(P) - radii, 0.0)
+    single = query_distances(prepare_frame(cams[0], depths[0]), P, radii, rho=RHO, mode=mode).distance
+
+    f2 = DepthGridFusion(cams[:2], dd=0.01, workspace=WORKSPACE)
+    f2.update(depths[:2])
+    d2 = f2.query(P, radii, rho=RHO, mode=mode).distance
+    tol2 = f2.tolerance(P, RHO)
+
+    f3 = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    f3.update(depths)
+    d3 = f3.query(P, radii, rho=RHO, mode=mode).distance
+    tol3 = f3.tolerance(P, RHO)
+
+    assert np.all(d2 >= single - tol2)
+    check_upper(d2, truth, tol2)
+    check_upper(d3, truth, tol3)
+    # a third camera can only clear cells: distances never drop (up to the tile-bound slack)
+    h = 0.5 * np.sqrt(cams[0].fx ** -2 + cams[0].fy ** -2)
+    assert np.all(d3 >= d2 - 2 * h * 4.0)
+    # the distance does not depend on the aggregation mode (min mode prunes whole tiles by their bound)
+    other = f3.query(P, radii, rho=RHO, mode="min" if mode == "all" else "all").distance
+    assert np.array_equal(np.isfinite(other), np.isfinite(d3))
+    ok = np.isfinite(d3)
+    assert np.allclose(other[ok], d3[ok], atol=2 * h * 4.0)
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_stored_and_on_the_fly_maps_agree(seed, tmp_path_factory):
+    cams, scene, depths, P, radii = setup(seed)
+    cache = tmp_path_factory.mktemp("gridmap")
+    fly = DepthGridFusion(cams, dd=0.02, workspace=WORKSPACE, map_mode="onthefly")
+    stored = DepthGridFusion(cams, dd=0.02, workspace=WORKSPACE, map_mode="stored", cache_dir=cache)
+    for f in (fly, stored):
+        f.update(depths)
+    for mode in ("min", "all", "hybrid"):
+        a = fly.query(P, radii, rho=RHO, mode=mode)
+        b = stored.query(P, radii, rho=RHO, mode=mode)
+        for x, y in zip(a, b, strict=True):
+            assert np.array_equal(x, y, equal_nan=True)
+        assert np.array_equal(fly.last_cells, stored.last_cells)
