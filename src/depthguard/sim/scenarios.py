@@ -73,13 +73,15 @@ def _set_path(d: dict, dotted: str, value: Any) -> None:
     d[keys[-1]] = value
 
 
-def _build(sc: dict, *, quick: bool, cameras: int | None):
+def _build(sc: dict, *, quick: bool, cameras: int | None, demo: bool = False):
     from depthguard.sim.cell import BoxSpec, CellSpec, build_cell
     from depthguard.sim.depthcam import placement
     from depthguard.sim.people import Keyframe, PersonScript
     from depthguard.sim.pipeline import Kinematics
 
     res = sc.get("quick_resolution", [160, 120]) if quick else sc.get("resolution", [640, 480])
+    if demo:
+        res = sc.get("demo_resolution", res)
     cams = placement(sc["cameras"], int(res[0]), int(res[1]))
     n_cams = cameras if cameras is not None else sc.get("camera_count", len(cams))
     if n_cams < 1 or n_cams > len(cams):
@@ -235,7 +237,7 @@ def _run_one(
     from depthguard.sim.loop import LoopConfig, run_loop
     from depthguard.sim.pipeline import Controller, DistanceStage
 
-    cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras)
+    cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras, demo=demo)
     av = sc.get("avoidance", {})
     cams = [KinectSim(cell.model, c, i, seed=seed + i) for i, c in enumerate(cell.cameras)]
     stage = DistanceStage(
@@ -300,7 +302,7 @@ def run_scenario(
         progress: draw a progress bar on stderr.
         variants: also run the file's ``[[variants]]`` (e.g. without the pivot, without the person) and
             report their metrics under ``"variants"``.
-        demo: use the file's ``demo_duration`` (``make demo``).
+        demo: use the file's ``demo_duration`` and ``demo_resolution`` (``make demo``).
     Returns:
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
