@@ -170,7 +170,9 @@ class VoxelFusion:
         self.tree = cKDTree(self.occupied) if len(self.occupied) else None
         self.ready = True
 
-    def query(self, centres: np.ndarray, radii: np.ndarray, rho: float, mode: str = "hybrid") -> PointDistances:
+    def query(
+        self, centres: np.ndarray, radii: np.ndarray, rho: float = 0.4, mode: str = "hybrid", alpha: float = 6.0
+    ) -> PointDistances:
         c = np.atleast_2d(np.asarray(centres, float))
         r = np.broadcast_to(np.asarray(radii, float), (len(c),))
         n = len(c)

@@ -274,5 +274,5 @@ class DistanceStage:
     def query(self, centres: np.ndarray, radii: np.ndarray) -> PointDistances:
         """Distance stage: distances of the control spheres to the obstacles."""
         if self.fusion is not None:
-            return self.fusion.query(centres, radii, self.rho, self.mode)
+            return self.fusion.query(centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
         return query_distances(self.frames[0], centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
