@@ -158,6 +158,7 @@ def test_vote_margin_only_lowers_distances():
         DepthGridFusion(cams, vote_margin=-0.01)
 
 
+@pytest.mark.slow  # compiles the parallel kernel (about 10 s the first time)
 def test_parallel_query_gives_the_same_answers():
     cams, depths, masks, _, _ = hidden_obstacle_setup()
     rng = np.random.default_rng(6)
