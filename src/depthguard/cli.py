@@ -89,7 +89,9 @@ def _cmd_distance(args: argparse.Namespace) -> int:
             raise _Exit(
                 "several cameras need the depth-grid fusion module (depthguard.depthgrid), not installed"
             ) from None
-        fusion = DepthGridFusion(cameras, dd=args.grid_dd, workspace=args.workspace)
+        fusion = DepthGridFusion(
+            cameras, dd=args.grid_dd, workspace=args.workspace, fill_radius=args.fill_radius, map_mode=args.grid_map
+        )
         fusion.update(depths, masks, invalid=args.invalid)
 
         def query():
@@ -261,6 +263,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="xmin,xmax,ymin,ymax,zmin,zmax",
         help="workspace box in m (world frame) for the depth grid",
+    )
+    p.add_argument(
+        "--grid-map",
+        choices=["onthefly", "stored"],
+        default="onthefly",
+        help="depth-grid map: computed on the fly (default, 15 MB) or stored (cached on disk, ~0.9 GB)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_distance)
