@@ -249,24 +249,6 @@ def build_map(corner_rays, cams, d_min, dd, n_cells, pmap):
                     pmap[k, v, u, g] = pack(u0, v0, du, dv, q)
 
 
-@nb.njit(cache=True)
-def tile_min(img, tile):
-    """Minimum of ``img`` over each ``tile x tile`` block."""
-    H, W = img.shape
-    th = (H + tile - 1) // tile
-    tw = (W + tile - 1) // tile
-    out = np.full((th, tw), np.inf, dtype=np.float32)
-    for tv in range(th):
-        for v in range(tv * tile, min(H, tv * tile + tile)):
-            for tu in range(tw):
-                m = out[tv, tu]
-                for u in range(tu * tile, min(W, tu * tile + tile)):
-                    if img[v, u] < m:
-                        m = img[v, u]
-                out[tv, tu] = m
-    return out
-
-
 @nb.njit(cache=True, _nrt=False, inline="always")
 def _seg_lo_hi(g, g_start, s0, d_min, dd, n_cells):
     """Depth interval of search segment g: cell g clipped to start at s0.

@@ -83,6 +83,7 @@ from depthguard.depthspace import (
     PointDistances,
     prepare_frame,
     query_distances,
+    tile_min,
 )
 from depthguard.validation import check_points
 
@@ -227,7 +228,7 @@ class DepthGridFusion:
         cam0 = cameras[0]
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
-        self._tmin = K.tile_min(self._start, TILE)
+        self._tmin = tile_min(self._start, TILE)
         self._invalid = "conservative"
         self._ready = False
         self.last_cells = np.zeros(0, dtype=np.int64)  # per point: column searches (cases iii/iv)
@@ -287,7 +288,7 @@ class DepthGridFusion:
                     np.float32(self.vote_margin),
                     self._votes[k - 1, : cam.height, : cam.width],
                 )
-        self._tmin = K.tile_min(self._start, TILE)
+        self._tmin = tile_min(self._start, TILE)
         self._invalid = invalid
         self._ready = True
 
