@@ -146,3 +146,33 @@ def test_scenario_pivot_json(capsys):
     assert set(out) == {"direct", "pivot"}
     assert out["direct"]["collided"] is True and out["pivot"]["collided"] is False
     assert isinstance(out["pivot"]["min_distance"], float)
+
+
+def test_distance_two_cameras_fuses_the_shadow_away(tmp_path, capsys):
+    """RA-L'16 Fig. 8/12 through the CLI: a blocker hides a point from camera 1; camera 2 sees it is free."""
+    from depthguard.scene import Box
+
+    cams = []
+    for eye, target in (([0.0, 0.0, 0.0], [0.0, 0.0, 2.0]), ([2.0, 0.0, 2.0], [0.0, 0.0, 2.0])):
+        R, t = look_at(eye, target, up=[0, -1, 0])
+        cams.append(Camera(width=160, height=120, fx=131.25, fy=131.25, cx=80, cy=60, R=R, t=t, max_depth=6.0))
+    blocker = Box(np.array([0.0, 0.0, 1.2]), np.array([0.15, 0.15, 0.05]))
+    walls = (
+        HalfSpace(np.array([0, 0, 4.0]), np.array([0, 0, -1.0])),
+        HalfSpace(np.array([-2.0, 0, 0]), np.array([1.0, 0, 0])),
+    )
+    scene = Scene((blocker, *walls))
+    args = ["distance", "--points", str(tmp_path / "p.json"), "--json", "--rho", "0.4"]
+    for k, cam in enumerate(cams):
+        write_camera(tmp_path / f"c{k}.json", cam)
+        write_depth(tmp_path / f"d{k}.npy", render_depth(cam, scene))
+        args += ["--camera", str(tmp_path / f"c{k}.json"), "--depth", str(tmp_path / f"d{k}.npy")]
+    P = np.array([0.0, 0.0, 1.5])  # 0.25 m behind the blocker, in its shadow
+    write_points(tmp_path / "p.json", [ControlPoint("p", P, 0.0)])
+    truth = float(scene.distance(P[None])[0])
+    assert main(args[:6] + args[6:10]) == 0  # camera 1 only
+    one = json.loads(capsys.readouterr().out)["points"][0]["distance"]
+    assert one is not None and one < 0.02
+    assert main(args + ["--grid-dd", "0.01", "--workspace", "-1,1,-1,1,0.5,3.5"]) == 0
+    two = json.loads(capsys.readouterr().out)["points"][0]["distance"]
+    assert two is not None and truth - 0.03 <= two <= truth + 1e-6

@@ -20,6 +20,7 @@ def test_grid_size_from_the_workspace():
     assert 0.2 < fusion.grid.d_min < 1.0
 
 
+@pytest.mark.slow  # two 640x480 scenes
 @pytest.mark.parametrize("reach", [0.0, 0.2])
 def test_bench_scene_bounds(reach):
     cams = bench_cameras()

@@ -23,8 +23,7 @@ WALLS = (
 
 def camera(eye, target, w=160, h=120, f=131.25) -> Camera:
     R, t = look_at(eye, target)
-    return Camera(width=w, height=h, fx=f, fy=f, cx=w / 2 - 0.5, cy=h / 2 - 0.5, R=R, t=t,
-                  min_depth=0.3, max_depth=6.0)
+    return Camera(width=w, height=h, fx=f, fy=f, cx=w / 2 - 0.5, cy=h / 2 - 0.5, R=R, t=t, min_depth=0.3, max_depth=6.0)
 
 
 def two_cameras():
@@ -158,6 +157,7 @@ def test_vote_margin_only_lowers_distances():
         DepthGridFusion(cams, vote_margin=-0.01)
 
 
+@pytest.mark.slow  # compiles the parallel kernel (about 10 s the first time)
 def test_parallel_query_gives_the_same_answers():
     cams, depths, masks, _, _ = hidden_obstacle_setup()
     rng = np.random.default_rng(6)
@@ -207,8 +207,9 @@ def test_vote_needs_d_end_not_d_start():
 # ----------------------------------------------------------------------------------- one camera
 def test_one_camera_reduces_to_the_single_camera_module():
     cams = two_cameras()
-    scene = Scene((Sphere(np.array([0.4, 0.1, 1.0]), 0.12), Box(np.array([-0.3, -0.4, 0.6]),
-                  np.array([0.1, 0.2, 0.3])), *WALLS))
+    scene = Scene(
+        (Sphere(np.array([0.4, 0.1, 1.0]), 0.12), Box(np.array([-0.3, -0.4, 0.6]), np.array([0.1, 0.2, 0.3])), *WALLS)
+    )
     depth = render_depth(cams[0], scene)
     rng = np.random.default_rng(3)
     depth[rng.random(depth.shape) < 0.03] = np.nan  # some holes and unknown pixels
@@ -267,12 +268,13 @@ def test_frame_preparation_matches_prepare_frame(invalid):
     near = np.float32(cams[0].min_depth)
     missing0 = ~np.isfinite(depths[0]) | (depths[0] <= 0)
     unknown0 = missing0 & (f0.obstacle_depth == near) & (invalid == "conservative")
-    robot_start = np.where(np.isfinite(f0.robot_depth), f0.robot_depth,
-                           near if invalid == "conservative" else np.inf)
+    robot_start = np.where(np.isfinite(f0.robot_depth), f0.robot_depth, near if invalid == "conservative" else np.inf)
     start = np.where(f0.robot_mask, robot_start, f0.obstacle_depth)
-    kind = np.where(f0.robot_mask, np.where(np.isfinite(robot_start), K.KIND_ROBOT, K.KIND_NONE),
-                    np.where(np.isinf(f0.obstacle_depth), K.KIND_NONE,
-                             np.where(unknown0, K.KIND_UNKNOWN, K.KIND_SURFACE)))
+    kind = np.where(
+        f0.robot_mask,
+        np.where(np.isfinite(robot_start), K.KIND_ROBOT, K.KIND_NONE),
+        np.where(np.isinf(f0.obstacle_depth), K.KIND_NONE, np.where(unknown0, K.KIND_UNKNOWN, K.KIND_SURFACE)),
+    )
     assert np.array_equal(fusion._start, start.astype(np.float32))
     assert np.array_equal(fusion._kind, kind)
     missing1 = ~np.isfinite(depths[1]) | (depths[1] <= 0)

@@ -15,8 +15,9 @@ WORKSPACE = (-1.5, 1.5, -1.5, 1.5, -0.5, 1.5)
 
 def small_camera(eye, target, w=96, h=72, f=80.0) -> Camera:
     R, t = look_at(eye, target)
-    return Camera(width=w, height=h, fx=f, fy=f * 1.05, cx=w / 2 - 0.3, cy=h / 2 + 0.2, R=R, t=t,
-                  min_depth=0.3, max_depth=6.0)
+    return Camera(
+        width=w, height=h, fx=f, fy=f * 1.05, cx=w / 2 - 0.3, cy=h / 2 + 0.2, R=R, t=t, min_depth=0.3, max_depth=6.0
+    )
 
 
 def test_eq4_quantisation():
@@ -93,8 +94,11 @@ def test_footprint_contains_every_point_of_the_cell():
         assert np.all(np.floor(pr[:, 0]) >= fp["u"][0]) and np.all(np.floor(pr[:, 0]) <= fp["u"][1])
         assert np.all(np.floor(pr[:, 1]) >= fp["v"][0]) and np.all(np.floor(pr[:, 1]) <= fp["v"][1])
         assert np.all(pr[:, 2] <= fp["d_end"] + 1e-12) and np.all(pr[:, 2] >= fp["d_start"] - 1e-12)
-        corners = cams[0].unproject(np.array([u, u + 1, u, u + 1] * 2, dtype=float),
-                                    np.array([v, v, v + 1, v + 1] * 2, dtype=float), np.repeat([d1, d2], 4))
+        corners = cams[0].unproject(
+            np.array([u, u + 1, u, u + 1] * 2, dtype=float),
+            np.array([v, v, v + 1, v + 1] * 2, dtype=float),
+            np.repeat([d1, d2], 4),
+        )
         zc = cams[k + 1].world_to_camera(corners)[:, 2]
         assert 0.0 <= fp["d_end"] - zc.max() <= K.DEND_SCALE + 1e-12
         checked += 1

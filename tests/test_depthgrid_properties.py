@@ -33,8 +33,18 @@ def random_camera(rng: np.random.Generator, azimuth: float, w=120, h=90, f=100.0
     eye = np.array([dist * np.cos(azimuth), dist * np.sin(azimuth), rng.uniform(0.6, 2.2)])
     target = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.4, 1.0)])
     R, t = look_at(eye, target)
-    return Camera(width=w, height=h, fx=f, fy=f * rng.uniform(0.95, 1.05), cx=w / 2 + rng.uniform(-3, 3),
-                  cy=h / 2 + rng.uniform(-3, 3), R=R, t=t, min_depth=0.3, max_depth=6.0)
+    return Camera(
+        width=w,
+        height=h,
+        fx=f,
+        fy=f * rng.uniform(0.95, 1.05),
+        cx=w / 2 + rng.uniform(-3, 3),
+        cy=h / 2 + rng.uniform(-3, 3),
+        R=R,
+        t=t,
+        min_depth=0.3,
+        max_depth=6.0,
+    )
 
 
 def random_scene(rng: np.random.Generator) -> Scene:
@@ -56,8 +66,11 @@ def random_scene(rng: np.random.Generator) -> Scene:
 def setup(seed: int):
     rng = np.random.default_rng(seed)
     az0 = rng.uniform(0, 2 * np.pi)
-    cams = [random_camera(rng, az0), random_camera(rng, az0 + rng.uniform(1.2, 2.2)),
-            random_camera(rng, az0 + rng.uniform(-2.6, -1.4), w=100, h=80, f=85.0)]
+    cams = [
+        random_camera(rng, az0),
+        random_camera(rng, az0 + rng.uniform(1.2, 2.2)),
+        random_camera(rng, az0 + rng.uniform(-2.6, -1.4), w=100, h=80, f=85.0),
+    ]
     scene = random_scene(rng)
     depths = [render_depth(c, scene) for c in cams]
     if rng.random() < 0.5:  # dropouts: filled or unknown, never free

@@ -22,8 +22,7 @@ WALLS = (
 
 def camera(eye, target, w=96, h=72, f=80.0) -> Camera:
     R, t = look_at(eye, target)
-    return Camera(width=w, height=h, fx=f, fy=f, cx=w / 2 - 0.5, cy=h / 2 - 0.5, R=R, t=t,
-                  min_depth=0.3, max_depth=6.0)
+    return Camera(width=w, height=h, fx=f, fy=f, cx=w / 2 - 0.5, cy=h / 2 - 0.5, R=R, t=t, min_depth=0.3, max_depth=6.0)
 
 
 def brute_force(fusion, u, v, P_c, limit):
@@ -89,9 +88,29 @@ def test_column_search_equals_cell_by_cell(seed):
                     continue
                 ref, (a, b, s0, surface, robot_px, h) = brute_force(fusion, u, v, P_c, limit)
                 found, lo, hi, _ = K.column_search(
-                    u, v, a, b, s0, surface, robot_px, P_c[0], P_c[1], P_c[2], h, limit, g_.d_min, g_.dd,
-                    g_.n_cells, *fusion.map.kernel_args(), fusion._votes, tu * TILE, tv * TILE,
-                    min(cam.width, tu * TILE + TILE), min(cam.height, tv * TILE + TILE), tstate)
+                    u,
+                    v,
+                    a,
+                    b,
+                    s0,
+                    surface,
+                    robot_px,
+                    P_c[0],
+                    P_c[1],
+                    P_c[2],
+                    h,
+                    limit,
+                    g_.d_min,
+                    g_.dd,
+                    g_.n_cells,
+                    *fusion.map.kernel_args(),
+                    fusion._votes,
+                    tu * TILE,
+                    tv * TILE,
+                    min(cam.width, tu * TILE + TILE),
+                    min(cam.height, tv * TILE + TILE),
+                    tstate,
+                )
                 checked += 1
                 assert found == (ref is not None)
                 if found:

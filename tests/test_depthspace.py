@@ -220,8 +220,10 @@ def test_property_never_larger_than_truth_plus_tolerance(data):
     tol = np.array([_footprint(cam, p[2] + 0.5) for p in cam.world_to_camera(pts)])
     finite = np.isfinite(res.distance)
     assert np.all(res.distance[finite] <= np.maximum(truth[finite], 0.0) + tol[finite])
-    # "nothing within rho" must be true: no obstacle closer than rho - tolerance
-    assert np.all(truth[~finite] >= 0.4 - tol[~finite])
+    # "nothing within rho" must be true: no obstacle closer than rho - tolerance. Only under the conservative
+    # policy: with "ignore", space outside the field of view is free by request, and obstacles there are missed.
+    if policy == "conservative":
+        assert np.all(truth[~finite] >= 0.4 - tol[~finite])
 
 
 def test_literal_ral16_form_over_reports_off_axis_but_frustum_does_not():

@@ -89,7 +89,9 @@ def _cmd_distance(args: argparse.Namespace) -> int:
             raise _Exit(
                 "several cameras need the depth-grid fusion module (depthguard.depthgrid), not installed"
             ) from None
-        fusion = DepthGridFusion(cameras, dd=args.grid_dd, workspace=args.workspace)
+        fusion = DepthGridFusion(
+            cameras, dd=args.grid_dd, workspace=args.workspace, fill_radius=args.fill_radius, map_mode=args.grid_map
+        )
         fusion.update(depths, masks, invalid=args.invalid)
 
         def query():
@@ -247,9 +249,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--model",
-        choices=["frustum", "icra"],
+        choices=["frustum", "icra", "ral16"],
         default="frustum",
-        help="point-to-pixel distance: frustum lower bound (default) or ICRA'12 eq. 4",
+        help="point-to-pixel distance: frustum lower bound (default), ICRA'12 eq. 4 or literal RA-L'16 eqs. 5-7",
     )
     p.add_argument("--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4)")
     p.add_argument(
@@ -261,6 +263,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="xmin,xmax,ymin,ymax,zmin,zmax",
         help="workspace box in m (world frame) for the depth grid",
+    )
+    p.add_argument(
+        "--grid-map",
+        choices=["onthefly", "stored"],
+        default="onthefly",
+        help="depth-grid map: computed on the fly (default, 15 MB) or stored (cached on disk, ~0.9 GB)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_distance)
@@ -287,9 +295,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--workspace -1.5,1.5,...`` would read as an option to argparse: glue such values to their flag."""
+    out: list[str] = []
+    it = iter(argv)
+    for a in it:
+        if a == "--workspace":
+            nxt = next(it, None)
+            out.append(a if nxt is None else f"{a}={nxt}")
+        else:
+            out.append(a)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     try:
         return int(args.func(args) or 0)
     except (_Exit, ValueError) as exc:

@@ -52,6 +52,7 @@ __all__ = [
     "INVALID_POLICIES",
     "DISTANCE_MODELS",
     "lower_bound_slack",
+    "tile_min",
 ]
 
 TILE = 16
@@ -167,16 +168,20 @@ def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, ou
 
 
 @nb.njit(cache=True)
-def _tile_min(obs, tile):
-    H, W = obs.shape
+def tile_min(img, tile):
+    """(ceil(H/tile), ceil(W/tile)) float32 minimum of ``img`` (H, W) over each ``tile x tile`` block."""
+    H, W = img.shape
     th = (H + tile - 1) // tile
     tw = (W + tile - 1) // tile
     out = np.full((th, tw), np.inf, dtype=np.float32)
-    for v in range(H):
-        for u in range(W):
-            d = obs[v, u]
-            if d < out[v // tile, u // tile]:
-                out[v // tile, u // tile] = d
+    for tv in range(th):
+        for v in range(tv * tile, min(H, tv * tile + tile)):
+            for tu in range(tw):
+                m = out[tv, tu]
+                for u in range(tu * tile, min(W, tu * tile + tile)):
+                    if img[v, u] < m:
+                        m = img[v, u]
+                out[tv, tu] = m
     return out
 
 
@@ -216,7 +221,7 @@ def prepare_frame(
         d, missing, robot, int(fill_radius), np.float32(camera.min_depth), invalid == "conservative", obs
     )
     robot_depth = np.where(robot & ~missing, d, np.float32(np.nan)).astype(np.float32)
-    tmin = _tile_min(obs, TILE)
+    tmin = tile_min(obs, TILE)
     for a in (obs, robot, robot_depth, tmin):
         a.setflags(write=False)
     return DepthFrame(camera, obs, robot, robot_depth, tmin, invalid, int(filled), int(unknown))

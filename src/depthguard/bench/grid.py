@@ -36,8 +36,14 @@ WORKSPACE = (-1.5, 1.5, -1.5, 1.5, -0.5, 1.5)
 
 
 def _entry(name: str, rho, t: dict, **extra) -> dict:
-    return {"name": name, "rho": rho, "hz_median": t["hz_median"], "us_median": t["us_median"],
-            "us_p99": t["us_p99"], **extra}
+    return {
+        "name": name,
+        "rho": rho,
+        "hz_median": t["hz_median"],
+        "us_median": t["us_median"],
+        "us_p99": t["us_p99"],
+        **extra,
+    }
 
 
 def run_grid_benchmark(quick: bool = False, stored_map: bool | None = None) -> dict:
@@ -68,9 +74,15 @@ def run_grid_benchmark(quick: bool = False, stored_map: bool | None = None) -> d
             t = time_calls(lambda rho=rho, mode=mode: fusion.query(centres, radii, rho=rho, mode=mode), repeat)
             query_t[(mode, rho)] = t
             answers[(mode, rho)] = fusion.query(centres, radii, rho=rho, mode=mode)
-            results.append(_entry(f"depthgrid-2cam-{mode}", rho, t,
-                                  column_searches=int(fusion.last_cells.sum()),
-                                  cell_votes=int(fusion.last_votes.sum())))
+            results.append(
+                _entry(
+                    f"depthgrid-2cam-{mode}",
+                    rho,
+                    t,
+                    column_searches=int(fusion.last_cells.sum()),
+                    cell_votes=int(fusion.last_votes.sum()),
+                )
+            )
     t_update = time_calls(lambda: fusion.update(depths), frames)
 
     voxel = VoxelFusion(cams, WORKSPACE, res=0.01)

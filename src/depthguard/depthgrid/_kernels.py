@@ -100,8 +100,7 @@ def pack(u0, v0, du, dv, q):
     """One int64: du | dv << 8 | (u0 + 1) << 16 | v0 << 32 | q << 48 (all fields non-negative)."""
     if u0 < 0:
         return np.int64(0)
-    return np.int64(du) | (np.int64(dv) << 8) | (np.int64(u0 + 1) << 16) | (np.int64(v0) << 32) | (
-        np.int64(q) << 48)
+    return np.int64(du) | (np.int64(dv) << 8) | (np.int64(u0 + 1) << 16) | (np.int64(v0) << 32) | (np.int64(q) << 48)
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
@@ -163,7 +162,8 @@ def cell_occupied(u, v, g, d_min, dd, corner_rays, centre_rays, cams, stored, pm
         if u0 >= 0:
             involved = True
             if centre_sees_past(k, u, v, d1, d1 + dd, centre_rays, cams, votes) and footprint_sees_past(
-                    k, u0, v0, du, dv, q, votes):
+                k, u0, v0, du, dv, q, votes
+            ):
                 return False
     return involved or not need_vote
 
@@ -201,12 +201,24 @@ def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, vot
     dm = 0.5 * (d1 + d2)
     for k in range(cams.shape[0]):
         # quick necessary test at the centre of the piece
-        mx = 0.25 * (corner_rays[k, va, ua, 0] + corner_rays[k, va, ub, 0] + corner_rays[k, vb, ua, 0]
-                     + corner_rays[k, vb, ub, 0])
-        my = 0.25 * (corner_rays[k, va, ua, 1] + corner_rays[k, va, ub, 1] + corner_rays[k, vb, ua, 1]
-                     + corner_rays[k, vb, ub, 1])
-        mz = 0.25 * (corner_rays[k, va, ua, 2] + corner_rays[k, va, ub, 2] + corner_rays[k, vb, ua, 2]
-                     + corner_rays[k, vb, ub, 2])
+        mx = 0.25 * (
+            corner_rays[k, va, ua, 0]
+            + corner_rays[k, va, ub, 0]
+            + corner_rays[k, vb, ua, 0]
+            + corner_rays[k, vb, ub, 0]
+        )
+        my = 0.25 * (
+            corner_rays[k, va, ua, 1]
+            + corner_rays[k, va, ub, 1]
+            + corner_rays[k, vb, ua, 1]
+            + corner_rays[k, vb, ub, 1]
+        )
+        mz = 0.25 * (
+            corner_rays[k, va, ua, 2]
+            + corner_rays[k, va, ub, 2]
+            + corner_rays[k, vb, ua, 2]
+            + corner_rays[k, vb, ub, 2]
+        )
         Z = dm * mz + cams[k, 2]
         if Z <= 1e-6:
             continue
@@ -235,24 +247,6 @@ def build_map(corner_rays, cams, d_min, dd, n_cells, pmap):
                     d1 = d_min + g * dd
                     u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d1 + dd, corner_rays, cams)
                     pmap[k, v, u, g] = pack(u0, v0, du, dv, q)
-
-
-@nb.njit(cache=True)
-def tile_min(img, tile):
-    """Minimum of ``img`` over each ``tile x tile`` block."""
-    H, W = img.shape
-    th = (H + tile - 1) // tile
-    tw = (W + tile - 1) // tile
-    out = np.full((th, tw), np.inf, dtype=np.float32)
-    for tv in range(th):
-        for v in range(tv * tile, min(H, tv * tile + tile)):
-            for tu in range(tw):
-                m = out[tv, tu]
-                for u in range(tu * tile, min(W, tu * tile + tile)):
-                    if img[v, u] < m:
-                        m = img[v, u]
-                out[tv, tu] = m
-    return out
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
@@ -284,8 +278,34 @@ def _ray_seg_dist(px, py, pz, a, b, s_line, lo, hi):
 
 
 @nb.njit(cache=True, error_model="numpy", _nrt=False, inline="always")
-def column_search(u, v, a, b, s0, surface, robot, px, py, pz, h, limit, d_min, dd, n_cells,
-                  corner_rays, centre_rays, cams, stored, pmap, votes, ua, va, ub, vb, tstate):
+def column_search(
+    u,
+    v,
+    a,
+    b,
+    s0,
+    surface,
+    robot,
+    px,
+    py,
+    pz,
+    h,
+    limit,
+    d_min,
+    dd,
+    n_cells,
+    corner_rays,
+    centre_rays,
+    cams,
+    stored,
+    pmap,
+    votes,
+    ua,
+    va,
+    ub,
+    vb,
+    tstate,
+):
     """RA-L'16 §VI cases iii/iv along one principal pixel: the nearest occupied depth interval.
 
     Searches the cells of pixel (u, v) from ``s0`` on, nearest to P first (alternating outward from the
@@ -410,8 +430,35 @@ def column_search(u, v, a, b, s0, surface, robot, px, py, pz, h, limit, d_min, d
 
 
 @nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=_FAST)
-def query_one(Pc, radius, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit, unseen,
-              d_min, dd, n_cells, corner_rays, centre_rays, cams, stored, pmap, votes, lbs, tstate, out):
+def query_one(
+    Pc,
+    radius,
+    rho,
+    mode,
+    alpha,
+    start,
+    kind,
+    tmin,
+    tile,
+    fx,
+    fy,
+    cx,
+    cy,
+    near_limit,
+    unseen,
+    d_min,
+    dd,
+    n_cells,
+    corner_rays,
+    centre_rays,
+    cams,
+    stored,
+    pmap,
+    votes,
+    lbs,
+    tstate,
+    out,
+):
     """Fused distance query for one control sphere; out[0:10] = D, dir(3), nearest(3), count,
     column searches, votes.
 
@@ -563,10 +610,34 @@ def query_one(Pc, radius, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx,
                         if not math.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - h) - h * pz < lim:
                             continue
                         cells += 1
-                        found, lo, hi, nt = column_search(u, v, a, b, s0, kd == KIND_SURFACE,
-                                                          kd == KIND_ROBOT, px, py, pz, h, lim,
-                                                      d_min, dd, n_cells, corner_rays, centre_rays, cams,
-                                                      stored, pmap, votes, ta, tva, tb_, tvb, tstate)
+                        found, lo, hi, nt = column_search(
+                            u,
+                            v,
+                            a,
+                            b,
+                            s0,
+                            kd == KIND_SURFACE,
+                            kd == KIND_ROBOT,
+                            px,
+                            py,
+                            pz,
+                            h,
+                            lim,
+                            d_min,
+                            dd,
+                            n_cells,
+                            corner_rays,
+                            centre_rays,
+                            cams,
+                            stored,
+                            pmap,
+                            votes,
+                            ta,
+                            tva,
+                            tb_,
+                            tvb,
+                            tstate,
+                        )
                         tests += nt
                         if not found:
                             continue
@@ -629,8 +700,34 @@ def query_one(Pc, radius, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx,
 
 
 @nb.njit(cache=True, parallel=True)
-def query_many(R, t, centres, radii, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit,
-               unseen, d_min, dd, n_cells, corner_rays, centre_rays, cams, stored, pmap, votes):
+def query_many(
+    R,
+    t,
+    centres,
+    radii,
+    rho,
+    mode,
+    alpha,
+    start,
+    kind,
+    tmin,
+    tile,
+    fx,
+    fy,
+    cx,
+    cy,
+    near_limit,
+    unseen,
+    d_min,
+    dd,
+    n_cells,
+    corner_rays,
+    centre_rays,
+    cams,
+    stored,
+    pmap,
+    votes,
+):
     """:func:`query_one` for N control spheres, in parallel over the spheres (prange)."""
     n = centres.shape[0]
     out = np.empty((n, 10))
@@ -638,16 +735,67 @@ def query_many(R, t, centres, radii, rho, mode, alpha, start, kind, tmin, tile, 
     tstates = np.zeros((n, n_cells // TILE_BLOCK + 1), dtype=np.uint8)
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
-        query_one(Pc, radii[i], rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit, unseen,
-                  d_min, dd, n_cells, corner_rays, centre_rays, cams, stored, pmap, votes, scratch[i],
-                  tstates[i], out[i])
+        query_one(
+            Pc,
+            radii[i],
+            rho,
+            mode,
+            alpha,
+            start,
+            kind,
+            tmin,
+            tile,
+            fx,
+            fy,
+            cx,
+            cy,
+            near_limit,
+            unseen,
+            d_min,
+            dd,
+            n_cells,
+            corner_rays,
+            centre_rays,
+            cams,
+            stored,
+            pmap,
+            votes,
+            scratch[i],
+            tstates[i],
+            out[i],
+        )
     return out
 
 
 @nb.njit(cache=True)
-def query_many_serial(R, t, centres, radii, rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy,
-                      near_limit, unseen, d_min, dd, n_cells, corner_rays, centre_rays, cams, stored, pmap,
-                      votes):
+def query_many_serial(
+    R,
+    t,
+    centres,
+    radii,
+    rho,
+    mode,
+    alpha,
+    start,
+    kind,
+    tmin,
+    tile,
+    fx,
+    fy,
+    cx,
+    cy,
+    near_limit,
+    unseen,
+    d_min,
+    dd,
+    n_cells,
+    corner_rays,
+    centre_rays,
+    cams,
+    stored,
+    pmap,
+    votes,
+):
     """:func:`query_one` for N control spheres, one after the other (no thread start-up latency)."""
     n = centres.shape[0]
     out = np.empty((n, 10))
@@ -655,7 +803,33 @@ def query_many_serial(R, t, centres, radii, rho, mode, alpha, start, kind, tmin,
     tstate = np.zeros(n_cells // TILE_BLOCK + 1, dtype=np.uint8)
     for i in range(n):
         Pc = R @ centres[i] + t
-        query_one(Pc, radii[i], rho, mode, alpha, start, kind, tmin, tile, fx, fy, cx, cy, near_limit, unseen,
-                  d_min, dd, n_cells, corner_rays, centre_rays, cams, stored, pmap, votes, scratch, tstate,
-                  out[i])
+        query_one(
+            Pc,
+            radii[i],
+            rho,
+            mode,
+            alpha,
+            start,
+            kind,
+            tmin,
+            tile,
+            fx,
+            fy,
+            cx,
+            cy,
+            near_limit,
+            unseen,
+            d_min,
+            dd,
+            n_cells,
+            corner_rays,
+            centre_rays,
+            cams,
+            stored,
+            pmap,
+            votes,
+            scratch,
+            tstate,
+            out[i],
+        )
     return out

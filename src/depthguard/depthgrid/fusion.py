@@ -83,6 +83,7 @@ from depthguard.depthspace import (
     PointDistances,
     prepare_frame,
     query_distances,
+    tile_min,
 )
 from depthguard.validation import check_points
 
@@ -227,7 +228,7 @@ class DepthGridFusion:
         cam0 = cameras[0]
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
-        self._tmin = K.tile_min(self._start, TILE)
+        self._tmin = tile_min(self._start, TILE)
         self._invalid = "conservative"
         self._ready = False
         self.last_cells = np.zeros(0, dtype=np.int64)  # per point: column searches (cases iii/iv)
@@ -260,15 +261,34 @@ class DepthGridFusion:
         for k, (cam, depth, mask) in enumerate(zip(self.cameras, depths, masks, strict=True)):
             d = np.ascontiguousarray(cam.check_image(depth, "depth"), dtype=np.float32)
             has_mask = mask is not None
-            robot = (np.ascontiguousarray(cam.check_image(mask, "mask"), dtype=np.bool_) if has_mask
-                     else np.zeros((1, 1), dtype=np.bool_))
+            robot = (
+                np.ascontiguousarray(cam.check_image(mask, "mask"), dtype=np.bool_)
+                if has_mask
+                else np.zeros((1, 1), dtype=np.bool_)
+            )
             if k == 0:
-                _prepare_principal(d, robot, has_mask, self.fill_radius, np.float32(cam.min_depth),
-                                   conservative, self._start, self._kind)
+                _prepare_principal(
+                    d,
+                    robot,
+                    has_mask,
+                    self.fill_radius,
+                    np.float32(cam.min_depth),
+                    conservative,
+                    self._start,
+                    self._kind,
+                )
             else:
-                _prepare_secondary(d, robot, has_mask, self.fill_radius, conservative, self.robot_occludes,
-                                   np.float32(self.vote_margin), self._votes[k - 1, : cam.height, : cam.width])
-        self._tmin = K.tile_min(self._start, TILE)
+                _prepare_secondary(
+                    d,
+                    robot,
+                    has_mask,
+                    self.fill_radius,
+                    conservative,
+                    self.robot_occludes,
+                    np.float32(self.vote_margin),
+                    self._votes[k - 1, : cam.height, : cam.width],
+                )
+        self._tmin = tile_min(self._start, TILE)
         self._invalid = invalid
         self._ready = True
 
@@ -306,11 +326,28 @@ class DepthGridFusion:
         g = self.grid
         kernel = K.query_many if self.parallel else K.query_many_serial
         raw = kernel(
-            np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t), np.ascontiguousarray(c),
-            np.ascontiguousarray(r), float(rho), MODES.index(mode), float(alpha),
-            self._start, self._kind, self._tmin, TILE, cam.fx, cam.fy, cam.cx, cam.cy,
-            float(cam.min_depth), self._invalid == "conservative",
-            g.d_min, g.dd, g.n_cells, *self.map.kernel_args(), self._votes,
+            np.ascontiguousarray(cam.R),
+            np.ascontiguousarray(cam.t),
+            np.ascontiguousarray(c),
+            np.ascontiguousarray(r),
+            float(rho),
+            MODES.index(mode),
+            float(alpha),
+            self._start,
+            self._kind,
+            self._tmin,
+            TILE,
+            cam.fx,
+            cam.fy,
+            cam.cx,
+            cam.cy,
+            float(cam.min_depth),
+            self._invalid == "conservative",
+            g.d_min,
+            g.dd,
+            g.n_cells,
+            *self.map.kernel_args(),
+            self._votes,
         )
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)

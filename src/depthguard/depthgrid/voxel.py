@@ -181,8 +181,9 @@ class VoxelFusion:
         """Distances from N control spheres to the non-free voxels within ``rho`` (world frame)."""
         c = np.atleast_2d(np.asarray(centres, dtype=float))
         r = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, dtype=float), (c.shape[0],)))
-        raw = _query_many(self.grid, self.origin, self.res, np.ascontiguousarray(c), r, float(rho),
-                          MODES.index(mode), float(alpha))
+        raw = _query_many(
+            self.grid, self.origin, self.res, np.ascontiguousarray(c), r, float(rho), MODES.index(mode), float(alpha)
+        )
         found = raw[:, 0] < rho + r
         dist = np.where(found, np.maximum(raw[:, 0] - r, 0.0), np.inf)
         direction = np.where(found[:, None], raw[:, 1:4], np.nan)
