@@ -120,7 +120,7 @@ class SimLog:
     wall_frame: list = field(default_factory=list)
     wall_camera: list = field(default_factory=list)
     t_distance: list = field(default_factory=list)
-    frames: list = field(default_factory=list)  # (t, [depth per camera]) for the recorder
+    frames: list = field(default_factory=list)  # (t, [uint16 mm depth per camera]) for the recorder
     nearest_obstacle: dict = field(default_factory=dict)
     links: list = field(default_factory=list)
     point_names: tuple = ()
@@ -146,6 +146,13 @@ class _Progress:
         sys.stderr.flush()
         if pct >= 100:
             sys.stderr.write("\n")
+
+
+def _to_mm(depth: np.ndarray) -> np.ndarray:
+    """A depth image for the recording: uint16 millimetres (0 = no reading), at most 320 pixels wide."""
+    step = max(1, depth.shape[1] // 320)
+    d = np.asarray(depth, float)[::step, ::step] * 1000.0
+    return np.clip(np.round(np.nan_to_num(d, nan=0.0)), 0, 65535).astype("<u2")
 
 
 def run_loop(
@@ -194,8 +201,9 @@ def run_loop(
             w2 = time.perf_counter()
             log.wall_camera.append(w1 - w0)
             log.wall_frame.append(w2 - w1)
-            if frame_count % record_frames_every == 0:
-                log.frames.append((t, [d.copy() for d in depths], [m.copy() for m in masks]))
+            every = record_frames_every if depths[0].shape[1] <= 320 else 2 * record_frames_every
+            if frame_count % every == 0:
+                log.frames.append((t, [_to_mm(d) for d in depths]))
             frame_count += 1
         # ---------------------------------------------------------------- distance stage (333 Hz)
         if t >= next_dist - 1e-9 and stage.ready:

@@ -329,6 +329,7 @@ def run_scenario(
         "resolution": [cell.cameras[0].width, cell.cameras[0].height],
         "control_points": list(log.point_names),
         "parameters": sc.get("avoidance", {}),
+        "people_max_hand_speed": {p.name: round(p.max_hand_speed(), 3) for p in cell.spec.people},
     }
     result.update(compute_metrics(log, task, cfg, backends()))
     runs = {"main": (log, task)}
