@@ -181,7 +181,8 @@ def run_loop(
     latest = None  # (t, distances, V_ee)
     frame_count = 0
     prog = _Progress(cfg.duration, cfg.label, cfg.progress)
-    elbow_idx = [i for i, n in enumerate(kin.names) if n.startswith("lwr_link_3")]
+    # the elbow (joint A4) is the last control point on the upper arm (lwr_link_3)
+    elbow_idx = [i for i, n in enumerate(kin.names) if n.startswith("lwr_link_3")][-1:]
     t_start = time.perf_counter()
     status: dict = {}
     xdot = np.zeros(3)
