@@ -38,9 +38,10 @@ def plot_run(out_dir: str | Path, runs: dict, title: str) -> dict[str, str]:
         ee = np.asarray(log.ee)
         el = np.asarray(log.elbow)
         for ax, (i, j, lab) in zip(axes, ((0, 1, "x-y (top view)"), (1, 2, "y-z (front view)")), strict=True):
-            ax.plot(ee[:, i], ee[:, j], color=col, lw=1.5, label=f"end effector ({name})")
-            if name == "main":
-                ax.plot(el[:, i], el[:, j], color=col, lw=1.0, ls=":", label="elbow (main)")
+            main = name == "main"
+            ax.plot(ee[:, i], ee[:, j], color=col, lw=1.5, ls="-" if main else "--", label=f"end effector ({name})")
+            ax.plot(el[:, i], el[:, j], color=col, lw=1.0, ls=":" if main else "-.", label=f"elbow ({name})")
+            if main:
                 path = task.path()
                 ax.plot(path[:, i], path[:, j], "k--", lw=1, label="nominal path")
                 xd = np.asarray(log.xdot_cmd)
