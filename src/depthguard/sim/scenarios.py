@@ -232,6 +232,7 @@ def _run_one(
     label: str,
     seed: int = 0,
     demo: bool = False,
+    camera_backend: str = "auto",
 ):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
@@ -239,7 +240,7 @@ def _run_one(
 
     cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras, demo=demo)
     av = sc.get("avoidance", {})
-    cams = [KinectSim(cell.model, c, i, seed=seed + i) for i, c in enumerate(cell.cameras)]
+    cams = [KinectSim(cell.model, c, i, seed=seed + i, backend=camera_backend) for i, c in enumerate(cell.cameras)]
     stage = DistanceStage(
         cell.cameras,
         rho=float(av.get("rho", 0.4)),
