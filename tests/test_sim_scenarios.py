@@ -109,21 +109,3 @@ def test_three_rates_in_simulated_time():
     assert len(log.wall_frame) == 30
     td = np.diff(log.t_distance)
     assert np.allclose(td, 0.003, atol=1.1e-3)
-
-
-@pytest.mark.slow
-def test_stand_ins_still_work(monkeypatch):
-    """The simulator's own stand-ins (used before a pipeline piece is installed) run the scenarios safely."""
-    import depthguard.sim._standins as S
-    import depthguard.sim.pipeline as P
-
-    monkeypatch.setattr(P, "prepare_frame", S.prepare_frame)
-    monkeypatch.setattr(P, "query_distances", S.query_distances)
-    monkeypatch.setattr(P, "DepthGridFusion", S.VoxelFusion)
-    for flag in ("_HAVE_DEPTHSPACE", "_HAVE_GRID", "_HAVE_ROBOT", "_HAVE_SELFFILTER", "_HAVE_CONTROL"):
-        monkeypatch.setattr(P, flag, False)
-    assert set(P.backends().values()) == {"sim stand-in"}
-    r = run_scenario("icra-exp1", quick=True, variants=False)
-    assert r["collision_steps"] == 0 and r["task_completion"] == 1.0, r
-    two = run_scenario("ral-hidden", quick=True, cameras=2, variants=False)
-    assert two["collision_steps"] == 0, two

@@ -75,7 +75,6 @@ def run_demo(out_dir: str | Path | None = None) -> int:
     print(f"{'':30s} {'avoidance ON':>14s} {'avoidance OFF':>14s}")
     for label, key, unit, nd in rows:
         print(f"{label:30s} {_fmt(on.get(key), unit, nd):>14s} {_fmt(off.get(key), unit, nd):>14s}")
-    print(f"\nbackends: {on.get('backends')}")
     for name, res in (("avoidance ON", on), ("avoidance OFF", off)):
         print(f"\n{name}: {res['out_dir']}")
         for k, v in res.get("files", {}).items():

@@ -174,7 +174,7 @@ def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
     return best
 
 
-def compute_metrics(log, task, cfg, backends: dict | None = None) -> dict[str, Any]:
+def compute_metrics(log, task, cfg) -> dict[str, Any]:
     """Metrics of one run from its :class:`~depthguard.sim.loop.SimLog` (see the module docstring)."""
     steps = np.asarray(log.step_true_min)
     links = np.asarray(log.true_links)
@@ -217,8 +217,6 @@ def compute_metrics(log, task, cfg, backends: dict | None = None) -> dict[str, A
         "wall_seconds": round(log.wall_total, 2),
         "collided_with": dict(log.nearest_obstacle),
     }
-    if backends:
-        out["backends"] = backends
     return out
 
 
@@ -308,7 +306,6 @@ def run_scenario(
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
     """
-    from depthguard.sim.pipeline import backends
 
     sc = load_scenario(name)
     t0 = time.perf_counter()
@@ -332,7 +329,7 @@ def run_scenario(
         "parameters": sc.get("avoidance", {}),
         "people_max_hand_speed": {p.name: round(p.max_hand_speed(), 3) for p in cell.spec.people},
     }
-    result.update(compute_metrics(log, task, cfg, backends()))
+    result.update(compute_metrics(log, task, cfg))
     runs = {"main": (log, task)}
     if variants and avoidance:
         result["variants"] = {}
