@@ -3,7 +3,6 @@
 The simulated arm and the controller's model must agree, so both come from the same URDF
 (``depthguard/robot/data/lwr4/lwr4.urdf``, written for the controller). URDF has no capsule: each link
 capsule is written there as a cylinder plus a sphere at each end, which we read back as one capsule.
-When the robot package's URDF is not installed, a built-in stand-in with the same kinematics is used.
 """
 
 from __future__ import annotations
@@ -11,7 +10,7 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
@@ -166,41 +165,9 @@ def parse_urdf(text: str, source: str = "<string>", ee_link: str | None = None) 
     )
 
 
-# A stand-in with the LWR IV kinematics of depthguard/robot/data/lwr4/lwr4.urdf, used only when
-# that file is not installed. Link lengths: 0.3105 / 0.40 / 0.39 / 0.078 m, tool 0.10 m.
-_STANDIN = [
-    # joint, parent origin z, axis, limit, velocity limit, link radius, link length
-    ("lwr_a1_joint", 0.102, (0, 0, 1), 2.96706, 1.91986, 0.07, 0.2085),
-    ("lwr_a2_joint", 0.2085, (0, -1, 0), 2.0944, 1.91986, 0.07, 0.1915),
-    ("lwr_a3_joint", 0.1915, (0, 0, 1), 2.96706, 2.23402, 0.07, 0.2085),
-    ("lwr_a4_joint", 0.2085, (0, 1, 0), 2.0944, 2.23402, 0.065, 0.1915),
-    ("lwr_a5_joint", 0.1915, (0, 0, 1), 2.96706, 3.56047, 0.06, 0.1985),
-    ("lwr_a6_joint", 0.1985, (0, -1, 0), 2.0944, 3.21141, 0.06, 0.05),
-    ("lwr_a7_joint", 0.078, (0, 0, 1), 2.96706, 3.21141, 0.04, 0.11),
-]
-
-
-def _standin_desc() -> RobotDesc:
-    joints = []
-    capsules = [CapsuleDesc("lwr_link_0", (0, 0, 0), (0, 0, 0.102), 0.075, "cylinder")]
-    parent = "lwr_link_0"
-    for i, (name, z, axis, lim, vel, r, length) in enumerate(_STANDIN, start=1):
-        child = f"lwr_link_{i}"
-        joints.append(JointDesc(name, parent, child, (0, 0, z), (0, 0, 0), axis, "revolute", -lim, lim, vel))
-        a = (0.0, 0.0, -0.01 if i == 7 else 0.0)
-        b = (0.0, 0.0, 0.1 if i == 7 else length)
-        capsules.append(CapsuleDesc(child, a, b, r))
-        parent = child
-    joints.append(JointDesc("lwr_ee_joint", parent, "lwr_ee", (0, 0, 0.1), (0, 0, 0), (1, 0, 0), "fixed"))
-    return RobotDesc("lwr4", "lwr_link_0", tuple(joints), tuple(capsules), "lwr_ee", "built-in stand-in")
-
-
 def load_robot_desc() -> RobotDesc:
-    """The LWR IV description from the robot package's URDF, or the built-in stand-in when absent."""
-    try:
-        ref = resources.files("depthguard.robot").joinpath("data/lwr4/lwr4.urdf")
-        if ref.is_file():
-            return parse_urdf(ref.read_text(), source=str(ref), ee_link="lwr_ee")
-    except (ModuleNotFoundError, FileNotFoundError):
-        pass
-    return _standin_desc()
+    """The LWR IV description, read from the same URDF as the controller's model."""
+    from depthguard.robot.model import lwr4_urdf_path
+
+    path = lwr4_urdf_path()
+    return parse_urdf(Path(path).read_text(), source=str(path), ee_link="lwr_ee")
