@@ -24,7 +24,7 @@ def test_robot_description_has_seven_joints_and_capsules():
 
 
 def test_arm_matches_the_controllers_model():
-    """The simulated arm and the controller's kinematics (pinocchio or stand-in) agree on the tool point."""
+    """The simulated arm and the controller's kinematics (pinocchio) agree on the tool point."""
     from depthguard.sim.pipeline import Kinematics
 
     cell = build_cell(CellSpec(q0=tuple(Q0)))

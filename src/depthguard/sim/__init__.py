@@ -5,7 +5,7 @@
 * :mod:`depthguard.sim.depthcam`: simulated Kinect v1 (``mj_multiRay`` or OpenGL, noise, range, edges);
 * :mod:`depthguard.sim.truth`: true clearances (``mj_geomDistance``), for metrics only;
 * :mod:`depthguard.sim.pipeline`: adapters to the pipeline (robot model, self-filter, distances, fusion,
-  controller), with small stand-ins where a piece is not installed;
+  controller);
 * :mod:`depthguard.sim.loop`: the three rates (30 Hz frames, 333 Hz distances, 1 kHz control) in simulated time;
 * :mod:`depthguard.sim.scenarios`: scenario files, :func:`~depthguard.sim.scenarios.run_scenario`, metrics;
 * :mod:`depthguard.sim.recorder`: MCAP recordings (Foxglove); :mod:`depthguard.sim.demo`: ``make demo``.
