@@ -82,6 +82,7 @@ def test_column_search_equals_cell_by_cell(seed):
         tu = int(np.clip(px // TILE + rng.integers(-1, 2), 0, cam.width // TILE - 1))
         tv = int(np.clip(py // TILE + rng.integers(-1, 2), 0, cam.height // TILE - 1))
         tstate = np.zeros(g_.n_cells // K.TILE_BLOCK + 1, dtype=np.uint8)
+        stack = np.empty(3 * K.PYR_STACK, dtype=np.int64)
         for v in range(tv * TILE, tv * TILE + TILE, 2):
             for u in range(tu * TILE, tu * TILE + TILE, 2):
                 if fusion._kind[v, u] == K.KIND_NONE:
@@ -110,6 +111,9 @@ def test_column_search_equals_cell_by_cell(seed):
                     min(cam.width, tu * TILE + TILE),
                     min(cam.height, tv * TILE + TILE),
                     tstate,
+                    fusion._pyr,
+                    fusion._pyr_meta,
+                    stack,
                 )
                 checked += 1
                 assert found == (ref is not None)

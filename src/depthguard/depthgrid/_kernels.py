@@ -169,7 +169,7 @@ def cell_occupied(u, v, g, d_min, dd, corner_rays, centre_rays, cams, stored, pm
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes):
+def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes, pyr, meta, stack):
     """True when one secondary camera clears every cell ``g0 <= g < g1`` of pixel (u, v) at once.
 
     The block's footprint is that of the frustum piece between ``d_min + g0 Δd`` and ``d_min + g1 Δd``
@@ -184,13 +184,13 @@ def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes
         if not centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
             continue
         u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d2, corner_rays, cams)
-        if footprint_sees_past(k, u0, v0, du, dv, q, votes):
+        if u0 >= 0 and rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, votes, pyr, meta, stack):
             return True
     return False
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, votes):
+def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, votes, pyr, meta, stack):
     """True when one secondary camera clears the cells ``g0 <= g < g1`` of every pixel of a tile at once.
 
     Same argument as :func:`block_cleared`, for the frustum over the tile's pixels ``[ua, ub) x [va, vb)``.
@@ -229,9 +229,141 @@ def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, vot
         if not votes[k, int(pv), int(pu)] > Z:
             continue
         u0, v0, du, dv, q = rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams)
-        if footprint_sees_past(k, u0, v0, du, dv, q, votes):
+        if u0 >= 0 and rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, votes, pyr, meta, stack):
             return True
     return False
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Range-minimum pyramid of the vote images (per frame) and the exact "every pixel of a rectangle sees past"
+# test built on it.
+#
+# A footprint test asks whether every pixel of a rectangle of camera k reads deeper than a far depth.
+# For a 16x16-pixel tile over tens of centimetres of depth the footprint covers hundreds to thousands of
+# pixels, and reading them one by one dominated the query in scenes where a person stands in front of
+# the principal camera (RA-L'16 case iii almost everywhere). The pyramid holds, for l = 1..L, the
+# minimum vote over each aligned 2^l x 2^l block (level 0 is the vote image itself). The test walks it
+# from the coarsest level whose blocks span at most 4 per axis: a block whose minimum exceeds the
+# threshold clears all its pixels at once (inside the rectangle or not); a block at or below the
+# threshold that lies entirely inside the rectangle fails the test; a block straddling the rectangle's
+# edge is split into its four children. It therefore answers exactly as the pixel loop does (the same
+# float32 values compared with the same threshold), in a few lookups where the space is clearly free.
+# ---------------------------------------------------------------------------------------------------------
+PYR_STACK = 256  # entries (3 int64 each) of the explicit stack of the descent
+
+
+def pyramid_layout(h, w):
+    """(L, 3) int64 rows ``(offset, rows, cols)`` of levels 1..L of an (h, w) image's min pyramid.
+
+    Levels are added until both dimensions are at most 4 blocks, so a rectangle spans at most 4 blocks
+    per axis at the top level; returns the meta array and the total number of cells.
+    """
+    rows = []
+    off = 0
+    l = 1
+    while True:
+        hl = (h + (1 << l) - 1) >> l
+        wl = (w + (1 << l) - 1) >> l
+        rows.append((off, hl, wl))
+        off += hl * wl
+        if hl <= 4 and wl <= 4:
+            break
+        l += 1
+    return np.array(rows, dtype=np.int64).reshape(-1, 3), off
+
+
+@nb.njit(cache=True)
+def build_pyramid(votes, meta, pyr):
+    """Fill ``pyr[k]`` (levels 1..L, see :func:`pyramid_layout`) with block minima of ``votes[k]``."""
+    H = votes.shape[1]
+    W = votes.shape[2]
+    for k in range(votes.shape[0]):
+        for l in range(meta.shape[0]):
+            off = meta[l, 0]
+            hl = meta[l, 1]
+            wl = meta[l, 2]
+            if l == 0:
+                for bv in range(hl):
+                    for bu in range(wl):
+                        m = np.float32(np.inf)
+                        for vv in range(2 * bv, min(H, 2 * bv + 2)):
+                            for uu in range(2 * bu, min(W, 2 * bu + 2)):
+                                x = votes[k, vv, uu]
+                                if x < m:
+                                    m = x
+                        pyr[k, off + bv * wl + bu] = m
+            else:
+                poff = meta[l - 1, 0]
+                ph = meta[l - 1, 1]
+                pw = meta[l - 1, 2]
+                for bv in range(hl):
+                    for bu in range(wl):
+                        m = np.float32(np.inf)
+                        for vv in range(2 * bv, min(ph, 2 * bv + 2)):
+                            for uu in range(2 * bu, min(pw, 2 * bu + 2)):
+                                x = pyr[k, poff + vv * pw + uu]
+                                if x < m:
+                                    m = x
+                        pyr[k, off + bv * wl + bu] = m
+
+
+@nb.njit(cache=True, _nrt=False)
+def rect_sees_past(k, u0, v0, u1, v1, thr, votes, pyr, meta, stack):
+    """True when every vote of camera k over pixels ``[u0, u1] x [v0, v1]`` (inclusive) exceeds ``thr``.
+
+    Exactly the answer of the pixel loop of :func:`footprint_sees_past`, through the min pyramid (see
+    the comment above :data:`PYR_STACK`).
+    """
+    if (u1 - u0 + 1) * (v1 - v0 + 1) <= 16:
+        for pv in range(v0, v1 + 1):
+            for pu in range(u0, u1 + 1):
+                if not votes[k, pv, pu] > thr:
+                    return False
+        return True
+    L = meta.shape[0]
+    lv = 1
+    while lv < L and ((u1 >> lv) - (u0 >> lv) > 3 or (v1 >> lv) - (v0 >> lv) > 3):
+        lv += 1
+    n = 0
+    for bv in range(v0 >> lv, (v1 >> lv) + 1):
+        for bu in range(u0 >> lv, (u1 >> lv) + 1):
+            stack[3 * n] = lv
+            stack[3 * n + 1] = bv
+            stack[3 * n + 2] = bu
+            n += 1
+    while n > 0:
+        n -= 1
+        lv = stack[3 * n]
+        bv = stack[3 * n + 1]
+        bu = stack[3 * n + 2]
+        if lv == 0:
+            if not votes[k, bv, bu] > thr:
+                return False
+            continue
+        if pyr[k, meta[lv - 1, 0] + bv * meta[lv - 1, 2] + bu] > thr:
+            continue
+        # the block holds a pixel at or below thr: fail if the block lies inside the rectangle
+        pa = bu << lv
+        pb = ((bu + 1) << lv) - 1
+        qa = bv << lv
+        qb = ((bv + 1) << lv) - 1
+        if pa >= u0 and pb <= u1 and qa >= v0 and qb <= v1:
+            return False
+        # else split it into its children that meet the rectangle
+        c = lv - 1
+        for j in range(2):
+            cv = 2 * bv + j
+            if (((cv + 1) << c) - 1) < v0 or (cv << c) > v1:
+                continue
+            for i in range(2):
+                cu = 2 * bu + i
+                if (((cu + 1) << c) - 1) < u0 or (cu << c) > u1:
+                    continue
+                stack[3 * n] = c
+                stack[3 * n + 1] = cv
+                stack[3 * n + 2] = cu
+                n += 1
+    return True
 
 
 @nb.njit(cache=True, parallel=True)
@@ -305,6 +437,9 @@ def column_search(
     ub,
     vb,
     tstate,
+    pyr,
+    meta,
+    stack,
 ):
     """RA-L'16 §VI cases iii/iv along one principal pixel: the nearest occupied depth interval.
 
@@ -395,7 +530,9 @@ def column_search(
         if tstate[tb] == 0:
             tests += 1
             g1 = min((tb + 1) * TILE_BLOCK, n_cells)
-            if tile_block_cleared(ua, va, ub, vb, tb * TILE_BLOCK, g1, d_min, dd, corner_rays, cams, votes):
+            if tile_block_cleared(
+                ua, va, ub, vb, tb * TILE_BLOCK, g1, d_min, dd, corner_rays, cams, votes, pyr, meta, stack
+            ):
                 tstate[tb] = 1
             else:
                 tstate[tb] = 2
@@ -410,7 +547,7 @@ def column_search(
         if going_up:
             if bu > 1 and g + bu <= n_cells:
                 tests += 1
-                if block_cleared(u, v, g, g + bu, d_min, dd, corner_rays, centre_rays, cams, votes):
+                if block_cleared(u, v, g, g + bu, d_min, dd, corner_rays, centre_rays, cams, votes, pyr, meta, stack):
                     up = g + bu
                     continue
                 bu = bu // 4
@@ -420,7 +557,9 @@ def column_search(
                 lowest = 0
             if bd > 1 and g - bd + 1 >= lowest:
                 tests += 1
-                if block_cleared(u, v, g - bd + 1, g + 1, d_min, dd, corner_rays, centre_rays, cams, votes):
+                if block_cleared(
+                    u, v, g - bd + 1, g + 1, d_min, dd, corner_rays, centre_rays, cams, votes, pyr, meta, stack
+                ):
                     dn = g - bd
                     continue
                 bd = bd // 4
@@ -455,8 +594,11 @@ def query_one(
     stored,
     pmap,
     votes,
+    pyr,
+    meta,
     lbs,
     tstate,
+    stack,
     out,
 ):
     """Fused distance query for one control sphere; out[0:10] = D, dir(3), nearest(3), count,
@@ -637,6 +779,9 @@ def query_one(
                             tb_,
                             tvb,
                             tstate,
+                            pyr,
+                            meta,
+                            stack,
                         )
                         tests += nt
                         if not found:
@@ -727,12 +872,15 @@ def query_many(
     stored,
     pmap,
     votes,
+    pyr,
+    meta,
 ):
     """:func:`query_one` for N control spheres, in parallel over the spheres (prange)."""
     n = centres.shape[0]
     out = np.empty((n, 10))
     scratch = np.empty((n, tmin.shape[0] * tmin.shape[1]))
     tstates = np.zeros((n, n_cells // TILE_BLOCK + 1), dtype=np.uint8)
+    stacks = np.empty((n, 3 * PYR_STACK), dtype=np.int64)
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
         query_one(
@@ -760,8 +908,11 @@ def query_many(
             stored,
             pmap,
             votes,
+            pyr,
+            meta,
             scratch[i],
             tstates[i],
+            stacks[i],
             out[i],
         )
     return out
@@ -795,12 +946,15 @@ def query_many_serial(
     stored,
     pmap,
     votes,
+    pyr,
+    meta,
 ):
     """:func:`query_one` for N control spheres, one after the other (no thread start-up latency)."""
     n = centres.shape[0]
     out = np.empty((n, 10))
     scratch = np.empty(tmin.shape[0] * tmin.shape[1])
     tstate = np.zeros(n_cells // TILE_BLOCK + 1, dtype=np.uint8)
+    stack = np.empty(3 * PYR_STACK, dtype=np.int64)
     for i in range(n):
         Pc = R @ centres[i] + t
         query_one(
@@ -828,8 +982,11 @@ def query_many_serial(
             stored,
             pmap,
             votes,
+            pyr,
+            meta,
             scratch,
             tstate,
+            stack,
             out[i],
         )
     return out

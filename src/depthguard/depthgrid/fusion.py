@@ -225,6 +225,8 @@ class DepthGridFusion:
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
         self._votes = np.zeros((n, hm, wm), dtype=np.float32)
+        self._pyr_meta, npyr = K.pyramid_layout(hm, wm)
+        self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see _kernels)
         cam0 = cameras[0]
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
@@ -289,6 +291,7 @@ class DepthGridFusion:
                     self._votes[k - 1, : cam.height, : cam.width],
                 )
         self._tmin = tile_min(self._start, TILE)
+        K.build_pyramid(self._votes, self._pyr_meta, self._pyr)
         self._invalid = invalid
         self._ready = True
 
@@ -348,6 +351,8 @@ class DepthGridFusion:
             g.n_cells,
             *self.map.kernel_args(),
             self._votes,
+            self._pyr,
+            self._pyr_meta,
         )
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)
