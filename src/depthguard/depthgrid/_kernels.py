@@ -366,6 +366,107 @@ def rect_sees_past(k, u0, v0, u1, v1, thr, votes, pyr, meta, stack):
     return True
 
 
+@nb.njit(cache=True, _nrt=False)
+def tile_chunk_cleared(
+    ua, va, ub, vb, tb0, tb1, d_min, dd, n_cells, corner_rays, cams, votes, pyr, meta, stack, tstate
+):
+    """Decide at once the tile blocks ``tb0..tb1`` of one tile (the depth chunk its column searches can reach).
+
+    The whole chunk is tried first (one footprint test per camera through the min pyramid), then its two
+    halves, then each block of a half that fails. Each cleared range is a :func:`tile_block_cleared`
+    piece, so every cell in it is cleared by the per-cell rule. Returns True when every block of the chunk
+    is cleared: then no column of the tile finds an occupied cell inside the grid within the chunk.
+    """
+    if tb0 > tb1:
+        return True
+    if tile_block_cleared(
+        ua,
+        va,
+        ub,
+        vb,
+        tb0 * TILE_BLOCK,
+        min((tb1 + 1) * TILE_BLOCK, n_cells),
+        d_min,
+        dd,
+        corner_rays,
+        cams,
+        votes,
+        pyr,
+        meta,
+        stack,
+    ):
+        for tb in range(tb0, tb1 + 1):
+            tstate[tb] = 1
+        return True
+    if tb1 == tb0:
+        tstate[tb0] = 2
+        return False
+    mid = (tb0 + tb1 + 1) // 2
+    allc = True
+    for half in range(2):
+        a = tb0 if half == 0 else mid
+        b = mid - 1 if half == 0 else tb1
+        if tile_block_cleared(
+            ua,
+            va,
+            ub,
+            vb,
+            a * TILE_BLOCK,
+            min((b + 1) * TILE_BLOCK, n_cells),
+            d_min,
+            dd,
+            corner_rays,
+            cams,
+            votes,
+            pyr,
+            meta,
+            stack,
+        ):
+            for tb in range(a, b + 1):
+                tstate[tb] = 1
+        else:
+            for tb in range(a, b + 1):
+                if tile_block_cleared(
+                    ua,
+                    va,
+                    ub,
+                    vb,
+                    tb * TILE_BLOCK,
+                    min((tb + 1) * TILE_BLOCK, n_cells),
+                    d_min,
+                    dd,
+                    corner_rays,
+                    cams,
+                    votes,
+                    pyr,
+                    meta,
+                    stack,
+                ):
+                    tstate[tb] = 1
+                else:
+                    tstate[tb] = 2
+                    allc = False
+    return allc
+
+
+@nb.njit(cache=True)
+def tile_max_start(start, kind, tile):
+    """Per tile, the largest start depth of its non-robot pixels (surface or unknown); -inf when none."""
+    H, W = start.shape
+    th = (H + tile - 1) // tile
+    tw = (W + tile - 1) // tile
+    out = np.full((th, tw), -np.inf, dtype=np.float32)
+    for v in range(H):
+        for u in range(W):
+            kd = kind[v, u]
+            if kd == KIND_SURFACE or kd == KIND_UNKNOWN:
+                tv = v // tile
+                tu = u // tile
+                if start[v, u] > out[tv, tu]:
+                    out[tv, tu] = start[v, u]
+    return out
+
+
 @nb.njit(cache=True, parallel=True)
 def build_map(corner_rays, cams, d_min, dd, n_cells, pmap):
     """Fill the stored map (RA-L'16 §V) for every cell and secondary camera; rows in parallel."""
@@ -537,11 +638,18 @@ def column_search(
             else:
                 tstate[tb] = 2
         if tstate[tb] == 1:
+            # jump over the whole run of cleared blocks (decided eagerly per tile, see tile_chunk_cleared)
             if going_up:
-                up = min((tb + 1) * TILE_BLOCK, n_cells)
+                t2 = tb + 1
+                while t2 < tstate.shape[0] and tstate[t2] == 1:
+                    t2 += 1
+                up = min(t2 * TILE_BLOCK, n_cells)
             else:
+                t2 = tb - 1
+                while t2 >= 0 and tstate[t2] == 1:
+                    t2 -= 1
                 lowest = g_start + 1 if surface else g_start
-                dn = max(tb * TILE_BLOCK, lowest) - 1
+                dn = max((t2 + 1) * TILE_BLOCK, lowest) - 1
             continue
         # ... then a block of this column, then single cells
         if going_up:
@@ -578,7 +686,9 @@ def query_one(
     start,
     kind,
     tmin,
+    tmax,
     tile,
+    chunks,
     fx,
     fy,
     cx,
@@ -725,6 +835,62 @@ def query_one(
             tvb = min(H, tva + tile)
             for j in range(tstate.shape[0]):
                 tstate[j] = 0
+            # The depth chunk that the tile's column searches can reach: a visited segment holds a point x of
+            # a pixel-centre ray with |P - x| <= T (T as in column_search, for the current limit, which only
+            # shrinks later). The tile-centre ray point y at the same depth s lies within hT s of x, and
+            # s <= pz + T, so |P - y| <= T2 = T + hT (pz + T): s lies within the window of the tile-centre
+            # ray where its distance to P is at most T2, and no nearer than the tile's smallest start
+            # depth. One cell of margin on each side.
+            lim_t = best if mode == 0 else reff
+            T_t = (lim_t + h * pz) / (1.0 - h)
+            a_t = ((ta + tb_) * 0.5 - cx) / fx
+            b_t = ((tva + tvb) * 0.5 - cy) / fy
+            hT = 0.5 * math.sqrt(((tb_ - ta) / fx) ** 2 + ((tvb - tva) / fy) ** 2)
+            rr_t = a_t * a_t + b_t * b_t + 1.0
+            sl_t = (px * a_t + py * b_t + pz) / rr_t
+            l2_t = max(0.0, px * px + py * py + pz * pz - sl_t * sl_t * rr_t)
+            T2 = T_t + hT * (pz + T_t)
+            dl_t = math.sqrt(max(0.0, T2 * T2 - l2_t) / rr_t) * (1.0 + 1e-9) + 1e-9
+            zlo = max(tmin[tv, tu], pz - T_t, sl_t - dl_t)
+            zhi = min(pz + T_t, sl_t + dl_t)
+            g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
+            g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
+            allclear = False
+            if chunks and g0c <= g1c:
+                allclear = tile_chunk_cleared(
+                    ta,
+                    tva,
+                    tb_,
+                    tvb,
+                    g0c // TILE_BLOCK,
+                    g1c // TILE_BLOCK,
+                    d_min,
+                    dd,
+                    n_cells,
+                    corner_rays,
+                    cams,
+                    votes,
+                    pyr,
+                    meta,
+                    stack,
+                    tstate,
+                )
+                tests += 1
+            if allclear:
+                # Every grid cell within reach is free for every column of the tile, so a column search
+                # can only find its first segment: the cell of a measured surface (occupied without a
+                # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If
+                # no non-robot pixel lies beyond P (no case ii) and none of those first segments is
+                # within reach (a lower bound of the distance to the tile frustum between the tile's
+                # smallest start and the largest top of a first segment exceeds T), skip the tile.
+                tmx = tmax[tv, tu]
+                if zhi < d_min + n_cells * dd - dd and tmx < pz:
+                    if tmx == -np.inf:
+                        continue
+                    top = max(tmx, d_min) + dd
+                    dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin[tv, tu], top)
+                    if dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9:
+                        continue
             for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
                 b = (v + 0.5 - cy) / fy
                 for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
@@ -734,6 +900,8 @@ def query_one(
                     s0 = start[v, u]
                     if s0 > zmax:
                         continue  # case i: the obstacle and its gray area lie beyond the region
+                    if allclear and kd == KIND_ROBOT:
+                        continue  # case iv in a cleared tile: nothing within reach (see above)
                     a = (u + 0.5 - cx) / fx
                     lim = best if mode == 0 else reff
                     if kd == KIND_SURFACE and s0 >= pz:
@@ -856,7 +1024,9 @@ def query_many(
     start,
     kind,
     tmin,
+    tmax,
     tile,
+    chunks,
     fx,
     fy,
     cx,
@@ -892,7 +1062,9 @@ def query_many(
             start,
             kind,
             tmin,
+            tmax,
             tile,
+            chunks,
             fx,
             fy,
             cx,
@@ -930,7 +1102,9 @@ def query_many_serial(
     start,
     kind,
     tmin,
+    tmax,
     tile,
+    chunks,
     fx,
     fy,
     cx,
@@ -966,7 +1140,9 @@ def query_many_serial(
             start,
             kind,
             tmin,
+            tmax,
             tile,
+            chunks,
             fx,
             fy,
             cx,

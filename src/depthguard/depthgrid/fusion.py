@@ -231,6 +231,8 @@ class DepthGridFusion:
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
         self._tmin = tile_min(self._start, TILE)
+        self._tmax = K.tile_max_start(self._start, self._kind, TILE)
+        self._chunks = True  # per-tile chunk tests (False: the plain block-by-block search, for tests)
         self._invalid = "conservative"
         self._ready = False
         self.last_cells = np.zeros(0, dtype=np.int64)  # per point: column searches (cases iii/iv)
@@ -291,6 +293,7 @@ class DepthGridFusion:
                     self._votes[k - 1, : cam.height, : cam.width],
                 )
         self._tmin = tile_min(self._start, TILE)
+        self._tmax = K.tile_max_start(self._start, self._kind, TILE)
         K.build_pyramid(self._votes, self._pyr_meta, self._pyr)
         self._invalid = invalid
         self._ready = True
@@ -339,7 +342,9 @@ class DepthGridFusion:
             self._start,
             self._kind,
             self._tmin,
+            self._tmax,
             TILE,
+            self._chunks,
             cam.fx,
             cam.fy,
             cam.cx,
