@@ -130,6 +130,7 @@ def test_column_search_equals_cell_by_cell(seed, blocker, eager):
                 fusion._pyr_meta,
                 stack,
                 tstate,
+                bool(rng.integers(0, 2)),
             )
         for v in range(tv * TILE, tv * TILE + TILE, 2):
             for u in range(tu * TILE, tu * TILE + TILE, 2):

@@ -123,6 +123,14 @@ def footprint_sees_past(k, u0, v0, du, dv, q, votes):
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
+def sees_past(k, u0, v0, du, dv, q, votes, pyr, meta, stack):
+    """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large."""
+    if (du + 1) * (dv + 1) <= 128:
+        return footprint_sees_past(k, u0, v0, du, dv, q, votes)
+    return rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, votes, pyr, meta, stack)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
 def centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
     """Quick necessary test for camera k clearing the frustum piece ``(u, v, [d1, d2])``.
 
@@ -184,7 +192,7 @@ def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes
         if not centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
             continue
         u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d2, corner_rays, cams)
-        if u0 >= 0 and rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, votes, pyr, meta, stack):
+        if u0 >= 0 and sees_past(k, u0, v0, du, dv, q, votes, pyr, meta, stack):
             return True
     return False
 
@@ -229,7 +237,7 @@ def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, vot
         if not votes[k, int(pv), int(pu)] > Z:
             continue
         u0, v0, du, dv, q = rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams)
-        if u0 >= 0 and rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, votes, pyr, meta, stack):
+        if u0 >= 0 and sees_past(k, u0, v0, du, dv, q, votes, pyr, meta, stack):
             return True
     return False
 
@@ -368,12 +376,14 @@ def rect_sees_past(k, u0, v0, u1, v1, thr, votes, pyr, meta, stack):
 
 @nb.njit(cache=True, _nrt=False)
 def tile_chunk_cleared(
-    ua, va, ub, vb, tb0, tb1, d_min, dd, n_cells, corner_rays, cams, votes, pyr, meta, stack, tstate
+    ua, va, ub, vb, tb0, tb1, d_min, dd, n_cells, corner_rays, cams, votes, pyr, meta, stack, tstate, eager
 ):
     """Decide at once the tile blocks ``tb0..tb1`` of one tile (the depth chunk its column searches can reach).
 
-    The whole chunk is tried first (one footprint test per camera through the min pyramid), then its two
-    halves, then each block of a half that fails. Each cleared range is a :func:`tile_block_cleared`
+    The whole chunk is tried first (one footprint test per camera through the min pyramid). If it fails,
+    its blocks stay undecided (tested lazily, block by block, by the column searches that reach them,
+    which is cheaper where obstacles are near), unless ``eager``: then its two halves are tried, and the
+    blocks of a half that fails one by one, until one fails. Each cleared range is a :func:`tile_block_cleared`
     piece, so every cell in it is cleared by the per-cell rule. Returns True when every block of the chunk
     is cleared: then no column of the tile finds an occupied cell inside the grid within the chunk.
     """
@@ -401,6 +411,8 @@ def tile_chunk_cleared(
     if tb1 == tb0:
         tstate[tb0] = 2
         return False
+    if not eager:
+        return False
     mid = (tb0 + tb1 + 1) // 2
     allc = True
     for half in range(2):
@@ -425,27 +437,34 @@ def tile_chunk_cleared(
             for tb in range(a, b + 1):
                 tstate[tb] = 1
         else:
-            for tb in range(a, b + 1):
-                if tile_block_cleared(
-                    ua,
-                    va,
-                    ub,
-                    vb,
-                    tb * TILE_BLOCK,
-                    min((tb + 1) * TILE_BLOCK, n_cells),
-                    d_min,
-                    dd,
-                    corner_rays,
-                    cams,
-                    votes,
-                    pyr,
-                    meta,
-                    stack,
-                ):
-                    tstate[tb] = 1
-                else:
-                    tstate[tb] = 2
-                    allc = False
+            allc = False
+            if eager:  # decide each block now (the caller may then skip the whole tile)
+                allc = True
+                for tb in range(a, b + 1):
+                    if tile_block_cleared(
+                        ua,
+                        va,
+                        ub,
+                        vb,
+                        tb * TILE_BLOCK,
+                        min((tb + 1) * TILE_BLOCK, n_cells),
+                        d_min,
+                        dd,
+                        corner_rays,
+                        cams,
+                        votes,
+                        pyr,
+                        meta,
+                        stack,
+                    ):
+                        tstate[tb] = 1
+                    else:
+                        tstate[tb] = 2
+                        allc = False
+                if not allc:
+                    return False  # (the other half, if not yet tried, stays undecided)
+            elif a == b:
+                tstate[a] = 2
     return allc
 
 
@@ -856,41 +875,48 @@ def query_one(
             g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
             g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
             allclear = False
-            if chunks and g0c <= g1c:
-                allclear = tile_chunk_cleared(
-                    ta,
-                    tva,
-                    tb_,
-                    tvb,
-                    g0c // TILE_BLOCK,
-                    g1c // TILE_BLOCK,
-                    d_min,
-                    dd,
-                    n_cells,
-                    corner_rays,
-                    cams,
-                    votes,
-                    pyr,
-                    meta,
-                    stack,
-                    tstate,
-                )
-                tests += 1
-            if allclear:
-                # Every grid cell within reach is free for every column of the tile, so a column search
+            if chunks:
+                # Once every grid cell within reach is free for every column of the tile, a column search
                 # can only find its first segment: the cell of a measured surface (occupied without a
-                # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If
-                # no non-robot pixel lies beyond P (no case ii) and none of those first segments is
-                # within reach (a lower bound of the distance to the tile frustum between the tile's
-                # smallest start and the largest top of a first segment exceeds T), skip the tile.
+                # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If no
+                # non-robot pixel lies beyond P (no case ii) and none of those first segments is within
+                # reach (a lower bound of the distance to the tile frustum between the tile's smallest
+                # start and the largest top of a first segment exceeds T), the whole tile can be skipped:
+                # only then are the chunk's blocks decided eagerly (elsewhere lazily, which is cheaper
+                # where obstacles are near).
                 tmx = tmax[tv, tu]
+                skippable = False
                 if zhi < d_min + n_cells * dd - dd and tmx < pz:
                     if tmx == -np.inf:
-                        continue
-                    top = max(tmx, d_min) + dd
-                    dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin[tv, tu], top)
-                    if dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9:
-                        continue
+                        skippable = True
+                    else:
+                        top = max(tmx, d_min) + dd
+                        dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin[tv, tu], top)
+                        skippable = dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9
+                allclear = True
+                if g0c <= g1c:
+                    tests += 1
+                    allclear = tile_chunk_cleared(
+                        ta,
+                        tva,
+                        tb_,
+                        tvb,
+                        g0c // TILE_BLOCK,
+                        g1c // TILE_BLOCK,
+                        d_min,
+                        dd,
+                        n_cells,
+                        corner_rays,
+                        cams,
+                        votes,
+                        pyr,
+                        meta,
+                        stack,
+                        tstate,
+                        skippable,
+                    )
+                if allclear and skippable:
+                    continue
             for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
                 b = (v + 0.5 - cy) / fy
                 for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
