@@ -25,6 +25,23 @@ footprint test for 256 columns), then an 8-cell and a 2-cell block of the column
 cleared block contains each of its cells' footprints and far depths, so the answers are exactly those
 of the cell-by-cell search.
 
+Shadows (a person between the principal camera and the robot makes almost every pixel near the robot a
+case-iii pixel). Before its columns, each tile tries its whole *depth chunk* at once: the cells that any
+of its column searches can reach (ray points within the search bound T of P, so within a window of the
+tile-centre ray, and no nearer than the tile's smallest start depth), as one frustum piece per secondary
+camera; if that fails, its two halves. When every cell of the chunk is cleared, a column can only find
+its first segment (the cell of a measured surface, occupied without a vote, or the unseen space before
+``d_min``), and a robot column nothing, so robot columns are skipped; and when moreover the tile has no
+case-ii pixel (no surface beyond P) and a lower bound of the distance to its first segments exceeds T,
+the whole tile is skipped without visiting its pixels (only for such tiles are the chunk's blocks
+decided eagerly, one by one after a failed half; elsewhere they stay lazy, which is cheaper where
+obstacles are near). Runs of cleared tile blocks are crossed in one step. The footprint tests of blocks
+and chunks read the votes through a per-frame min pyramid (``_kernels.rect_sees_past``), which answers
+exactly as the pixel loop. All of this only skips cells that the per-cell rule clears, so the answers are
+unchanged (``tests/test_depthgrid_search.py`` compares the column search with a cell-by-cell search, and
+the query with and without the chunk tests, with a blocker in front of the principal camera and robot
+masks).
+
 The vote (DESIGN.md §4, conservative). Secondary camera k clears (calls free) a cell only when the cell
 lies entirely in front of camera k and inside its image and *every* pixel of its footprint measures a
 depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test ``d_o^k < d_start^k``
