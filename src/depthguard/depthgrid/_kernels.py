@@ -292,14 +292,15 @@ def build_pyramid(votes, meta, pyr):
             wl = meta[l, 2]
             if l == 0:
                 for bv in range(hl):
-                    for bu in range(wl):
-                        m = np.float32(np.inf)
-                        for vv in range(2 * bv, min(H, 2 * bv + 2)):
-                            for uu in range(2 * bu, min(W, 2 * bu + 2)):
-                                x = votes[k, vv, uu]
-                                if x < m:
-                                    m = x
-                        pyr[k, off + bv * wl + bu] = m
+                    va = 2 * bv
+                    vb = min(H - 1, va + 1)
+                    for bu in range(W // 2):
+                        pyr[k, off + bv * wl + bu] = min(
+                            min(votes[k, va, 2 * bu], votes[k, va, 2 * bu + 1]),
+                            min(votes[k, vb, 2 * bu], votes[k, vb, 2 * bu + 1]),
+                        )
+                    if W % 2 == 1:
+                        pyr[k, off + bv * wl + wl - 1] = min(votes[k, va, W - 1], votes[k, vb, W - 1])
             else:
                 poff = meta[l - 1, 0]
                 ph = meta[l - 1, 1]
@@ -475,14 +476,14 @@ def tile_max_start(start, kind, tile):
     th = (H + tile - 1) // tile
     tw = (W + tile - 1) // tile
     out = np.full((th, tw), -np.inf, dtype=np.float32)
-    for v in range(H):
-        for u in range(W):
-            kd = kind[v, u]
-            if kd == KIND_SURFACE or kd == KIND_UNKNOWN:
-                tv = v // tile
-                tu = u // tile
-                if start[v, u] > out[tv, tu]:
-                    out[tv, tu] = start[v, u]
+    for tv in range(th):
+        for v in range(tv * tile, min(H, tv * tile + tile)):
+            for tu in range(tw):
+                m = out[tv, tu]
+                for u in range(tu * tile, min(W, tu * tile + tile)):
+                    x = start[v, u] if (kind[v, u] == KIND_SURFACE or kind[v, u] == KIND_UNKNOWN) else -np.inf
+                    m = max(m, x)
+                out[tv, tu] = m
     return out
 
 
@@ -875,7 +876,8 @@ def query_one(
             g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
             g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
             allclear = False
-            if chunks:
+            pending = False
+            if chunks and tmin[tv, tu] < pz:  # (a tile wholly beyond P has no case-iii pixel)
                 # Once every grid cell within reach is free for every column of the tile, a column search
                 # can only find its first segment: the cell of a measured surface (occupied without a
                 # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If no
@@ -893,8 +895,10 @@ def query_one(
                         top = max(tmx, d_min) + dd
                         dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin[tv, tu], top)
                         skippable = dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9
-                allclear = True
-                if g0c <= g1c:
+                allclear = g0c > g1c  # (no grid cell within reach)
+                if not allclear and not skippable:
+                    pending = True  # decided at the tile's first column search, if any
+                elif not allclear:
                     tests += 1
                     allclear = tile_chunk_cleared(
                         ta,
@@ -945,6 +949,30 @@ def query_one(
                         dz = pz - s
                         if not math.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - h) - h * pz < lim:
                             continue
+                        if pending:
+                            pending = False
+                            tests += 1
+                            allclear = tile_chunk_cleared(
+                                ta,
+                                tva,
+                                tb_,
+                                tvb,
+                                g0c // TILE_BLOCK,
+                                g1c // TILE_BLOCK,
+                                d_min,
+                                dd,
+                                n_cells,
+                                corner_rays,
+                                cams,
+                                votes,
+                                pyr,
+                                meta,
+                                stack,
+                                tstate,
+                                False,
+                            )
+                            if allclear and kd == KIND_ROBOT:
+                                continue
                         cells += 1
                         found, lo, hi, nt = column_search(
                             u,
