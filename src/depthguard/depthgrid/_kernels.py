@@ -855,29 +855,30 @@ def query_one(
             tvb = min(H, tva + tile)
             for j in range(tstate.shape[0]):
                 tstate[j] = 0
-            # The depth chunk that the tile's column searches can reach: a visited segment holds a point x of
-            # a pixel-centre ray with |P - x| <= T (T as in column_search, for the current limit, which only
-            # shrinks later). The tile-centre ray point y at the same depth s lies within hT s of x, and
-            # s <= pz + T, so |P - y| <= T2 = T + hT (pz + T): s lies within the window of the tile-centre
-            # ray where its distance to P is at most T2, and no nearer than the tile's smallest start
-            # depth. One cell of margin on each side.
-            lim_t = best if mode == 0 else reff
-            T_t = (lim_t + h * pz) / (1.0 - h)
-            a_t = ((ta + tb_) * 0.5 - cx) / fx
-            b_t = ((tva + tvb) * 0.5 - cy) / fy
-            hT = 0.5 * math.sqrt(((tb_ - ta) / fx) ** 2 + ((tvb - tva) / fy) ** 2)
-            rr_t = a_t * a_t + b_t * b_t + 1.0
-            sl_t = (px * a_t + py * b_t + pz) / rr_t
-            l2_t = max(0.0, px * px + py * py + pz * pz - sl_t * sl_t * rr_t)
-            T2 = T_t + hT * (pz + T_t)
-            dl_t = math.sqrt(max(0.0, T2 * T2 - l2_t) / rr_t) * (1.0 + 1e-9) + 1e-9
-            zlo = max(tmin[tv, tu], pz - T_t, sl_t - dl_t)
-            zhi = min(pz + T_t, sl_t + dl_t)
-            g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
-            g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
             allclear = False
             pending = False
+            g0c = g1c = 0
             if chunks and tmin[tv, tu] < pz:  # (a tile wholly beyond P has no case-iii pixel)
+                # The depth chunk that the tile's column searches can reach: a visited segment holds a
+                # point x of a pixel-centre ray with |P - x| <= T (T as in column_search, for the current
+                # limit, which only shrinks later). The tile-centre ray point y at the same depth s lies
+                # within hT s of x, and s <= pz + T, so |P - y| <= T2 = T + hT (pz + T): s lies within
+                # the window of the tile-centre ray where its distance to P is at most T2, and no nearer
+                # than the tile's smallest start depth. One cell of margin on each side.
+                lim_t = best if mode == 0 else reff
+                T_t = (lim_t + h * pz) / (1.0 - h)
+                a_t = ((ta + tb_) * 0.5 - cx) / fx
+                b_t = ((tva + tvb) * 0.5 - cy) / fy
+                hT = 0.5 * math.sqrt(((tb_ - ta) / fx) ** 2 + ((tvb - tva) / fy) ** 2)
+                rr_t = a_t * a_t + b_t * b_t + 1.0
+                sl_t = (px * a_t + py * b_t + pz) / rr_t
+                l2_t = max(0.0, px * px + py * py + pz * pz - sl_t * sl_t * rr_t)
+                T2 = T_t + hT * (pz + T_t)
+                dl_t = math.sqrt(max(0.0, T2 * T2 - l2_t) / rr_t) * (1.0 + 1e-9) + 1e-9
+                zlo = max(tmin[tv, tu], pz - T_t, sl_t - dl_t)
+                zhi = min(pz + T_t, sl_t + dl_t)
+                g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
+                g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
                 # Once every grid cell within reach is free for every column of the tile, a column search
                 # can only find its first segment: the cell of a measured surface (occupied without a
                 # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If no
