@@ -696,6 +696,98 @@ def column_search(
             return True, lo, hi, tests
 
 
+@nb.njit(cache=True, _nrt=False, error_model="numpy", fastmath=_FAST)
+def tile_chunk_prepare(
+    px,
+    py,
+    pz,
+    h,
+    lim_t,
+    ta,
+    tva,
+    tb_,
+    tvb,
+    tmin_t,
+    tmx,
+    fx,
+    fy,
+    cx,
+    cy,
+    d_min,
+    dd,
+    n_cells,
+    corner_rays,
+    cams,
+    votes,
+    pyr,
+    meta,
+    stack,
+    tstate,
+):
+    """Per-tile chunk decision of :func:`query_one` (see the comments); returns
+    ``(allclear, pending, g0c, g1c, skip_tile)``. A separate function keeps the query loop small."""
+    pending = False
+    # The depth chunk that the tile's column searches can reach: a visited segment holds a
+    # point x of a pixel-centre ray with |P - x| <= T (T as in column_search, for the current
+    # limit, which only shrinks later). The tile-centre ray point y at the same depth s lies
+    # within hT s of x, and s <= pz + T, so |P - y| <= T2 = T + hT (pz + T): s lies within
+    # the window of the tile-centre ray where its distance to P is at most T2, and no nearer
+    # than the tile's smallest start depth. One cell of margin on each side.
+    T_t = (lim_t + h * pz) / (1.0 - h)
+    a_t = ((ta + tb_) * 0.5 - cx) / fx
+    b_t = ((tva + tvb) * 0.5 - cy) / fy
+    hT = 0.5 * math.sqrt(((tb_ - ta) / fx) ** 2 + ((tvb - tva) / fy) ** 2)
+    rr_t = a_t * a_t + b_t * b_t + 1.0
+    sl_t = (px * a_t + py * b_t + pz) / rr_t
+    l2_t = max(0.0, px * px + py * py + pz * pz - sl_t * sl_t * rr_t)
+    T2 = T_t + hT * (pz + T_t)
+    dl_t = math.sqrt(max(0.0, T2 * T2 - l2_t) / rr_t) * (1.0 + 1e-9) + 1e-9
+    zlo = max(tmin_t, pz - T_t, sl_t - dl_t)
+    zhi = min(pz + T_t, sl_t + dl_t)
+    g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
+    g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
+    # Once every grid cell within reach is free for every column of the tile, a column search
+    # can only find its first segment: the cell of a measured surface (occupied without a
+    # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If no
+    # non-robot pixel lies beyond P (no case ii) and none of those first segments is within
+    # reach (a lower bound of the distance to the tile frustum between the tile's smallest
+    # start and the largest top of a first segment exceeds T), the whole tile can be skipped:
+    # only then are the chunk's blocks decided eagerly (elsewhere lazily, which is cheaper
+    # where obstacles are near).
+    skippable = False
+    if zhi < d_min + n_cells * dd - dd and tmx < pz:
+        if tmx == -np.inf:
+            skippable = True
+        else:
+            top = max(tmx, d_min) + dd
+            dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin_t, top)
+            skippable = dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9
+    allclear = g0c > g1c  # (no grid cell within reach)
+    if not allclear and not skippable:
+        pending = True  # decided at the tile's first column search, if any
+    elif not allclear:
+        allclear = tile_chunk_cleared(
+            ta,
+            tva,
+            tb_,
+            tvb,
+            g0c // TILE_BLOCK,
+            g1c // TILE_BLOCK,
+            d_min,
+            dd,
+            n_cells,
+            corner_rays,
+            cams,
+            votes,
+            pyr,
+            meta,
+            stack,
+            tstate,
+            skippable,
+        )
+    return allclear, pending, g0c, g1c, allclear and skippable
+
+
 @nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=_FAST)
 def query_one(
     Pc,
@@ -859,68 +951,35 @@ def query_one(
             pending = False
             g0c = g1c = 0
             if chunks and tmin[tv, tu] < pz:  # (a tile wholly beyond P has no case-iii pixel)
-                # The depth chunk that the tile's column searches can reach: a visited segment holds a
-                # point x of a pixel-centre ray with |P - x| <= T (T as in column_search, for the current
-                # limit, which only shrinks later). The tile-centre ray point y at the same depth s lies
-                # within hT s of x, and s <= pz + T, so |P - y| <= T2 = T + hT (pz + T): s lies within
-                # the window of the tile-centre ray where its distance to P is at most T2, and no nearer
-                # than the tile's smallest start depth. One cell of margin on each side.
-                lim_t = best if mode == 0 else reff
-                T_t = (lim_t + h * pz) / (1.0 - h)
-                a_t = ((ta + tb_) * 0.5 - cx) / fx
-                b_t = ((tva + tvb) * 0.5 - cy) / fy
-                hT = 0.5 * math.sqrt(((tb_ - ta) / fx) ** 2 + ((tvb - tva) / fy) ** 2)
-                rr_t = a_t * a_t + b_t * b_t + 1.0
-                sl_t = (px * a_t + py * b_t + pz) / rr_t
-                l2_t = max(0.0, px * px + py * py + pz * pz - sl_t * sl_t * rr_t)
-                T2 = T_t + hT * (pz + T_t)
-                dl_t = math.sqrt(max(0.0, T2 * T2 - l2_t) / rr_t) * (1.0 + 1e-9) + 1e-9
-                zlo = max(tmin[tv, tu], pz - T_t, sl_t - dl_t)
-                zhi = min(pz + T_t, sl_t + dl_t)
-                g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
-                g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
-                # Once every grid cell within reach is free for every column of the tile, a column search
-                # can only find its first segment: the cell of a measured surface (occupied without a
-                # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If no
-                # non-robot pixel lies beyond P (no case ii) and none of those first segments is within
-                # reach (a lower bound of the distance to the tile frustum between the tile's smallest
-                # start and the largest top of a first segment exceeds T), the whole tile can be skipped:
-                # only then are the chunk's blocks decided eagerly (elsewhere lazily, which is cheaper
-                # where obstacles are near).
-                tmx = tmax[tv, tu]
-                skippable = False
-                if zhi < d_min + n_cells * dd - dd and tmx < pz:
-                    if tmx == -np.inf:
-                        skippable = True
-                    else:
-                        top = max(tmx, d_min) + dd
-                        dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin[tv, tu], top)
-                        skippable = dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9
-                allclear = g0c > g1c  # (no grid cell within reach)
-                if not allclear and not skippable:
-                    pending = True  # decided at the tile's first column search, if any
-                elif not allclear:
-                    tests += 1
-                    allclear = tile_chunk_cleared(
-                        ta,
-                        tva,
-                        tb_,
-                        tvb,
-                        g0c // TILE_BLOCK,
-                        g1c // TILE_BLOCK,
-                        d_min,
-                        dd,
-                        n_cells,
-                        corner_rays,
-                        cams,
-                        votes,
-                        pyr,
-                        meta,
-                        stack,
-                        tstate,
-                        skippable,
-                    )
-                if allclear and skippable:
+                allclear, pending, g0c, g1c, skip_tile = tile_chunk_prepare(
+                    px,
+                    py,
+                    pz,
+                    h,
+                    best if mode == 0 else reff,
+                    ta,
+                    tva,
+                    tb_,
+                    tvb,
+                    tmin[tv, tu],
+                    tmax[tv, tu],
+                    fx,
+                    fy,
+                    cx,
+                    cy,
+                    d_min,
+                    dd,
+                    n_cells,
+                    corner_rays,
+                    cams,
+                    votes,
+                    pyr,
+                    meta,
+                    stack,
+                    tstate,
+                )
+                tests += 1
+                if skip_tile:
                     continue
             for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
                 b = (v + 0.5 - cy) / fy
