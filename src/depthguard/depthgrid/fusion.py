@@ -80,8 +80,11 @@ obstacle (DESIGN.md §5.2), as for one camera: the principal camera must see the
 (RA-L'16 §I, assumption 1).
 
 Speed (2 Kinect-like cameras, 640x480, 345 depth cells, 9 spheres, ρ = 0.4, one thread of a shared 2-core
-machine): about 1.3 kHz in ``"all"`` mode and 7.5 kHz in ``"min"`` mode; ``update`` about 2 ms per frame
-pair. See ``depthguard.bench.grid``.
+machine): about 1.3 kHz in ``"all"`` mode and 7.5 kHz in ``"min"`` mode; ``update`` about 2.5 ms per frame
+pair (with the min pyramid). See ``depthguard.bench.grid``. In the ``ral-shadow`` scenario (a person
+between the principal camera and the robot), the slowest recorded query takes about 18 ms in
+``"hybrid"`` mode and 7.5 ms in ``"min"`` mode (52 and 35 ms before the chunk tests); a point with no
+obstacle within ρ costs 0.15-0.7 ms (2-5 ms before). See BENCHMARKS.md.
 """
 
 from __future__ import annotations
