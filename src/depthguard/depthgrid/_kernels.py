@@ -123,6 +123,14 @@ def footprint_sees_past(k, u0, v0, du, dv, q, votes):
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
+def sees_past(k, u0, v0, du, dv, q, votes, pyr, meta, stack):
+    """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large."""
+    if (du + 1) * (dv + 1) <= 128:
+        return footprint_sees_past(k, u0, v0, du, dv, q, votes)
+    return rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, votes, pyr, meta, stack)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
 def centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
     """Quick necessary test for camera k clearing the frustum piece ``(u, v, [d1, d2])``.
 
@@ -169,7 +177,7 @@ def cell_occupied(u, v, g, d_min, dd, corner_rays, centre_rays, cams, stored, pm
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes):
+def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes, pyr, meta, stack):
     """True when one secondary camera clears every cell ``g0 <= g < g1`` of pixel (u, v) at once.
 
     The block's footprint is that of the frustum piece between ``d_min + g0 Δd`` and ``d_min + g1 Δd``
@@ -184,13 +192,13 @@ def block_cleared(u, v, g0, g1, d_min, dd, corner_rays, centre_rays, cams, votes
         if not centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
             continue
         u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d2, corner_rays, cams)
-        if footprint_sees_past(k, u0, v0, du, dv, q, votes):
+        if u0 >= 0 and sees_past(k, u0, v0, du, dv, q, votes, pyr, meta, stack):
             return True
     return False
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, votes):
+def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, votes, pyr, meta, stack):
     """True when one secondary camera clears the cells ``g0 <= g < g1`` of every pixel of a tile at once.
 
     Same argument as :func:`block_cleared`, for the frustum over the tile's pixels ``[ua, ub) x [va, vb)``.
@@ -229,9 +237,254 @@ def tile_block_cleared(ua, va, ub, vb, g0, g1, d_min, dd, corner_rays, cams, vot
         if not votes[k, int(pv), int(pu)] > Z:
             continue
         u0, v0, du, dv, q = rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams)
-        if footprint_sees_past(k, u0, v0, du, dv, q, votes):
+        if u0 >= 0 and sees_past(k, u0, v0, du, dv, q, votes, pyr, meta, stack):
             return True
     return False
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Range-minimum pyramid of the vote images (per frame) and the exact "every pixel of a rectangle sees past"
+# test built on it.
+#
+# A footprint test asks whether every pixel of a rectangle of camera k reads deeper than a far depth.
+# For a 16x16-pixel tile over tens of centimetres of depth the footprint covers hundreds to thousands of
+# pixels, and reading them one by one dominated the query in scenes where a person stands in front of
+# the principal camera (RA-L'16 case iii almost everywhere). The pyramid holds, for l = 1..L, the
+# minimum vote over each aligned 2^l x 2^l block (level 0 is the vote image itself). The test walks it
+# from the coarsest level whose blocks span at most 4 per axis: a block whose minimum exceeds the
+# threshold clears all its pixels at once (inside the rectangle or not); a block at or below the
+# threshold that lies entirely inside the rectangle fails the test; a block straddling the rectangle's
+# edge is split into its four children. It therefore answers exactly as the pixel loop does (the same
+# float32 values compared with the same threshold), in a few lookups where the space is clearly free.
+# ---------------------------------------------------------------------------------------------------------
+PYR_STACK = 256  # entries (3 int64 each) of the explicit stack of the descent
+
+
+def pyramid_layout(h, w):
+    """(L, 3) int64 rows ``(offset, rows, cols)`` of levels 1..L of an (h, w) image's min pyramid.
+
+    Levels are added until both dimensions are at most 4 blocks, so a rectangle spans at most 4 blocks
+    per axis at the top level; returns the meta array and the total number of cells.
+    """
+    rows = []
+    off = 0
+    l = 1
+    while True:
+        hl = (h + (1 << l) - 1) >> l
+        wl = (w + (1 << l) - 1) >> l
+        rows.append((off, hl, wl))
+        off += hl * wl
+        if hl <= 4 and wl <= 4:
+            break
+        l += 1
+    return np.array(rows, dtype=np.int64).reshape(-1, 3), off
+
+
+@nb.njit(cache=True)
+def build_pyramid(votes, meta, pyr):
+    """Fill ``pyr[k]`` (levels 1..L, see :func:`pyramid_layout`) with block minima of ``votes[k]``."""
+    H = votes.shape[1]
+    W = votes.shape[2]
+    for k in range(votes.shape[0]):
+        for l in range(meta.shape[0]):
+            off = meta[l, 0]
+            hl = meta[l, 1]
+            wl = meta[l, 2]
+            if l == 0:
+                for bv in range(hl):
+                    va = 2 * bv
+                    vb = min(H - 1, va + 1)
+                    for bu in range(W // 2):
+                        pyr[k, off + bv * wl + bu] = min(
+                            min(votes[k, va, 2 * bu], votes[k, va, 2 * bu + 1]),
+                            min(votes[k, vb, 2 * bu], votes[k, vb, 2 * bu + 1]),
+                        )
+                    if W % 2 == 1:
+                        pyr[k, off + bv * wl + wl - 1] = min(votes[k, va, W - 1], votes[k, vb, W - 1])
+            else:
+                poff = meta[l - 1, 0]
+                ph = meta[l - 1, 1]
+                pw = meta[l - 1, 2]
+                for bv in range(hl):
+                    for bu in range(wl):
+                        m = np.float32(np.inf)
+                        for vv in range(2 * bv, min(ph, 2 * bv + 2)):
+                            for uu in range(2 * bu, min(pw, 2 * bu + 2)):
+                                x = pyr[k, poff + vv * pw + uu]
+                                if x < m:
+                                    m = x
+                        pyr[k, off + bv * wl + bu] = m
+
+
+@nb.njit(cache=True, _nrt=False)
+def rect_sees_past(k, u0, v0, u1, v1, thr, votes, pyr, meta, stack):
+    """True when every vote of camera k over pixels ``[u0, u1] x [v0, v1]`` (inclusive) exceeds ``thr``.
+
+    Exactly the answer of the pixel loop of :func:`footprint_sees_past`, through the min pyramid (see
+    the comment above :data:`PYR_STACK`).
+    """
+    if (u1 - u0 + 1) * (v1 - v0 + 1) <= 16:
+        for pv in range(v0, v1 + 1):
+            for pu in range(u0, u1 + 1):
+                if not votes[k, pv, pu] > thr:
+                    return False
+        return True
+    L = meta.shape[0]
+    lv = 1
+    while lv < L and ((u1 >> lv) - (u0 >> lv) > 3 or (v1 >> lv) - (v0 >> lv) > 3):
+        lv += 1
+    n = 0
+    for bv in range(v0 >> lv, (v1 >> lv) + 1):
+        for bu in range(u0 >> lv, (u1 >> lv) + 1):
+            stack[3 * n] = lv
+            stack[3 * n + 1] = bv
+            stack[3 * n + 2] = bu
+            n += 1
+    while n > 0:
+        n -= 1
+        lv = stack[3 * n]
+        bv = stack[3 * n + 1]
+        bu = stack[3 * n + 2]
+        if lv == 0:
+            if not votes[k, bv, bu] > thr:
+                return False
+            continue
+        if pyr[k, meta[lv - 1, 0] + bv * meta[lv - 1, 2] + bu] > thr:
+            continue
+        # the block holds a pixel at or below thr: fail if the block lies inside the rectangle
+        pa = bu << lv
+        pb = ((bu + 1) << lv) - 1
+        qa = bv << lv
+        qb = ((bv + 1) << lv) - 1
+        if pa >= u0 and pb <= u1 and qa >= v0 and qb <= v1:
+            return False
+        # else split it into its children that meet the rectangle
+        c = lv - 1
+        for j in range(2):
+            cv = 2 * bv + j
+            if (((cv + 1) << c) - 1) < v0 or (cv << c) > v1:
+                continue
+            for i in range(2):
+                cu = 2 * bu + i
+                if (((cu + 1) << c) - 1) < u0 or (cu << c) > u1:
+                    continue
+                stack[3 * n] = c
+                stack[3 * n + 1] = cv
+                stack[3 * n + 2] = cu
+                n += 1
+    return True
+
+
+@nb.njit(cache=True, _nrt=False)
+def tile_chunk_cleared(
+    ua, va, ub, vb, tb0, tb1, d_min, dd, n_cells, corner_rays, cams, votes, pyr, meta, stack, tstate, eager
+):
+    """Decide at once the tile blocks ``tb0..tb1`` of one tile (the depth chunk its column searches can reach).
+
+    The whole chunk is tried first (one footprint test per camera through the min pyramid). If it fails,
+    its blocks stay undecided (tested lazily, block by block, by the column searches that reach them,
+    which is cheaper where obstacles are near), unless ``eager``: then its two halves are tried, and the
+    blocks of a half that fails one by one, until one fails. Each cleared range is a :func:`tile_block_cleared`
+    piece, so every cell in it is cleared by the per-cell rule. Returns True when every block of the chunk
+    is cleared: then no column of the tile finds an occupied cell inside the grid within the chunk.
+    """
+    if tb0 > tb1:
+        return True
+    if tile_block_cleared(
+        ua,
+        va,
+        ub,
+        vb,
+        tb0 * TILE_BLOCK,
+        min((tb1 + 1) * TILE_BLOCK, n_cells),
+        d_min,
+        dd,
+        corner_rays,
+        cams,
+        votes,
+        pyr,
+        meta,
+        stack,
+    ):
+        for tb in range(tb0, tb1 + 1):
+            tstate[tb] = 1
+        return True
+    if tb1 == tb0:
+        tstate[tb0] = 2
+        return False
+    if not eager:
+        return False
+    mid = (tb0 + tb1 + 1) // 2
+    allc = True
+    for half in range(2):
+        a = tb0 if half == 0 else mid
+        b = mid - 1 if half == 0 else tb1
+        if tile_block_cleared(
+            ua,
+            va,
+            ub,
+            vb,
+            a * TILE_BLOCK,
+            min((b + 1) * TILE_BLOCK, n_cells),
+            d_min,
+            dd,
+            corner_rays,
+            cams,
+            votes,
+            pyr,
+            meta,
+            stack,
+        ):
+            for tb in range(a, b + 1):
+                tstate[tb] = 1
+        else:
+            allc = False
+            if eager:  # decide each block now (the caller may then skip the whole tile)
+                allc = True
+                for tb in range(a, b + 1):
+                    if tile_block_cleared(
+                        ua,
+                        va,
+                        ub,
+                        vb,
+                        tb * TILE_BLOCK,
+                        min((tb + 1) * TILE_BLOCK, n_cells),
+                        d_min,
+                        dd,
+                        corner_rays,
+                        cams,
+                        votes,
+                        pyr,
+                        meta,
+                        stack,
+                    ):
+                        tstate[tb] = 1
+                    else:
+                        tstate[tb] = 2
+                        allc = False
+                if not allc:
+                    return False  # (the other half, if not yet tried, stays undecided)
+            elif a == b:
+                tstate[a] = 2
+    return allc
+
+
+@nb.njit(cache=True)
+def tile_max_start(start, kind, tile):
+    """Per tile, the largest start depth of its non-robot pixels (surface or unknown); -inf when none."""
+    H, W = start.shape
+    th = (H + tile - 1) // tile
+    tw = (W + tile - 1) // tile
+    out = np.full((th, tw), -np.inf, dtype=np.float32)
+    for tv in range(th):
+        for v in range(tv * tile, min(H, tv * tile + tile)):
+            for tu in range(tw):
+                m = out[tv, tu]
+                for u in range(tu * tile, min(W, tu * tile + tile)):
+                    x = start[v, u] if (kind[v, u] == KIND_SURFACE or kind[v, u] == KIND_UNKNOWN) else -np.inf
+                    m = max(m, x)
+                out[tv, tu] = m
+    return out
 
 
 @nb.njit(cache=True, parallel=True)
@@ -305,6 +558,9 @@ def column_search(
     ub,
     vb,
     tstate,
+    pyr,
+    meta,
+    stack,
 ):
     """RA-L'16 §VI cases iii/iv along one principal pixel: the nearest occupied depth interval.
 
@@ -395,22 +651,31 @@ def column_search(
         if tstate[tb] == 0:
             tests += 1
             g1 = min((tb + 1) * TILE_BLOCK, n_cells)
-            if tile_block_cleared(ua, va, ub, vb, tb * TILE_BLOCK, g1, d_min, dd, corner_rays, cams, votes):
+            if tile_block_cleared(
+                ua, va, ub, vb, tb * TILE_BLOCK, g1, d_min, dd, corner_rays, cams, votes, pyr, meta, stack
+            ):
                 tstate[tb] = 1
             else:
                 tstate[tb] = 2
         if tstate[tb] == 1:
+            # jump over the whole run of cleared blocks (decided eagerly per tile, see tile_chunk_cleared)
             if going_up:
-                up = min((tb + 1) * TILE_BLOCK, n_cells)
+                t2 = tb + 1
+                while t2 < tstate.shape[0] and tstate[t2] == 1:
+                    t2 += 1
+                up = min(t2 * TILE_BLOCK, n_cells)
             else:
+                t2 = tb - 1
+                while t2 >= 0 and tstate[t2] == 1:
+                    t2 -= 1
                 lowest = g_start + 1 if surface else g_start
-                dn = max(tb * TILE_BLOCK, lowest) - 1
+                dn = max((t2 + 1) * TILE_BLOCK, lowest) - 1
             continue
         # ... then a block of this column, then single cells
         if going_up:
             if bu > 1 and g + bu <= n_cells:
                 tests += 1
-                if block_cleared(u, v, g, g + bu, d_min, dd, corner_rays, centre_rays, cams, votes):
+                if block_cleared(u, v, g, g + bu, d_min, dd, corner_rays, centre_rays, cams, votes, pyr, meta, stack):
                     up = g + bu
                     continue
                 bu = bu // 4
@@ -420,13 +685,107 @@ def column_search(
                 lowest = 0
             if bd > 1 and g - bd + 1 >= lowest:
                 tests += 1
-                if block_cleared(u, v, g - bd + 1, g + 1, d_min, dd, corner_rays, centre_rays, cams, votes):
+                if block_cleared(
+                    u, v, g - bd + 1, g + 1, d_min, dd, corner_rays, centre_rays, cams, votes, pyr, meta, stack
+                ):
                     dn = g - bd
                     continue
                 bd = bd // 4
         tests += 1
         if cell_occupied(u, v, g, d_min, dd, corner_rays, centre_rays, cams, stored, pmap, votes, robot):
             return True, lo, hi, tests
+
+
+@nb.njit(cache=True, _nrt=False, error_model="numpy", fastmath=_FAST)
+def tile_chunk_prepare(
+    px,
+    py,
+    pz,
+    h,
+    lim_t,
+    ta,
+    tva,
+    tb_,
+    tvb,
+    tmin_t,
+    tmx,
+    fx,
+    fy,
+    cx,
+    cy,
+    d_min,
+    dd,
+    n_cells,
+    corner_rays,
+    cams,
+    votes,
+    pyr,
+    meta,
+    stack,
+    tstate,
+):
+    """Per-tile chunk decision of :func:`query_one` (see the comments); returns
+    ``(allclear, pending, g0c, g1c, skip_tile)``. A separate function keeps the query loop small."""
+    pending = False
+    # The depth chunk that the tile's column searches can reach: a visited segment holds a
+    # point x of a pixel-centre ray with |P - x| <= T (T as in column_search, for the current
+    # limit, which only shrinks later). The tile-centre ray point y at the same depth s lies
+    # within hT s of x, and s <= pz + T, so |P - y| <= T2 = T + hT (pz + T): s lies within
+    # the window of the tile-centre ray where its distance to P is at most T2, and no nearer
+    # than the tile's smallest start depth. One cell of margin on each side.
+    T_t = (lim_t + h * pz) / (1.0 - h)
+    a_t = ((ta + tb_) * 0.5 - cx) / fx
+    b_t = ((tva + tvb) * 0.5 - cy) / fy
+    hT = 0.5 * math.sqrt(((tb_ - ta) / fx) ** 2 + ((tvb - tva) / fy) ** 2)
+    rr_t = a_t * a_t + b_t * b_t + 1.0
+    sl_t = (px * a_t + py * b_t + pz) / rr_t
+    l2_t = max(0.0, px * px + py * py + pz * pz - sl_t * sl_t * rr_t)
+    T2 = T_t + hT * (pz + T_t)
+    dl_t = math.sqrt(max(0.0, T2 * T2 - l2_t) / rr_t) * (1.0 + 1e-9) + 1e-9
+    zlo = max(tmin_t, pz - T_t, sl_t - dl_t)
+    zhi = min(pz + T_t, sl_t + dl_t)
+    g0c = max(0, int(math.floor((zlo - d_min) / dd)) - 1)
+    g1c = min(n_cells - 1, int(math.floor((zhi - d_min) / dd)) + 1)
+    # Once every grid cell within reach is free for every column of the tile, a column search
+    # can only find its first segment: the cell of a measured surface (occupied without a
+    # vote), or the unknown space before d_min; behind a robot pixel nothing (case iv). If no
+    # non-robot pixel lies beyond P (no case ii) and none of those first segments is within
+    # reach (a lower bound of the distance to the tile frustum between the tile's smallest
+    # start and the largest top of a first segment exceeds T), the whole tile can be skipped:
+    # only then are the chunk's blocks decided eagerly (elsewhere lazily, which is cheaper
+    # where obstacles are near).
+    skippable = False
+    if zhi < d_min + n_cells * dd - dd and tmx < pz:
+        if tmx == -np.inf:
+            skippable = True
+        else:
+            top = max(tmx, d_min) + dd
+            dr_t = _ray_seg_dist(px, py, pz, a_t, b_t, sl_t, tmin_t, top)
+            skippable = dr_t * (1.0 - hT) - hT * pz > T_t * (1.0 + 1e-9) + 1e-9
+    allclear = g0c > g1c  # (no grid cell within reach)
+    if not allclear and not skippable:
+        pending = True  # decided at the tile's first column search, if any
+    elif not allclear:
+        allclear = tile_chunk_cleared(
+            ta,
+            tva,
+            tb_,
+            tvb,
+            g0c // TILE_BLOCK,
+            g1c // TILE_BLOCK,
+            d_min,
+            dd,
+            n_cells,
+            corner_rays,
+            cams,
+            votes,
+            pyr,
+            meta,
+            stack,
+            tstate,
+            skippable,
+        )
+    return allclear, pending, g0c, g1c, allclear and skippable
 
 
 @nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=_FAST)
@@ -439,7 +798,9 @@ def query_one(
     start,
     kind,
     tmin,
+    tmax,
     tile,
+    chunks,
     fx,
     fy,
     cx,
@@ -455,8 +816,11 @@ def query_one(
     stored,
     pmap,
     votes,
+    pyr,
+    meta,
     lbs,
     tstate,
+    stack,
     out,
 ):
     """Fused distance query for one control sphere; out[0:10] = D, dir(3), nearest(3), count,
@@ -583,6 +947,40 @@ def query_one(
             tvb = min(H, tva + tile)
             for j in range(tstate.shape[0]):
                 tstate[j] = 0
+            allclear = False
+            pending = False
+            g0c = g1c = 0
+            if chunks and tmin[tv, tu] < pz:  # (a tile wholly beyond P has no case-iii pixel)
+                allclear, pending, g0c, g1c, skip_tile = tile_chunk_prepare(
+                    px,
+                    py,
+                    pz,
+                    h,
+                    best if mode == 0 else reff,
+                    ta,
+                    tva,
+                    tb_,
+                    tvb,
+                    tmin[tv, tu],
+                    tmax[tv, tu],
+                    fx,
+                    fy,
+                    cx,
+                    cy,
+                    d_min,
+                    dd,
+                    n_cells,
+                    corner_rays,
+                    cams,
+                    votes,
+                    pyr,
+                    meta,
+                    stack,
+                    tstate,
+                )
+                tests += 1
+                if skip_tile:
+                    continue
             for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
                 b = (v + 0.5 - cy) / fy
                 for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
@@ -592,6 +990,8 @@ def query_one(
                     s0 = start[v, u]
                     if s0 > zmax:
                         continue  # case i: the obstacle and its gray area lie beyond the region
+                    if allclear and kd == KIND_ROBOT:
+                        continue  # case iv in a cleared tile: nothing within reach (see above)
                     a = (u + 0.5 - cx) / fx
                     lim = best if mode == 0 else reff
                     if kd == KIND_SURFACE and s0 >= pz:
@@ -609,6 +1009,30 @@ def query_one(
                         dz = pz - s
                         if not math.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - h) - h * pz < lim:
                             continue
+                        if pending:
+                            pending = False
+                            tests += 1
+                            allclear = tile_chunk_cleared(
+                                ta,
+                                tva,
+                                tb_,
+                                tvb,
+                                g0c // TILE_BLOCK,
+                                g1c // TILE_BLOCK,
+                                d_min,
+                                dd,
+                                n_cells,
+                                corner_rays,
+                                cams,
+                                votes,
+                                pyr,
+                                meta,
+                                stack,
+                                tstate,
+                                False,
+                            )
+                            if allclear and kd == KIND_ROBOT:
+                                continue
                         cells += 1
                         found, lo, hi, nt = column_search(
                             u,
@@ -637,6 +1061,9 @@ def query_one(
                             tb_,
                             tvb,
                             tstate,
+                            pyr,
+                            meta,
+                            stack,
                         )
                         tests += nt
                         if not found:
@@ -711,7 +1138,9 @@ def query_many(
     start,
     kind,
     tmin,
+    tmax,
     tile,
+    chunks,
     fx,
     fy,
     cx,
@@ -727,12 +1156,15 @@ def query_many(
     stored,
     pmap,
     votes,
+    pyr,
+    meta,
 ):
     """:func:`query_one` for N control spheres, in parallel over the spheres (prange)."""
     n = centres.shape[0]
     out = np.empty((n, 10))
     scratch = np.empty((n, tmin.shape[0] * tmin.shape[1]))
     tstates = np.zeros((n, n_cells // TILE_BLOCK + 1), dtype=np.uint8)
+    stacks = np.empty((n, 3 * PYR_STACK), dtype=np.int64)
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
         query_one(
@@ -744,7 +1176,9 @@ def query_many(
             start,
             kind,
             tmin,
+            tmax,
             tile,
+            chunks,
             fx,
             fy,
             cx,
@@ -760,8 +1194,11 @@ def query_many(
             stored,
             pmap,
             votes,
+            pyr,
+            meta,
             scratch[i],
             tstates[i],
+            stacks[i],
             out[i],
         )
     return out
@@ -779,7 +1216,9 @@ def query_many_serial(
     start,
     kind,
     tmin,
+    tmax,
     tile,
+    chunks,
     fx,
     fy,
     cx,
@@ -795,12 +1234,15 @@ def query_many_serial(
     stored,
     pmap,
     votes,
+    pyr,
+    meta,
 ):
     """:func:`query_one` for N control spheres, one after the other (no thread start-up latency)."""
     n = centres.shape[0]
     out = np.empty((n, 10))
     scratch = np.empty(tmin.shape[0] * tmin.shape[1])
     tstate = np.zeros(n_cells // TILE_BLOCK + 1, dtype=np.uint8)
+    stack = np.empty(3 * PYR_STACK, dtype=np.int64)
     for i in range(n):
         Pc = R @ centres[i] + t
         query_one(
@@ -812,7 +1254,9 @@ def query_many_serial(
             start,
             kind,
             tmin,
+            tmax,
             tile,
+            chunks,
             fx,
             fy,
             cx,
@@ -828,8 +1272,11 @@ def query_many_serial(
             stored,
             pmap,
             votes,
+            pyr,
+            meta,
             scratch,
             tstate,
+            stack,
             out[i],
         )
     return out
