@@ -118,6 +118,44 @@ def _cmd_distance(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------------- scenario
+# Scenarios implemented outside ``depthguard.sim.scenarios`` (the TOML-driven depth-camera scenarios).
+# Each entry is "module:function"; the function is called as
+# ``fn(name=..., quick=..., avoidance=..., out_dir=..., progress=..., options=dict)`` and returns the JSON dict.
+# ``options`` holds the scenario flags below (cameras, backend, octree_res, case, lambda_, contacts, rate, ssm, view).
+EXTRA_SCENARIOS: dict[str, str] = {
+    "saphari-octree": "depthguard.sim.saphari_octree:run",
+    "saphari-skin": "depthguard.sim.saphari_skin:run",
+    "saphari-nsb": "depthguard.sim.saphari_nsb:run",
+    "saphari-contact-soft": "depthguard.sim.saphari_contact:run",
+    "saphari-contact-stiff": "depthguard.sim.saphari_contact:run",
+    "ssm-approach": "depthguard.sim.ssm_approach:run",
+}
+
+# Benchmarks implemented in their own modules: "module:function", called as ``fn(quick=bool) -> dict``.
+EXTRA_BENCHES: dict[str, str] = {
+    "octree": "depthguard.bench.octree:run_octree_benchmark",
+    "proximity": "depthguard.bench.proximity:run_proximity_benchmark",
+    "contact": "depthguard.bench.contact:run_contact_benchmark",
+}
+
+
+def _load_entry(spec: str, what: str):
+    """Import ``module:function``; a missing module or extra becomes a clean error."""
+    import importlib
+
+    mod_name, fn_name = spec.split(":")
+    try:
+        mod = importlib.import_module(mod_name)
+    except ImportError as exc:
+        raise _Exit(f"{what} is not available: {exc} (pip install 'depthguard[all]')") from None
+    return getattr(mod, fn_name)
+
+
+def _scenario_options(args: argparse.Namespace) -> dict:
+    keys = ("cameras", "backend", "octree_res", "case", "lambda_", "contacts", "rate", "ssm", "view")
+    return {k: getattr(args, k, None) for k in keys}
+
+
 def _cmd_scenario(args: argparse.Namespace) -> int:
     if args.name == "pivot":
         from depthguard.scenarios.pivot import run_pivot_scenario
@@ -126,6 +164,16 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
         out = {k: {"min_distance": v["min_distance"], "collided": v["collided"]} for k, v in res.items()}
         if args.out:
             _save_pivot_plot(res, Path(args.out))
+    elif args.name in EXTRA_SCENARIOS:
+        run = _load_entry(EXTRA_SCENARIOS[args.name], f"scenario {args.name!r}")
+        out = run(
+            name=args.name,
+            quick=args.quick,
+            avoidance=not args.no_avoidance,
+            out_dir=args.out,
+            progress=not args.json,
+            options=_scenario_options(args),
+        )
     else:
         try:
             from depthguard.sim.scenarios import run_scenario
@@ -175,6 +223,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from depthguard.bench.distance import run_distance_benchmark
 
         out = run_distance_benchmark(quick=args.quick)
+    elif args.what in EXTRA_BENCHES:
+        out = _load_entry(EXTRA_BENCHES[args.what], f"the {args.what} benchmark")(quick=args.quick)
     else:
         try:
             from depthguard.bench.control import run_control_benchmark, run_selffilter_benchmark
@@ -278,12 +328,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="short, low-resolution form (for CI)")
     p.add_argument("--no-avoidance", action="store_true", help="run without collision avoidance")
     p.add_argument("--cameras", type=int, choices=[1, 2], default=None, help="number of cameras")
+    p.add_argument(
+        "--backend", choices=["depthspace", "octree"], default=None, help="distance backend (default depthspace)"
+    )
+    p.add_argument("--octree-res", type=_positive_float, default=None, help="octree node size in m (octree backend)")
+    p.add_argument("--case", type=int, choices=[1, 2, 3, 4], default=None, help="case study (saphari-nsb)")
+    p.add_argument(
+        "--lambda",
+        dest="lambda_",
+        choices=["switch", "arctan", "linear"],
+        default=None,
+        help="NSB weighting (saphari-nsb)",
+    )
+    p.add_argument(
+        "--contacts", type=int, choices=[1, 2], default=None, help="simultaneous contacts (saphari-contact-*)"
+    )
+    p.add_argument("--rate", type=_positive_float, default=None, help="control rate in Hz (saphari-contact-*)")
+    p.add_argument("--ssm", action="store_true", help="speed and separation monitoring on top of the repulsion")
+    p.add_argument("--view", action="store_true", help="live 3-D view in the browser")
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (metrics, plots, recording)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_scenario)
 
     p = sub.add_parser("bench", help="benchmarks (JSON with machine info, medians and p99s)")
-    p.add_argument("what", choices=["distance", "control", "selffilter"])
+    p.add_argument("what", choices=["distance", "control", "selffilter", *EXTRA_BENCHES])
     p.add_argument("--quick", action="store_true", help="fewer repetitions")
     p.add_argument("--json", action="store_true", help="compact JSON")
     p.set_defaults(func=_cmd_bench)
