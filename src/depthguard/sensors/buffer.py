@@ -37,7 +37,9 @@ def total_energy(distances: np.ndarray, rest: np.ndarray) -> float:
     return float(np.sum(spring_energy(distances, rest)))
 
 
-def energy_gradient(distances: np.ndarray, rest: np.ndarray, directions: np.ndarray, jacobians: np.ndarray) -> np.ndarray:
+def energy_gradient(
+    distances: np.ndarray, rest: np.ndarray, directions: np.ndarray, jacobians: np.ndarray
+) -> np.ndarray:
     """eqs. 5.6-5.7: (n,) gradient ``J_o`` of sigma with respect to q.
 
     Args:

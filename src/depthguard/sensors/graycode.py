@@ -106,7 +106,9 @@ def simulate_lines(
     t_change = np.asarray(t_change, float)
     lv = _check_level(np.asarray(levels), "levels")
     if t_change.ndim != 1 or t_change.shape != lv.shape or t_change.size == 0:
-        raise ValueError(f"t_change and levels must be 1-D of the same non-zero length, got {t_change.shape}, {lv.shape}")
+        raise ValueError(
+            f"t_change and levels must be 1-D of the same non-zero length, got {t_change.shape}, {lv.shape}"
+        )
     if np.any(np.diff(t_change) < 0) or not np.all(np.isfinite(t_change)):
         raise ValueError("t_change must be finite and non-decreasing")
     delays = np.asarray(line_delays, float)
