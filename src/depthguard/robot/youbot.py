@@ -67,8 +67,9 @@ def _mounts() -> tuple[SensorMount, ...]:
 #: The ten sensors of eqs. 5.13-5.14 (positions converted to m).
 YOUBOT_SENSORS: tuple[SensorMount, ...] = _mounts()
 
-#: Initial configuration of the place task: base at the origin, arm folded up with the gripper forward.
-YOUBOT_Q0 = np.array([0.0, 0.0, 0.0, 0.0, 0.35, 0.9, 0.9, 0.0])
+#: Initial configuration of the place task: base at the origin, gripper horizontal and forward, the end
+#: effector at about (0.45, 0, 0.45) m; no sensor sees the robot (tests/test_saphari_nsb.py).
+YOUBOT_Q0 = np.array([0.0, 0.0, 0.0, 0.0, 0.55, -1.55, -0.57, 0.0])
 
 
 def youbot_urdf_path() -> Path:

@@ -29,6 +29,7 @@ __all__ = [
     "simulate_lines",
     "count_glitches",
     "multibit_windows_sampled",
+    "SkewedLines",
 ]
 
 N_LEVELS = 8
@@ -168,3 +169,39 @@ def multibit_windows_sampled(
         rec[0] += 1
         rec[1] += int(inside)
     return out
+
+
+class SkewedLines:
+    """Online version of :func:`simulate_lines`: the host :meth:`write` s levels, the robot :meth:`read` s.
+
+    Args:
+        line_delays: (3,) switching delay of each line after a write, s.
+        code: ``"gray"`` or ``"binary"``.
+    """
+
+    def __init__(self, line_delays: tuple[float, float, float] = (0.0, 2.2e-3, 4.4e-3), code: str = "gray") -> None:
+        if code not in ("gray", "binary"):
+            raise ValueError(f"code must be 'gray' or 'binary', got {code!r}")
+        self.delays = np.asarray(line_delays, float)
+        if self.delays.shape != (3,) or np.any(self.delays < 0):
+            raise ValueError(f"line_delays must be 3 delays >= 0 s, got {line_delays!r}")
+        self.code = code
+        self.t_writes: list[float] = [-np.inf]
+        self.levels: list[int] = [0]
+
+    def write(self, t: float, level: int) -> None:
+        """The host writes ``level`` at time ``t`` (s, non-decreasing)."""
+        _check_level(np.asarray(level))
+        self.t_writes.append(float(t))
+        self.levels.append(int(level))
+
+    def read(self, t: float) -> int:
+        """The level the robot decodes from the three lines sampled at time ``t``."""
+        enc = gray_encode if self.code == "gray" else binary_encode
+        code = 0
+        for bit in range(3):
+            k = len(self.t_writes) - 1
+            while self.t_writes[k] + self.delays[bit] > t:
+                k -= 1
+            code |= ((int(enc(self.levels[k])) >> bit) & 1) << bit
+        return int(gray_decode(code) if self.code == "gray" else binary_decode(code))

@@ -94,13 +94,13 @@ class ProximityTaxel:
     def distance_lower_bound(self, counts: np.ndarray, min_reflectivity: float = 0.3) -> np.ndarray:
         """Distance, m, that the signal ``counts`` implies for the darkest expected surface: a lower bound
         of the true distance of any surface with reflectivity >= ``min_reflectivity``. inf when the
-        signal is at the dark level (nothing seen); 0 at saturation."""
+        signal is at the dark level (nothing seen); 0 at saturation. Noise is not bounded: filter first."""
         c = np.asarray(counts, float)
-        v = c / (2**self.bits - 1) * self.vref - self.v_dark
+        v = (c + 0.5) / (2**self.bits - 1) * self.vref - self.v_dark  # +0.5: the rounding's worst case
         k = self.r_pd * self.eta * self.led_current * min_reflectivity
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.sqrt(k / v) - self.d0
-        d = np.where(v <= 0.5 * self.vref / (2**self.bits - 1), np.inf, d)
+        d = np.where(c <= round(self.v_dark / self.vref * (2**self.bits - 1)), np.inf, d)
         return np.where(c >= np.floor(self.v_sat / self.vref * (2**self.bits - 1)), 0.0, np.maximum(d, 0.0))
 
 
