@@ -137,3 +137,19 @@ def test_controller_moves_away_and_validates(youbot):
         ctrl.step(YOUBOT_Q0, st0.ee_position, np.zeros(3), np.ones(9))
     with pytest.raises(ValueError, match="dt"):
         NSBConfig(dt=0.1, gamma_g=30.0)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), kind=st.sampled_from(["switch", "arctan", "linear"]))
+def test_compiled_cycle_equals_numpy_reference(youbot, seed, kind):
+    rng = np.random.default_rng(seed)
+    ctrl = NSBController(youbot, YOUBOT_SENSORS, NSBConfig(lambda_kind=kind, rest=0.25))
+    q = YOUBOT_Q0 + rng.uniform(-0.3, 0.3, 8)
+    d = np.where(rng.random(10) < 0.5, rng.uniform(0.0, 0.4, 10), np.inf)
+    if rng.random() < 0.2:
+        d[rng.integers(10)] = np.nan
+    xd, vd = rng.normal(size=3) * 0.3 + [0.5, 0, 0.4], rng.normal(size=3) * 0.2
+    a, b = ctrl.step(q, xd, vd, d), ctrl.step_reference(q, xd, vd, d)
+    np.testing.assert_allclose(a.qdot, b.qdot, rtol=1e-7, atol=1e-9)
+    assert a.sigma == pytest.approx(b.sigma) and a.lam == b.lam and a.scale == pytest.approx(b.scale)
+    np.testing.assert_allclose(a.J_o, b.J_o, atol=1e-12)

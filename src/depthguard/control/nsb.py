@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from depthguard.robot.model import RobotModel
@@ -110,6 +111,66 @@ def nsb_velocity(
     return NSBTerms((1.0 - lam) * qg + lam * (qo + proj), qg, qo, lam)
 
 
+@numba.njit(cache=True)
+def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, damping, qdot_max):  # pragma: no cover
+    """Compiled eqs. 5.1-5.2, 5.6-5.7, 5.4, 5.5, 5.8 and the uniform velocity scaling (one cycle).
+
+    Returns (qdot (n,), sigma, J_o (n,), scale). Same maths as :func:`nsb_velocity` (tested equal)."""
+    N, n = Js.shape[0], Js.shape[2]
+    sigma = 0.0
+    Jo = np.zeros(n)
+    for k in range(N):
+        dk = d[k]
+        if np.isnan(dk):
+            dk = 0.0
+        if dk < 0.0:
+            dk = 0.0
+        if dk <= rest[k]:
+            sigma += 0.5 * (dk - rest[k]) ** 2
+            c = -(dk - rest[k])
+            for i in range(n):
+                Jo[i] += c * (axes[k, 0] * Js[k, 0, i] + axes[k, 1] * Js[k, 1, i] + axes[k, 2] * Js[k, 2, i])
+    r = Jg.shape[0]
+    A = np.empty((r, r))
+    for a in range(r):
+        for b in range(r):
+            acc = 0.0
+            for i in range(n):
+                acc += Jg[a, i] * w[i] * Jg[b, i]
+            A[a, b] = acc + (damping if a == b else 0.0)
+    rhs = xd + gamma_g * err
+    y = np.linalg.solve(A, rhs)
+    qg = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for a in range(r):
+            acc += Jg[a, i] * y[a]
+        qg[i] = w[i] * acc
+    n2 = 0.0
+    jq = 0.0
+    for i in range(n):
+        n2 += Jo[i] * Jo[i]
+        jq += Jo[i] * qg[i]
+    qdot = np.empty(n)
+    for i in range(n):
+        if n2 > 1e-12:
+            qo = Jo[i] / n2 * (gamma_o * (0.0 - sigma))
+            proj = qg[i] - Jo[i] / n2 * jq
+        else:
+            qo = 0.0
+            proj = qg[i]
+        qdot[i] = (1.0 - lam) * qg[i] + lam * (qo + proj)
+    ratio = 0.0
+    for i in range(n):
+        rr = abs(qdot[i]) / qdot_max[i]
+        if rr > ratio:
+            ratio = rr
+    scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
+    for i in range(n):
+        qdot[i] *= scale
+    return qdot, sigma, Jo, scale
+
+
 @dataclass(frozen=True)
 class NSBConfig:
     """Parameters of :class:`NSBController`.
@@ -192,23 +253,32 @@ class NSBController:
         if d.shape != (self.sensors.n_sensors,):
             raise ValueError(f"distances must have shape ({self.sensors.n_sensors},), got {d.shape}")
         st = self.sensors.evaluate(q)
-        sigma = total_energy(d, self.rest)
-        J_o = energy_gradient(d, self.rest, st.axes, st.jacobians)
         d_safe = np.where(np.isnan(d), 0.0, d)
         d_min = float(d_safe.min())
         lam = weight(d_min, cfg.lambda_kind, cfg.f, cfg.K, cfg.delta)
-        terms = nsb_velocity(
-            st.ee_jacobian,
-            np.asarray(x_d, float) - st.ee_position,
-            np.asarray(xdot_d, float),
-            sigma,
-            J_o,
-            lam,
-            self.w,
-            cfg.gamma_g,
-            cfg.gamma_o,
-            cfg.damping,
+        err = np.asarray(x_d, float) - st.ee_position
+        qdot, sigma, J_o, scale = _nsb_kernel(
+            st.ee_jacobian, err, np.asarray(xdot_d, float), d, self.rest, st.axes, st.jacobians, self.w,
+            cfg.gamma_g, cfg.gamma_o, lam, cfg.damping, self.qdot_max,
+        )  # fmt: skip
+        return NSBOutput(
+            qdot, np.asarray(q, float) + cfg.dt * qdot, lam, float(sigma), d_min, J_o, st.ee_position, scale
         )
+
+    def step_reference(self, q: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, distances: np.ndarray) -> NSBOutput:
+        """:meth:`step` in plain numpy (eqs. 5.2, 5.6-5.7 through :mod:`depthguard.sensors.buffer` and
+        :func:`nsb_velocity`): the reference the compiled kernel is tested against."""
+        cfg = self.cfg
+        d = np.asarray(distances, float)
+        st = self.sensors.evaluate(q)
+        sigma = total_energy(d, self.rest)
+        J_o = energy_gradient(d, self.rest, st.axes, st.jacobians)
+        d_min = float(np.where(np.isnan(d), 0.0, d).min())
+        lam = weight(d_min, cfg.lambda_kind, cfg.f, cfg.K, cfg.delta)
+        terms = nsb_velocity(
+            st.ee_jacobian, np.asarray(x_d, float) - st.ee_position, np.asarray(xdot_d, float), sigma, J_o, lam,
+            self.w, cfg.gamma_g, cfg.gamma_o, cfg.damping,
+        )  # fmt: skip
         ratio = float(np.max(np.abs(terms.qdot) / self.qdot_max))
         scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
         qdot = terms.qdot * scale

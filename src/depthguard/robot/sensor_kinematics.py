@@ -64,6 +64,8 @@ class SensorArray:
             self._a[k] = M.rotation @ a
         self._mask = np.array([model.joint_support_mask(j) for j in self._joint], dtype=float)  # (N+1, n)
         self.max_range = np.array([m.max_range for m in self.mounts])
+        self._joint_list = [int(j) for j in self._joint]
+        self._joints_used = sorted(set(self._joint_list))
 
     @property
     def n_sensors(self) -> int:
@@ -74,13 +76,22 @@ class SensorArray:
         m = self.model
         m.update(m.check_q(q))
         oMi = m.data.oMi
-        R = np.array([oMi[int(j)].rotation for j in self._joint])  # (N+1, 3, 3)
-        o = np.array([oMi[int(j)].translation for j in self._joint])
+        Rj, oj = {}, {}
+        for j in self._joints_used:
+            M = oMi[j]
+            Rj[j], oj[j] = M.rotation, M.translation
+        R = np.array([Rj[j] for j in self._joint_list])  # (N+1, 3, 3)
+        o = np.array([oj[j] for j in self._joint_list])
         pos = np.einsum("kij,kj->ki", R, self._p) + o
         ax = np.einsum("kij,kj->ki", R, self._a)
         J = np.asarray(m.data.J)  # (6, n) WORLD
         Jl, Ja = J[:3], J[3:]
         # J_p[k] = Jl + Ja x p_k  (column-wise cross product), masked by the link's support
-        cross = np.cross(Ja.T[None, :, :], pos[:, None, :])  # (N+1, n, 3)
-        Jp = (Jl.T[None, :, :] + cross).transpose(0, 2, 1) * self._mask[:, None, :]
+        px, py, pz = pos[:, 0:1], pos[:, 1:2], pos[:, 2:3]  # (N+1, 1)
+        wx, wy, wz = Ja[0], Ja[1], Ja[2]  # (n,)
+        Jp = np.empty((len(pos), 3, J.shape[1]))
+        Jp[:, 0] = Jl[0] + wy * pz - wz * py
+        Jp[:, 1] = Jl[1] + wz * px - wx * pz
+        Jp[:, 2] = Jl[2] + wx * py - wy * px
+        Jp *= self._mask[:, None, :]
         return SensorState(pos[:-1], ax[:-1], Jp[:-1], pos[-1], Jp[-1])

@@ -82,6 +82,16 @@ class SharpModel:
         d = np.interp(-v, -vt, dt)
         return np.where(v < float(self.voltage(np.array([self.d_max]))[0]), np.inf, d)
 
+    def voltage_scalar(self, d: float) -> float:
+        """:meth:`voltage` for one distance (fast path for the 300 Hz loop)."""
+        if not np.isfinite(d) or d > 1.5 * self.d_max:
+            return self.v_floor
+        if d < self.d_peak:
+            return self.v_contact + (self.v_peak - self.v_contact) * max(d, 0.0) / self.d_peak
+        if d > self.d_table[-1]:
+            return max(self.v_table[-1] * self.d_table[-1] / d, self.v_floor)
+        return float(np.interp(d, self.d_table, self.v_table))
+
     def distance_near(self, v: np.ndarray) -> np.ndarray:
         """Near-branch distance, m, of output ``v`` (V), clipped to [0, d_peak]."""
         v = np.asarray(v, float)
@@ -112,6 +122,7 @@ class AmbiguityTracker:
 
     model: SharpModel
     near: bool = False
+    _v_dmin: float | None = field(default=None, init=False, repr=False)
 
     def update(self, v: float) -> float:
         """Distance, m, to report for output ``v`` (V): never more than either candidate distance while the
@@ -120,13 +131,19 @@ class AmbiguityTracker:
         if not np.isfinite(v):
             self.near = True
             return 0.0
-        if not self.near and v >= float(m.voltage(np.array([m.d_min]))[0]):
+        if self._v_dmin is None:
+            self._v_dmin = float(m.voltage(np.array([m.d_min]))[0])
+            self._v_dmax = float(m.voltage(np.array([m.d_max]))[0])
+            self._vt = -np.asarray(m.v_table, float)
+            self._dt = np.asarray(m.d_table, float)
+        if not self.near and v >= self._v_dmin:
             self.near = True
         elif self.near and v < m.v_contact:
             self.near = False
-        d_far = float(m.distance_far(np.array([v]))[0])
+        d_far = np.inf if v < self._v_dmax else float(np.interp(-v, self._vt, self._dt))
         if self.near:
-            return min(float(m.distance_near(np.array([v]))[0]), d_far)
+            d_near = min(max((v - m.v_contact) / (m.v_peak - m.v_contact), 0.0), 1.0) * m.d_peak
+            return min(d_near, d_far)
         return d_far
 
 
@@ -166,11 +183,11 @@ class IRRanger:
 
         ``true_distance`` (m, inf = nothing) is used only when a new measurement is due."""
         if self.due(t) and true_distance is not None:
-            v = float(self.model.voltage(np.array([true_distance]))[0]) + self.rng.normal(0.0, self.noise_v)
+            v = self.model.voltage_scalar(true_distance) + self.rng.normal(0.0, self.noise_v)
             self.v_out = v
             self.t_next = max(self.t_next, t) + self.period + self.rng.uniform(-self.jitter, self.jitter)
         full = 2**self.bits - 1
-        v_read = float(np.clip(np.round(self.v_out / self.vref * full), 0, full)) * self.vref / full
+        v_read = min(max(round(self.v_out / self.vref * full), 0), full) * self.vref / full
         return v_read, self.tracker.update(v_read)
 
     def normalised(self, v: float) -> float:

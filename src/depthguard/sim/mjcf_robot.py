@@ -122,7 +122,9 @@ def build_model(robot_bodies: str, scene: str = "", timestep: float = 0.001, ass
   </worldbody>
 </mujoco>"""
     m = mujoco.MjModel.from_xml_string(xml)
-    return m, mujoco.MjData(m)
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    return m, d
 
 
 class RaySensors:

@@ -101,7 +101,8 @@ class SkinCell:
         half = 0.5 * (L.per_module - 1) * L.pitch + 0.02
         geoms = {k: list(v) for k, v in _UR5_GEOMS.items()}
         geoms[L.link] = geoms.get(L.link, []) + [
-            f'<geom name="skin" type="cylinder" size="{L.radius} {half}" pos="0 0 {zc}" group="1" rgba="0.3 0.3 0.35 1"/>'
+            f'<geom name="skin" type="cylinder" size="{L.radius} {half}" pos="0 0 {zc}" group="1" '
+            'rgba="0.3 0.3 0.35 1"/>'
         ]
         bodies = urdf_to_mjcf_body(ur5_urdf_path(), geoms, rgba="0.6 0.7 0.8 1")
         ph = self.PALM_HALF

@@ -107,3 +107,97 @@ def plot_skin(out: Path, log: dict, params) -> dict[str, str]:
     plt.close(fig)
     files["graycode"] = str(p)
     return files
+
+
+def _hull(ax, pts2: np.ndarray, **kw) -> None:
+    from scipy.spatial import ConvexHull
+
+    try:
+        h = ConvexHull(pts2)
+    except Exception:  # degenerate (flat) outline
+        return
+    v = pts2[np.r_[h.vertices, h.vertices[:1]]]
+    ax.fill(v[:, 0], v[:, 1], **kw)
+
+
+def _box_corners(o) -> np.ndarray:
+    c, h = np.asarray(o.centre), np.asarray(o.half)
+    return np.array([c + h * [sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+
+
+def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None = None) -> dict[str, str]:
+    """Write ``sensors_energy.png``, ``joint_velocities.png`` and ``snapshots.png`` for NSB runs
+    (``runs`` = {name: log}, "main" first; ``outlines`` = {name: (times, robot corner lists)})."""
+    plt = _mpl()
+    files = {}
+    L = runs["main"]
+    t = L["t"]
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
+    seen = np.isfinite(L["dist"]).any(axis=0)
+    for k in np.flatnonzero(seen):
+        a1.plot(t, L["vnorm"][:, k], lw=1, label=f"sensor {k + 1}")
+    a1.set_ylabel("normalised output")
+    a1.set_ylim(0, 1.05)
+    a1.legend(fontsize=7, ncol=5, loc="upper left")
+    a1.set_title("relevant proximity sensors (output / peak output)")
+    a2.plot(t, L["sigma"], color="tab:red", lw=1.2, label="pseudo-energy sigma (eq. 5.2)")
+    a2.set_ylabel("sigma [m^2]")
+    a2.set_xlabel("t [s]")
+    b2 = a2.twinx()
+    b2.plot(t, L["clear"], color="tab:gray", lw=0.8, label="true clearance")
+    b2.axhline(0, color="k", lw=0.5)
+    b2.set_ylabel("clearance [m]")
+    a2.legend(fontsize=7, loc="upper left")
+    b2.legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"{title}: Figs. 16/18/19")
+    fig.tight_layout()
+    p = out / "sensors_energy.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files["sensors_energy"] = str(p)
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    for j, lab in enumerate(("x", "y", "theta")):
+        a1.plot(t, L["qdot"][:, j], lw=1, label=lab)
+    for j in range(5):
+        a2.plot(t, L["qdot"][:, 3 + j], lw=1, label=f"arm {j + 1}")
+    a1.set_ylabel("base [m/s, rad/s]")
+    a2.set_ylabel("arm [rad/s]")
+    a2.set_xlabel("t [s]")
+    a1.legend(fontsize=7)
+    a2.legend(fontsize=7, ncol=5)
+    a1.plot(t, L["lam"] * np.abs(L["qdot"][:, :3]).max(), color="0.7", lw=0.8, ls=":", label="lambda (scaled)")
+    fig.suptitle(f"{title}: commanded joint velocities")
+    fig.tight_layout()
+    p = out / "joint_velocities.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    files["joint_velocities"] = str(p)
+
+    if outlines:
+        fig, axes = plt.subplots(2, 1, figsize=(12, 8))
+        cols = {"main": "tab:blue", "no box": "tab:green"}
+        for ax, (i, j, lab) in zip(axes, ((0, 1, "top view (x-y)"), (0, 2, "side view (x-z)")), strict=True):
+            for o in obstacles:
+                _hull(ax, _box_corners(o)[:, [i, j]], color="tab:brown", alpha=0.35)
+            for name, (times, shots) in outlines.items():
+                for n_, corners in enumerate(shots):
+                    a = 0.15 + 0.6 * n_ / max(len(shots) - 1, 1)
+                    for c in corners:
+                        _hull(ax, c[:, [i, j]], color=cols.get(name, "tab:purple"), alpha=a * 0.5, lw=0)
+                ee = runs[name]["ee"]
+                ax.plot(ee[:, i], ee[:, j], color=cols.get(name, "tab:purple"), lw=1, label=f"end effector ({name})")
+            xd = runs["main"]["xd"]
+            ax.plot(xd[:, i], xd[:, j], "k--", lw=0.8, label="planned path")
+            ax.set_aspect("equal")
+            ax.set_title(lab)
+            ax.grid(True, alpha=0.3)
+        axes[0].legend(fontsize=7)
+        times = list(outlines["main"][0])
+        fig.suptitle(f"{title}: snapshots at t = {', '.join(f'{x:.1f}' for x in times)} s (darker = later)")
+        fig.tight_layout()
+        p = out / "snapshots.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        files["snapshots"] = str(p)
+    return files
