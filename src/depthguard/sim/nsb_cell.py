@@ -50,16 +50,18 @@ def _box_walls() -> list[Obstacle]:
 def case_obstacles(case: int, with_box: bool = True) -> list[Obstacle]:
     """Obstacles of case study ``case`` (1-4, numbered as in the seed): 1 the box only (or nothing with
     ``with_box=False``); 2 and 3 the box and an unexpected obstacle between the box and the robot, on the
-    base's path; 4 a cluttered scene: two obstacles and an overhead beam across the path."""
+    base's path; 4 a cluttered scene: two obstacles on the base's path (on its sensed, right-hand side: the
+    paper's six base sensors leave the left side blind), one beside it, and an overhead beam across it."""
     if case not in (1, 2, 3, 4):
         raise ValueError(f"case must be 1, 2, 3 or 4, got {case!r}")
     obs = _box_walls() if with_box else []
     if case in (2, 3):
         obs.append(Obstacle("obstacle", (0.75, -0.20, 0.35), (0.06, 0.06, 0.35)))
     if case == 4:
-        obs.append(Obstacle("obstacle", (0.70, -0.24, 0.35), (0.06, 0.06, 0.35)))
-        obs.append(Obstacle("obstacle_left", (1.05, 0.30, 0.35), (0.06, 0.06, 0.35)))
-        obs.append(Obstacle("beam", (0.95, 0.0, 0.56), (0.04, 1.0, 0.03), "0.4 0.4 0.45 1"))
+        obs.append(Obstacle("obstacle", (0.70, -0.20, 0.35), (0.06, 0.06, 0.35)))
+        obs.append(Obstacle("obstacle_2", (1.12, -0.27, 0.25), (0.08, 0.05, 0.25)))
+        obs.append(Obstacle("obstacle_left", (0.90, 0.52, 0.35), (0.06, 0.06, 0.35)))
+        obs.append(Obstacle("beam", (0.95, 0.0, 0.53), (0.04, 1.0, 0.03), "0.4 0.4 0.45 1"))
         obs.append(Obstacle("beam_post_l", (0.95, 1.0, 0.29), (0.03, 0.03, 0.29), "0.4 0.4 0.45 1"))
         obs.append(Obstacle("beam_post_r", (0.95, -1.0, 0.29), (0.03, 0.03, 0.29), "0.4 0.4 0.45 1"))
     return obs
@@ -97,8 +99,8 @@ class NSBCell:
         self._robot_set = set(self.robot_geoms)
         self.last_true = np.full(10, np.inf)
         self.self_hits = 0
-        self._rg = np.array(self.robot_geoms)
-        self._og = np.array(self.obstacle_geoms)
+        self._rg = np.array(self.robot_geoms, dtype=int)
+        self._og = np.array(self.obstacle_geoms, dtype=int)
         self._rb = self.m.geom_rbound[self._rg]
         self._ob = self.m.geom_rbound[self._og]
 
@@ -126,6 +128,8 @@ class NSBCell:
     def clearance(self) -> tuple[float, str]:
         """True minimum distance (m) between the robot and the obstacles, and the obstacle's name."""
         rg, og = self._rg, self._og
+        if og.size == 0:
+            return float("inf"), ""
         c = self.d.geom_xpos
         # bounding-sphere lower bounds first; exact distances only for pairs that can beat the best
         lb = np.linalg.norm(c[rg][:, None, :] - c[og][None, :, :], axis=2) - self._rb[:, None] - self._ob[None, :]

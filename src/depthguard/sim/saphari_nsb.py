@@ -134,7 +134,7 @@ def nsb_metrics(L: dict, dt: float = 1 / 300, tol: float = 0.03) -> dict:
     ok = L["err"][1:] <= tol
     return {
         "collision_steps": int(np.count_nonzero(L["clear"] <= 0.0)),
-        "min_clearance": float(L["clear"].min()),
+        "min_clearance": float(L["clear"].min()) if np.isfinite(L["clear"].min()) else None,
         "task_completion": float(step[ok].sum() / max(step.sum(), 1e-12)),
         "path_error": float(np.sqrt(np.mean(L["err"] ** 2))),
         "place_error": float(L["err"][-1]),
@@ -174,7 +174,7 @@ def run(name: str, quick: bool, avoidance: bool, out_dir: str | None, progress: 
 
         outlines = {}
         for key, L in runs.items():
-            idx = np.linspace(0, len(L["t"]) - 1, 6).astype(int)
+            idx = np.linspace(0, len(L["t"]) - 1, 5).astype(int)
             obst = case_obstacles(1, with_box=False) if key == "no box" else case_obstacles(case)
             outlines[key] = (L["t"][idx], robot_outlines(obst, L["q"][idx]))
         out["files"] = plot_nsb(d, runs, case_obstacles(case), f"saphari-nsb case {case} ({lam})", outlines)

@@ -175,29 +175,45 @@ def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None
     files["joint_velocities"] = str(p)
 
     if outlines:
-        fig, axes = plt.subplots(2, 1, figsize=(12, 8))
-        cols = {"main": "tab:blue", "no box": "tab:green"}
-        for ax, (i, j, lab) in zip(axes, ((0, 1, "top view (x-y)"), (0, 2, "side view (x-z)")), strict=True):
-            for o in obstacles:
-                _hull(ax, _box_corners(o)[:, [i, j]], color="tab:brown", alpha=0.35)
-            for name, (times, shots) in outlines.items():
-                for n_, corners in enumerate(shots):
-                    a = 0.15 + 0.6 * n_ / max(len(shots) - 1, 1)
-                    for c in corners:
-                        _hull(ax, c[:, [i, j]], color=cols.get(name, "tab:purple"), alpha=a * 0.5, lw=0)
-                ee = runs[name]["ee"]
-                ax.plot(ee[:, i], ee[:, j], color=cols.get(name, "tab:purple"), lw=1, label=f"end effector ({name})")
-            xd = runs["main"]["xd"]
-            ax.plot(xd[:, i], xd[:, j], "k--", lw=0.8, label="planned path")
-            ax.set_aspect("equal")
-            ax.set_title(lab)
-            ax.grid(True, alpha=0.3)
-        axes[0].legend(fontsize=7)
-        times = list(outlines["main"][0])
-        fig.suptitle(f"{title}: snapshots at t = {', '.join(f'{x:.1f}' for x in times)} s (darker = later)")
+        times, shots = outlines["main"]
+        ncol = len(shots)
+        fig, axes = plt.subplots(2, ncol, figsize=(3.2 * ncol, 6.5), squeeze=False)
+        xd, ee = L["xd"], L["ee"]
+        for c, (tc, corners) in enumerate(zip(times, shots, strict=True)):
+            upto = L["t"] <= tc + 1e-9
+            for r, (i, j, lab) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z)"))):
+                ax = axes[r, c]
+                for o in obstacles:
+                    _hull(ax, _box_corners(o)[:, [i, j]], color="tab:brown", alpha=0.45, lw=0)
+                for cc in corners:
+                    _hull(ax, cc[:, [i, j]], color="tab:blue", alpha=0.35, lw=0)
+                ax.plot(xd[:, i], xd[:, j], "k--", lw=0.7)
+                ax.plot(ee[upto, i], ee[upto, j], color="tab:red", lw=1.2)
+                ax.set_xlim(-0.4, 1.9)
+                ax.set_ylim(*((-0.6, 0.6) if r == 0 else (0.0, 0.8)))
+                ax.set_aspect("equal")
+                ax.tick_params(labelsize=6)
+                ax.set_title(f"t = {tc:.1f} s, {lab}", fontsize=8)
+        fig.suptitle(f"{title}: snapshots (blue robot, brown obstacles, red end-effector trace, dashed plan)")
         fig.tight_layout()
         p = out / "snapshots.png"
-        fig.savefig(p, dpi=110)
+        fig.savefig(p, dpi=100)
         plt.close(fig)
         files["snapshots"] = str(p)
+    if outlines and "no box" in outlines:
+        fig, ax = plt.subplots(figsize=(9, 4))
+        for o in obstacles:
+            _hull(ax, _box_corners(o)[:, [0, 2]], color="tab:brown", alpha=0.45, lw=0)
+        for name, col in (("no box", "tab:green"), ("main", "tab:blue")):
+            for cc in outlines[name][1][-1]:
+                _hull(ax, cc[:, [0, 2]], color=col, alpha=0.3, lw=0)
+            ax.plot([], [], color=col, lw=6, alpha=0.5, label="without the box" if name == "no box" else "with the box")
+        ax.set_aspect("equal")
+        ax.legend(fontsize=8)
+        ax.set_title(f"{title}: final configurations without and with the box (Fig. 14), side view")
+        fig.tight_layout()
+        p = out / "fig14.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        files["fig14"] = str(p)
     return files
