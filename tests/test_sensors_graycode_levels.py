@@ -122,3 +122,24 @@ def test_level_map_ranges_contact_and_hysteresis():
     assert m.update(14, False) == 0
     with pytest.raises(ValueError, match="thresholds"):
         LevelMap(thresholds=(1, 2, 3))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    writes=st.lists(st.tuples(st.floats(0.0005, 0.02), st.integers(0, 7)), min_size=1, max_size=12),
+    code=st.sampled_from(["gray", "binary"]),
+)
+def test_online_lines_match_offline_simulation(writes, code):
+    from depthguard.sensors.graycode import SkewedLines
+
+    lines = SkewedLines(DELAYS, code)
+    t, tc, lv = 0.0, [0.0], [0]
+    lines.write(0.0, 0)
+    for dt, level in writes:
+        t += dt
+        lines.write(t, level)
+        tc.append(t)
+        lv.append(level)
+    trace = simulate_lines(np.array(tc), np.array(lv), t + 0.01, DELAYS, TS, 0.0007, code)
+    online = [lines.read(ts) for ts in trace.t_sample]
+    assert online == trace.decoded.tolist()

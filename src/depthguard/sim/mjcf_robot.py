@@ -38,7 +38,7 @@ def rpy_quat(rpy: tuple[float, float, float]) -> tuple[float, float, float, floa
 
 
 def _f(v) -> str:
-    return " ".join(f"{float(x):.6g}" for x in v)
+    return " ".join(f"{float(x):.12g}" for x in v)
 
 
 def _origin(e: ET.Element | None) -> tuple[list[float], list[float]]:

@@ -177,7 +177,7 @@ def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None
     if outlines:
         times, shots = outlines["main"]
         ncol = len(shots)
-        fig, axes = plt.subplots(2, ncol, figsize=(3.2 * ncol, 6.5), squeeze=False)
+        fig, axes = plt.subplots(2, ncol, figsize=(3.2 * ncol, 4.6), squeeze=False)
         xd, ee = L["xd"], L["ee"]
         for c, (tc, corners) in enumerate(zip(times, shots, strict=True)):
             upto = L["t"] <= tc + 1e-9
