@@ -153,3 +153,14 @@ def test_compiled_cycle_equals_numpy_reference(youbot, seed, kind):
     np.testing.assert_allclose(a.qdot, b.qdot, rtol=1e-7, atol=1e-9)
     assert a.sigma == pytest.approx(b.sigma) and a.lam == b.lam and a.scale == pytest.approx(b.scale)
     np.testing.assert_allclose(a.J_o, b.J_o, atol=1e-12)
+
+
+def test_bad_inputs_name_the_field(youbot):
+    with pytest.raises(ValueError, match="rest"):
+        NSBController(youbot, YOUBOT_SENSORS, NSBConfig(rest=(0.2, 0.3)))
+    with pytest.raises(ValueError, match="rest"):
+        NSBController(youbot, YOUBOT_SENSORS, NSBConfig(rest=-0.1))
+    with pytest.raises(ValueError, match="jacobians"):
+        energy_gradient(np.ones(3), 0.3, np.ones((3, 3)), np.ones((2, 3, 8)))
+    with pytest.raises(ValueError, match="lambda_kind"):
+        NSBConfig(lambda_kind="sigmoid")

@@ -143,3 +143,29 @@ def test_online_lines_match_offline_simulation(writes, code):
     trace = simulate_lines(np.array(tc), np.array(lv), t + 0.01, DELAYS, TS, 0.0007, code)
     online = [lines.read(ts) for ts in trace.t_sample]
     assert online == trace.decoded.tolist()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    signals=st.lists(st.floats(0, 400) | st.just(float("nan")), min_size=2, max_size=60),
+    contacts=st.lists(st.booleans(), min_size=60, max_size=60),
+)
+def test_level_map_moves_only_across_thresholds(signals, contacts):
+    th = np.array([20.0, 30, 45, 70, 110, 180])
+    h = 5.0
+    m = LevelMap(thresholds=tuple(th), hysteresis=h)
+    prev = 0
+    for s, c in zip(signals, contacts, strict=False):
+        lv = m.update(s, c)
+        assert 0 <= lv <= 7
+        if c:
+            assert lv == 7
+        elif np.isnan(s):
+            assert lv >= 6  # no reading: at least the slowest moving level
+        elif prev == 7 and lv < 7:
+            assert s < th[0] - h  # resumed only below the minimum safety distance
+        elif lv > prev:
+            assert s >= th[lv - 1]
+        elif lv < prev:
+            assert s < th[prev - 1] - h  # dropped only beyond the hysteresis
+        prev = lv

@@ -243,7 +243,12 @@ class NSBController:
         self.qdot_max = np.asarray(self.cfg.qdot_max, float)
         if self.w.shape != (n,) or self.qdot_max.shape != (n,):
             raise ValueError(f"NSBConfig.weights and qdot_max must have {n} entries (the robot's DOF)")
-        self.rest = np.broadcast_to(np.asarray(self.cfg.rest, float), (self.sensors.n_sensors,)).copy()
+        try:
+            self.rest = np.broadcast_to(np.asarray(self.cfg.rest, float), (self.sensors.n_sensors,)).copy()
+        except ValueError:
+            raise ValueError(f"NSBConfig.rest must be a scalar or {self.sensors.n_sensors} rest lengths") from None
+        if not np.all(np.isfinite(self.rest) & (self.rest > 0)):
+            raise ValueError(f"NSBConfig.rest must be positive finite lengths (m), got {self.cfg.rest!r}")
 
     def step(self, q: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, distances: np.ndarray) -> NSBOutput:
         """One cycle: ``q`` (n,), desired EE position ``x_d`` (3,) m and velocity ``xdot_d`` (3,) m/s,

@@ -5,6 +5,7 @@ proximity/contact skin, and the spring pseudo-energy of the protective buffer. P
 
 from depthguard.sensors.buffer import energy_gradient, spring_energy, total_energy
 from depthguard.sensors.graycode import (
+    SkewedLines,
     binary_decode,
     binary_encode,
     count_glitches,
@@ -27,6 +28,7 @@ __all__ = [
     "gray_decode",
     "gray_encode",
     "simulate_lines",
+    "SkewedLines",
     "TABLE1_SPEEDS",
     "LevelMap",
     "LevelStepper",

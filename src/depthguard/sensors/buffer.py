@@ -49,6 +49,12 @@ def energy_gradient(
     """
     d = _clean(distances)
     r = np.broadcast_to(np.asarray(rest, float), d.shape)
+    v, J = np.asarray(directions, float), np.asarray(jacobians, float)
+    if d.ndim != 1 or v.shape != (d.size, 3) or J.ndim != 3 or J.shape[:2] != (d.size, 3):
+        raise ValueError(
+            f"energy_gradient: distances (N,), directions (N, 3) and jacobians (N, 3, n) expected, got "
+            f"{d.shape}, {v.shape}, {J.shape}"
+        )
     w = np.where(d <= r, -(d - r), 0.0)  # (N,)  -(d_k - r_k) >= 0 when compressed
-    vJ = np.einsum("ki,kin->kn", np.asarray(directions, float), np.asarray(jacobians, float))
+    vJ = np.einsum("ki,kin->kn", v, J)
     return w @ vJ
