@@ -138,8 +138,26 @@ def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, dampin
             for i in range(n):
                 acc += Jg[a, i] * w[i] * Jg[b, i]
             A[a, b] = acc + (damping if a == b else 0.0)
-    rhs = xd + gamma_g * err
-    y = np.linalg.solve(A, rhs)
+    y = xd + gamma_g * err  # solve A y = rhs by Gaussian elimination with partial pivoting (r is 3)
+    for c in range(r):
+        p = c
+        for a in range(c + 1, r):
+            if abs(A[a, c]) > abs(A[p, c]):
+                p = a
+        if p != c:
+            for b in range(r):
+                A[c, b], A[p, b] = A[p, b], A[c, b]
+            y[c], y[p] = y[p], y[c]
+        for a in range(c + 1, r):
+            fac = A[a, c] / A[c, c]
+            for b in range(c, r):
+                A[a, b] -= fac * A[c, b]
+            y[a] -= fac * y[c]
+    for c in range(r - 1, -1, -1):
+        acc = y[c]
+        for b in range(c + 1, r):
+            acc -= A[c, b] * y[b]
+        y[c] = acc / A[c, c]
     qg = np.empty(n)
     for i in range(n):
         acc = 0.0
