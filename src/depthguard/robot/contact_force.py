@@ -1,0 +1,118 @@
+"""Contact force estimation from the residual (SAPHARI D4.1.1 §6.1).
+
+With the residual ``r ≈ τ_ext = J_cᵀ(q) F_c`` (3-D forces at known contact points, no moments), the
+force is estimated by pseudo-inversion, for one contact or for several at once (stacked form)::
+
+    F̂_c = (J_cᵀ)^# r,            (F̂_1; F̂_2) = (J_1ᵀ  J_2ᵀ)^# r
+
+Let ``A = (J_1ᵀ … J_kᵀ)`` (n × 3k). Only the part of the force in the range of ``Aᵀ`` is observable:
+forces in the null space of ``A`` produce no joint torque, so the residual cannot see them (the
+deliverable notes that they do no work and are absorbed by the structure). :class:`ForceEstimate` reports
+that null space (``unobservable``) and the projector onto the observable subspace; force errors are
+compared on the observable projection only (:func:`observable_error`).
+
+Near singular contact Jacobians the pseudo-inverse is damped with a variable damping (Nakamura/
+Maciejewski): with the singular values σ_i of ``A``, ``F̂ = Σ σ_i / (σ_i² + λ²) v_i u_iᵀ r`` and
+``λ² = λ_max² (1 - (σ_min/ε)²)`` when ``σ_min < ε``, 0 otherwise. It is computed from the
+eigen-decomposition of the small Gram matrix ``AᵀA`` (3k × 3k).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["ForceEstimate", "estimate_contact_forces", "point_jacobian", "observable_error"]
+
+
+class ForceEstimate(NamedTuple):
+    """Result of :func:`estimate_contact_forces` for k contacts.
+
+    Attributes:
+        forces: (k, 3) estimated contact forces in the world frame, N.
+        stacked: (3k,) the same, stacked.
+        singular_values: (3k,) singular values of ``A = (J_1ᵀ … J_kᵀ)``, descending (m per N m/N).
+        unobservable: (3k, u) orthonormal basis of the force directions the residual cannot see
+            (singular value below ``tol`` times the largest), possibly with ``u = 0`` columns.
+        projector: (3k, 3k) projector onto the observable force subspace.
+        damping: the damping λ² that was used (0 when well conditioned).
+    """
+
+    forces: np.ndarray
+    stacked: np.ndarray
+    singular_values: np.ndarray
+    unobservable: np.ndarray
+    projector: np.ndarray
+    damping: float
+
+
+def point_jacobian(model, q: np.ndarray, link: str, point_world: np.ndarray, update: bool = True) -> np.ndarray:
+    """(3, n) positional Jacobian of the point ``point_world`` (3,) m rigidly attached to ``link``.
+
+    Args:
+        model: a :class:`depthguard.robot.model.RobotModel`.
+        q: (n,) joint positions, rad.
+        link: the link (pinocchio BODY frame) the point belongs to.
+        point_world: (3,) the point's current world position, m.
+        update: run ``computeJointJacobians`` first (pass False when already done for this ``q``).
+    """
+    import pinocchio as pin
+
+    if update:
+        pin.computeJointJacobians(model.model, model.data, q)
+    jid = model.model.frames[model.frame_id(link)].parentJoint
+    J = pin.getJointJacobian(model.model, model.data, jid, pin.LOCAL_WORLD_ALIGNED)
+    d = np.asarray(point_world, float) - model.data.oMi[jid].translation
+    # v_p = v_o + ω × d
+    return J[:3] + np.cross(J[3:].T, d).T
+
+
+def estimate_contact_forces(
+    jacobians: list[np.ndarray] | np.ndarray,
+    r: np.ndarray,
+    eps: float = 0.02,
+    lambda_max: float = 0.05,
+    tol: float = 1e-3,
+) -> ForceEstimate:
+    """Contact forces from the residual ``r`` (n,) N m and the contact Jacobians (each (3, n)).
+
+    Args:
+        jacobians: k positional contact Jacobians (3, n), or one (3, n) array.
+        r: (n,) residual (≈ external joint torque), N m.
+        eps: smallest singular value (m) below which damping starts.
+        lambda_max: largest damping factor λ (m).
+        tol: relative singular value below which a direction is reported unobservable.
+    """
+    Js = [np.asarray(jacobians, float)] if np.ndim(jacobians) == 2 else [np.asarray(J, float) for J in jacobians]
+    n = Js[0].shape[1]
+    if any(J.shape != (3, n) for J in Js):
+        raise ValueError(f"jacobians must all have shape (3, n), got {[J.shape for J in Js]}")
+    r = np.asarray(r, float)
+    if r.shape != (n,):
+        raise ValueError(f"r must have shape ({n},), got {r.shape}")
+    A = np.vstack(Js).T  # (n, 3k) = (J_1ᵀ … J_kᵀ)
+    G = A.T @ A
+    w, V = np.linalg.eigh(G)  # ascending eigenvalues σ²
+    w = np.maximum(w, 0.0)
+    sig = np.sqrt(w)
+    smin = sig[0]
+    lam2 = lambda_max**2 * (1.0 - (smin / eps) ** 2) if smin < eps else 0.0
+    inv = np.divide(1.0, w + lam2, out=np.zeros_like(w), where=(w + lam2) > 1e-300)
+    stacked = V @ (inv * (V.T @ (A.T @ r)))
+    bad = sig < tol * max(sig[-1], 1e-300)
+    U = V[:, bad]
+    P = np.eye(A.shape[1]) - U @ U.T
+    return ForceEstimate(stacked.reshape(-1, 3), stacked, sig[::-1].copy(), U, P, float(lam2))
+
+
+def observable_error(est: ForceEstimate, applied: np.ndarray) -> tuple[np.ndarray, float]:
+    """Error of the estimate against the observable part of the ``applied`` forces ((k, 3) or (3k,), N).
+
+    Returns ``(error (3k,), observable_fraction)``: ``F̂ - P F`` with ``P`` the projector onto the range of
+    ``Aᵀ``, and ``‖P F‖ / ‖F‖`` (1 = fully observable).
+    """
+    F = np.asarray(applied, float).ravel()
+    PF = est.projector @ F
+    nf = float(np.linalg.norm(F))
+    return est.stacked - PF, (float(np.linalg.norm(PF)) / nf if nf > 0 else 1.0)
