@@ -103,10 +103,12 @@ class ContactCell:
         timestep: physics step, s.
         armature: rotor inertia of every joint, kg m².
         kp, kd: joint controller gains, 1/s², 1/s.
+        frictionloss: Coulomb friction of every arm joint, N m (model-error studies; the observer
+            does not know it).
     """
 
     def __init__(self, hands: list[HandScript], camera: Camera, q0: np.ndarray, timestep: float = 0.001,
-                 armature: float = 0.05, kp: float = 900.0, kd: float = 60.0) -> None:
+                 armature: float = 0.05, kp: float = 900.0, kd: float = 60.0, frictionloss: float = 0.0) -> None:
         import mujoco
 
         from depthguard.robot.model import load_lwr4, lwr4_urdf_path
@@ -161,6 +163,7 @@ class ContactCell:
         self.dof = np.array([m.jnt_dofadr[j] for j in jid])
         self.qadr = np.array([m.jnt_qposadr[j] for j in jid])
         m.dof_armature[self.dof] = armature
+        m.dof_frictionloss[self.dof] = frictionloss
         self.damping = np.array(m.dof_damping[self.dof])
         self.hand_dof = [
             np.array([m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"{h.name}_{a}")] for a in "xyz"])
@@ -264,6 +267,18 @@ class ContactCell:
             out.append((F, P / w if w > 0 else np.full(3, np.nan), link))
         return out
 
+    def set_applied_force(self, link: str | None, point: np.ndarray | None = None, force: np.ndarray | None = None) -> None:
+        """Apply a constant external ``force`` (3,) N at world ``point`` (3,) m of ``link`` from now on
+        (``mj_applyFT`` into ``qfrc_applied``); ``link=None`` removes it."""
+        mj, m, d = self._mj, self.model, self.data
+        d.qfrc_applied[:] = 0.0
+        if link is None:
+            return
+        body = mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, link)
+        mj.mj_forward(m, d)
+        mj.mj_applyFT(m, d, np.asarray(force, float), np.zeros(3), np.asarray(point, float), body, d.qfrc_applied)
+
     def tau_ext(self) -> np.ndarray:
-        """(7,) exact external joint torque on the arm (constraint forces: the contacts), N m."""
-        return self.data.qfrc_constraint[self.dof].copy()
+        """(7,) exact external joint torque on the arm (constraint forces: contacts and joint friction,
+        plus any applied force), N m."""
+        return self.data.qfrc_constraint[self.dof] + self.data.qfrc_applied[self.dof]
