@@ -11,10 +11,11 @@ deliverable notes that they do no work and are absorbed by the structure). :clas
 that null space (``unobservable``) and the projector onto the observable subspace; force errors are
 compared on the observable projection only (:func:`observable_error`).
 
-Near singular contact Jacobians the pseudo-inverse is damped with a variable damping (Nakamura/
-Maciejewski): with the singular values σ_i of ``A``, ``F̂ = Σ σ_i / (σ_i² + λ²) v_i u_iᵀ r`` and
-``λ² = λ_max² (1 - (σ_min/ε)²)`` when ``σ_min < ε``, 0 otherwise. It is computed from the
-eigen-decomposition of the small Gram matrix ``AᵀA`` (3k × 3k).
+Near singular contact Jacobians the pseudo-inverse is damped, direction by direction (a selective form
+of the Nakamura/Maciejewski variable damping): with the singular values σ_i of ``A``,
+``F̂ = Σ σ_i / (σ_i² + λ_i²) v_i u_iᵀ r`` and ``λ_i² = λ_max² (1 - (σ_i/ε)²)`` when ``σ_i < ε``, 0
+otherwise, so that well-conditioned directions stay exact while a weak one cannot amplify torque noise.
+It is computed from the eigen-decomposition of the small Gram matrix ``AᵀA`` (3k × 3k).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ class ForceEstimate(NamedTuple):
         unobservable: (3k, u) orthonormal basis of the force directions the residual cannot see
             (singular value below ``tol`` times the largest), possibly with ``u = 0`` columns.
         projector: (3k, 3k) projector onto the observable force subspace.
-        damping: the damping λ² that was used (0 when well conditioned).
+        damping: the largest damping λ_i² that was used (0 when well conditioned).
     """
 
     forces: np.ndarray
@@ -84,26 +85,30 @@ def estimate_contact_forces(
         lambda_max: largest damping factor λ (m).
         tol: relative singular value below which a direction is reported unobservable.
     """
-    Js = [np.asarray(jacobians, float)] if np.ndim(jacobians) == 2 else [np.asarray(J, float) for J in jacobians]
+    if isinstance(jacobians, np.ndarray) and jacobians.ndim == 2:
+        Js = [np.asarray(jacobians, float)]
+    else:
+        Js = [np.asarray(J, float) for J in jacobians]
+    if not Js or Js[0].ndim != 2:
+        raise ValueError("jacobians must be one (3, n) array or a list of them")
     n = Js[0].shape[1]
-    if any(J.shape != (3, n) for J in Js):
-        raise ValueError(f"jacobians must all have shape (3, n), got {[J.shape for J in Js]}")
+    if any(J.shape != (3, n) or not np.all(np.isfinite(J)) for J in Js):
+        raise ValueError(f"jacobians must all be finite with shape (3, n), got {[J.shape for J in Js]}")
     r = np.asarray(r, float)
-    if r.shape != (n,):
-        raise ValueError(f"r must have shape ({n},), got {r.shape}")
+    if r.shape != (n,) or not np.all(np.isfinite(r)):
+        raise ValueError(f"r must be finite with shape ({n},), got shape {r.shape}")
     A = np.vstack(Js).T  # (n, 3k) = (J_1ᵀ … J_kᵀ)
     G = A.T @ A
     w, V = np.linalg.eigh(G)  # ascending eigenvalues σ²
     w = np.maximum(w, 0.0)
     sig = np.sqrt(w)
-    smin = sig[0]
-    lam2 = lambda_max**2 * (1.0 - (smin / eps) ** 2) if smin < eps else 0.0
+    lam2 = np.where(sig < eps, lambda_max**2 * (1.0 - (sig / eps) ** 2), 0.0)
     inv = np.divide(1.0, w + lam2, out=np.zeros_like(w), where=(w + lam2) > 1e-300)
     stacked = V @ (inv * (V.T @ (A.T @ r)))
     bad = sig < tol * max(sig[-1], 1e-300)
     U = V[:, bad]
     P = np.eye(A.shape[1]) - U @ U.T
-    return ForceEstimate(stacked.reshape(-1, 3), stacked, sig[::-1].copy(), U, P, float(lam2))
+    return ForceEstimate(stacked.reshape(-1, 3), stacked, sig[::-1].copy(), U, P, float(lam2.max()))
 
 
 def observable_error(est: ForceEstimate, applied: np.ndarray) -> tuple[np.ndarray, float]:
