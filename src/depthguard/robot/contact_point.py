@@ -23,6 +23,7 @@ in the tests and the experiments' ``contact_point_error_m``).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -34,7 +35,7 @@ __all__ = [
     "RobotSurface",
     "HandObservation",
     "ContactPoint",
-    "locate_hand",
+    "locate_hands",
     "nearest_vertex",
     "nearest_vertex_loop",
     "foreground_mask",
@@ -102,9 +103,12 @@ class RobotSurface:
             ac.append(a + np.linspace(0, 1, m)[:, None] * (b - a))
             aj.append(np.full(m, j))
             ar.append(np.full(m, r))
-        self.local = np.vstack(loc)
-        self.joint = np.concatenate(jnt)
-        self.link = np.concatenate(lnk)
+        order = np.argsort(np.concatenate(jnt), kind="stable")  # grouped by joint: one matmul per joint
+        self.local = np.vstack(loc)[order]
+        self.joint = np.concatenate(jnt)[order]
+        self.link = np.concatenate(lnk)[order]
+        self._groups = [(j, np.flatnonzero(self.joint == j)) for j in np.unique(self.joint)]
+        self._slices = [(j, slice(int(ix[0]), int(ix[-1]) + 1)) for j, ix in self._groups]
         self.axis_centres = np.vstack(ac)
         self.axis_joint = np.concatenate(aj)
         self.axis_radii = np.concatenate(ar)
@@ -116,7 +120,9 @@ class RobotSurface:
     def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World vertices (V, 3) and axis sphere centres (S, 3) at ``q`` (n,), m."""
         R, p = self.model.joint_poses(self.model.check_q(q))
-        v = np.einsum("kij,kj->ki", R[self.joint], self.local) + p[self.joint]
+        v = np.empty_like(self.local)
+        for j, sl in self._slices:
+            v[sl] = self.local[sl] @ R[j].T + p[j]
         s = np.einsum("kij,kj->ki", R[self.axis_joint], self.axis_centres) + p[self.axis_joint]
         return v, s
 
@@ -129,7 +135,8 @@ class RobotSurface:
 
 def nearest_vertex(vertices: np.ndarray, p_h: np.ndarray) -> tuple[int, float]:
     """Algorithm 1, vectorised: index of the vertex (V, 3) nearest to ``p_h`` (3,) and its distance (m)."""
-    d2 = np.einsum("ij,ij->i", vertices - p_h, vertices - p_h)
+    diff = vertices - p_h
+    d2 = np.einsum("ij,ij->i", diff, diff)
     i = int(np.argmin(d2))
     return i, float(np.sqrt(d2[i]))
 
@@ -149,15 +156,28 @@ def nearest_vertex_loop(vertices_per_link: list[np.ndarray], p_h: np.ndarray) ->
     return p_c, contact_link, min_distance
 
 
-def foreground_mask(depth: np.ndarray, background: np.ndarray, robot_mask: np.ndarray, bg_margin: float) -> np.ndarray:
-    """(H, W) bool: readings nearer than the background by more than ``bg_margin`` m, robot excluded.
+def foreground_mask(
+    depth: np.ndarray, background: np.ndarray, robot_mask: np.ndarray, bg_margin: float | np.ndarray, erode: bool = True
+) -> np.ndarray:
+    """(H, W) bool: readings nearer than the background by more than ``bg_margin`` m (scalar or (H, W)),
+    robot excluded; with ``erode`` a 4-neighbour erosion removes isolated pixels (depth noise that
+    escaped the self-filter), which a hand, a blob of many pixels, survives.
 
     A background pixel without reading (NaN/0) admits any reading in front of it."""
     d = np.asarray(depth, np.float32)
     bg = np.asarray(background, np.float32)
     ok = np.isfinite(d) & (d > 0)
     bg_f = np.where(np.isfinite(bg) & (bg > 0), bg, np.inf)
-    return ok & (d < bg_f - bg_margin) & ~np.asarray(robot_mask, bool)
+    with np.errstate(invalid="ignore"):
+        fg = ok & (d < bg_f - bg_margin) & ~np.asarray(robot_mask, bool)
+    if erode:
+        e = fg.copy()
+        e[1:] &= fg[:-1]
+        e[:-1] &= fg[1:]
+        e[:, 1:] &= fg[:, :-1]
+        e[:, :-1] &= fg[:, 1:]
+        fg = e
+    return fg
 
 
 class HandObservation(NamedTuple):
@@ -178,53 +198,107 @@ def _backproject(camera: Camera, depth: np.ndarray, us: np.ndarray, vs: np.ndarr
     return camera.camera_to_world(np.stack([x, y, z], axis=1))
 
 
-def locate_hand(
+def _roi(camera: Camera, centres: np.ndarray, reach: np.ndarray) -> tuple[int, int, int, int] | None:
+    """Pixel box (u0, u1, v0, v1) covering every sphere grown by ``reach`` (m); None if behind the camera."""
+    pc = camera.world_to_camera(centres)
+    z = pc[:, 2] - reach
+    if np.any(z <= 1e-3):
+        return 0, camera.width, 0, camera.height
+    px = camera.fx * pc[:, 0] / pc[:, 2] + camera.cx
+    py = camera.fy * pc[:, 1] / pc[:, 2] + camera.cy
+    wx, wy = camera.fx * reach / z, camera.fy * reach / z
+    u0 = int(np.clip(np.floor((px - wx).min()) - 1, 0, camera.width))
+    u1 = int(np.clip(np.ceil((px + wx).max()) + 2, 0, camera.width))
+    v0 = int(np.clip(np.floor((py - wy).min()) - 1, 0, camera.height))
+    v1 = int(np.clip(np.ceil((py + wy).max()) + 2, 0, camera.height))
+    return (u0, u1, v0, v1) if u1 > u0 and v1 > v0 else None
+
+
+def _hand_at(camera: Camera, depth: np.ndarray, fg: np.ndarray, nearest: np.ndarray, centre: np.ndarray,
+             radius: float, hand_radius: float, depth_offset: float) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """Hand centroid around the pixel of a depth-space nearest point: (position, seed, n_points)."""
+    uvd = camera.project(nearest)
+    if not np.all(np.isfinite(uvd)):
+        return None
+    u = int(np.clip(np.floor(uvd[0]), 0, camera.width - 1))
+    v = int(np.clip(np.floor(uvd[1]), 0, camera.height - 1))
+    # the pixel's own measured point (the nearest point may lie in the gray area behind it)
+    win = np.where(fg[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], depth[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], np.inf)
+    zc = float(win.min())
+    if not np.isfinite(zc):
+        return None
+    w = int(np.ceil(1.5 * hand_radius * camera.fx / max(zc, 1e-3))) + 2
+    v0, v1, u0, u1 = max(v - w, 0), min(v + w + 1, camera.height), max(u - w, 0), min(u + w + 1, camera.width)
+    vs, us = np.nonzero(fg[v0:v1, u0:u1])
+    if len(us) == 0:
+        return None
+    pts = _backproject(camera, depth, us + u0, vs + v0)
+    # seed: the window's measured point nearest to the sphere that found it
+    seed = pts[int(np.argmin(np.einsum("ij,ij->i", pts - centre, pts - centre)))]
+    near = np.linalg.norm(pts - seed, axis=1) <= hand_radius
+    c = pts[near].mean(axis=0)
+    ray = c - camera.position
+    return c + depth_offset * ray / np.linalg.norm(ray), seed, int(near.sum())
+
+
+def locate_hands(
     camera: Camera,
     depth: np.ndarray,
     fg: np.ndarray,
     centres: np.ndarray,
     radii: np.ndarray,
+    n: int = 1,
     rho: float = 0.2,
     hand_radius: float = 0.06,
-    exclude: np.ndarray | None = None,
-) -> HandObservation | None:
-    """The hand nearest to the robot (module docstring), or None if no foreground lies within ``rho``.
+    separation: float = 0.15,
+    depth_offset: float = 0.02,
+) -> list[HandObservation]:
+    """Up to ``n`` hands near the robot, nearest first (module docstring), from one depth-space query.
 
     Args:
         camera: the depth camera.
         depth: (H, W) depth in metres (NaN/0 = no reading).
         fg: (H, W) bool foreground mask (:func:`foreground_mask`).
         centres, radii: (S, 3), (S,) robot axis spheres in the world frame (:meth:`RobotSurface.pose`).
+        n: the number of hands wanted.
         rho: search radius from the sphere surfaces, m.
-        hand_radius: radius of the blob taken as the hand around the seed, m.
-        exclude: optional (H, W) bool pixels to ignore (e.g. a hand already found).
+        hand_radius: radius of the blob taken as the hand around its seed point, m.
+        separation: two hands are further apart than this (m); nearer candidates are the same hand.
+        depth_offset: the centroid of the visible cap of a ball of radius ρ_h lies ρ_h/2 in front of its
+            centre: the hand position is pushed this far (m) away from the camera along the viewing ray.
+    Returns:
+        A list of :class:`HandObservation` (possibly empty).
+
+    Only the image box around the robot's spheres grown by ``rho`` is prepared and searched (the depth-space
+    query never looks further), so the cost depends on the robot's image size, not the frame's.
     """
-    keep = fg if exclude is None else fg & ~exclude
-    frame = prepare_frame(camera, np.where(keep, depth, np.nan).astype(np.float32), mask=~keep, invalid="ignore")
+    centres = np.asarray(centres, float)
+    radii = np.asarray(radii, float)
+    box = _roi(camera, centres, radii + rho)
+    if box is None:
+        return []
+    u0, u1, v0, v1 = box
+    cam = replace(camera, width=u1 - u0, height=v1 - v0, cx=camera.cx - u0, cy=camera.cy - v0)
+    d = np.asarray(depth[v0:v1, u0:u1], np.float32)
+    f = np.asarray(fg[v0:v1, u0:u1], bool)
+    frame = prepare_frame(cam, np.where(f, d, np.float32(np.nan)), mask=~f, invalid="ignore", fill_radius=0)
     res = query_distances(frame, centres, radii, rho=rho, mode="min")
-    i = int(np.argmin(res.distance))
-    if not np.isfinite(res.distance[i]):
-        return None
-    uvd = camera.project(res.nearest[i])
-    if not np.all(np.isfinite(uvd)):
-        return None
-    u = int(np.clip(np.floor(uvd[0]), 0, camera.width - 1))
-    v = int(np.clip(np.floor(uvd[1]), 0, camera.height - 1))
-    # the pixel's own measured point (the nearest point may lie in the gray area behind it)
-    zc = float(np.nanmin(np.where(keep, depth, np.nan)[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2]))
-    if not np.isfinite(zc):
-        return None
-    w = int(np.ceil(1.5 * hand_radius * camera.fx / max(zc, 1e-3))) + 2
-    v0, v1, u0, u1 = max(v - w, 0), min(v + w + 1, camera.height), max(u - w, 0), min(u + w + 1, camera.width)
-    vs, us = np.nonzero(keep[v0:v1, u0:u1])
-    if len(us) == 0:
-        return None
-    pts = _backproject(camera, depth, us + u0, vs + v0)
-    # seed: the window's measured point nearest to the robot spheres
-    dc = np.linalg.norm(pts[:, None, :] - centres[None, :, :], axis=2) - radii[None, :]
-    seed = pts[int(np.argmin(dc.min(axis=1)))]
-    near = np.linalg.norm(pts - seed, axis=1) <= hand_radius
-    return HandObservation(pts[near].mean(axis=0), seed, float(res.distance[i]), int(near.sum()))
+    out: list[HandObservation] = []
+    taken: list[tuple[float, float, float]] = []  # (u, v, radius) image discs of the hands found
+    uvd = cam.project(np.nan_to_num(res.nearest))
+    for i in np.argsort(res.distance):
+        if len(out) >= n or not np.isfinite(res.distance[i]):
+            break
+        if any(np.hypot(uvd[i, 0] - u, uvd[i, 1] - v) < w for u, v, w in taken):
+            continue  # a hand already found
+        found = _hand_at(cam, d, f, res.nearest[i], centres[i], radii[i], hand_radius, depth_offset)
+        if found is None:
+            continue
+        su = cam.project(found[1])
+        taken.append((su[0], su[1], separation * cam.fx / max(su[2], 1e-3)))
+        if not any(np.linalg.norm(found[1] - h.seed) < separation for h in out):
+            out.append(HandObservation(found[0], found[1], float(res.distance[i]), found[2]))
+    return out
 
 
 class ContactPoint(NamedTuple):
