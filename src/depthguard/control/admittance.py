@@ -122,7 +122,9 @@ class ContactAdmittance:
         """(k, 3) contact point displacements ``x_i - x_i0`` at the last :meth:`step`'s configuration."""
         return np.array([self._world(c) - c.x0 for c in self.contacts]).reshape(-1, 3)
 
-    def step(self, q: np.ndarray, forces: np.ndarray, ee_target: np.ndarray, dt: float) -> np.ndarray:
+    def step(
+        self, q: np.ndarray, forces: np.ndarray, ee_target: np.ndarray, dt: float, ee_velocity: np.ndarray | None = None
+    ) -> np.ndarray:
         """Joint velocity command (n,) rad/s for estimated ``forces`` (k, 3) N at the contacts.
 
         Args:
@@ -130,6 +132,7 @@ class ContactAdmittance:
             forces: (k, 3) estimated contact forces (zeros after release: the spring brings the points back).
             ee_target: (3,) end-effector position to hold, m.
             dt: control period, s.
+            ee_velocity: optional (3,) feed-forward end-effector velocity, m/s (a moving target).
         """
         import pinocchio as pin
 
@@ -143,6 +146,8 @@ class ContactAdmittance:
         x_ee = m.data.oMf[m.ee_frame_id].translation.copy()
         J_ee = pin.getFrameJacobian(m.model, m.data, m.ee_frame_id, pin.LOCAL_WORLD_ALIGNED)[:3]
         v_ee = self.ee_gain * (np.asarray(ee_target, float) - x_ee)
+        if ee_velocity is not None:
+            v_ee = v_ee + np.asarray(ee_velocity, float)
         if not self.contacts:
             return self._limit(task_priority_velocity(J_ee, v_ee, lam=self.lam))
         Jc, vc = [], []
@@ -157,6 +162,10 @@ class ContactAdmittance:
     def _limit(self, qd: np.ndarray) -> np.ndarray:
         s = np.max(np.abs(qd) / self.model.v_max)
         return qd / s if s > 1.0 else qd
+
+    def clear(self) -> None:
+        """Forget the contacts (back to the end-effector task alone)."""
+        self.contacts = []
 
     def settled(self, tol: float = 0.005, vtol: float = 0.01) -> bool:
         """True when every contact point is back within ``tol`` m of its origin and slower than ``vtol`` m/s."""

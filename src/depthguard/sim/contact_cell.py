@@ -16,8 +16,9 @@ as pinocchio reads them), with gravity on, an ``armature`` on every joint and on
   each with a forearm capsule that the camera sees but that touches nothing. Only hand-robot contacts
   exist (``contype``/``conaffinity``), for these experiments only. A hand follows a :class:`HandScript`:
   approach at constant speed, push with a force profile along its direction, retract.
-* Ground truth: the contact forces on the robot (``mj_contactForce``), their points and links, and the
-  exact external joint torque ``qfrc_constraint`` (no joint limit is reached in these experiments).
+* Ground truth: the contact forces on the robot (``mj_contactForce``), their points and links, the
+  exact external joint torque ``qfrc_constraint`` (no joint limit is reached in these experiments), and
+  per hand the contact onset ``onset`` (first physics step with a force above 1 N).
 """
 
 from __future__ import annotations
@@ -184,6 +185,7 @@ class ContactCell:
         for k, (_, _, start) in enumerate(self._touch):
             d.qpos[self.model.jnt_qposadr[self.model.dof_jntid[self.hand_dof[k]]]] = start
         self.q_ref = self.q0.copy()
+        self.onset: list[float | None] = [None] * len(self.hands)
         self._retract: list[np.ndarray | None] = [None] * len(self.hands)
         self._mj.mj_forward(self.model, d)
 
@@ -242,6 +244,10 @@ class ContactCell:
                 d.ctrl[len(self.dof) + 3 * k : len(self.dof) + 3 * k + 3] = self._hand_force(k, d.time)
             mj.mj_step2(m, d)
             tau_sum += d.qfrc_actuator[self.dof]
+            if d.ncon and any(o is None for o in self.onset):
+                for k, (f, _, _) in enumerate(self.contacts()):
+                    if self.onset[k] is None and np.linalg.norm(f) > 1.0:
+                        self.onset[k] = float(d.time)
         return tau_sum / n
 
     def contacts(self) -> list[tuple[np.ndarray, np.ndarray, str]]:
