@@ -104,7 +104,8 @@ class ContactAdmittance:
     def set_contacts(self, q: np.ndarray, links: list[str], points_world: list[np.ndarray]) -> None:
         """Start (or restart) the admittance at contact points ``points_world`` (each (3,) m) on ``links``.
 
-        A contact on a link already held keeps its spring origin and velocity (a sliding hand)."""
+        A contact on a link already held keeps its velocity and its displacement from the spring origin
+        (a sliding hand moves the origin by as much as the contact point moved along the surface)."""
         R, p = self.model.joint_poses(self.model.check_q(q))
         new = []
         for link, pw in zip(links, points_world, strict=True):
@@ -113,7 +114,8 @@ class ContactAdmittance:
             old = next((c for c in self.contacts if c.link == link), None)
             local = R[j].T @ (pw - p[j])
             if old is not None:
-                new.append(_Contact(link, local, j, old.x0, old.v))
+                moved = pw - (R[old.joint] @ old.local + p[old.joint])
+                new.append(_Contact(link, local, j, old.x0 + moved, old.v))
             else:
                 new.append(_Contact(link, local, j, pw.copy()))
         self.contacts = new

@@ -186,6 +186,7 @@ class ContactCell:
             d.qpos[self.model.jnt_qposadr[self.model.dof_jntid[self.hand_dof[k]]]] = start
         self.q_ref = self.q0.copy()
         self.onset: list[float | None] = [None] * len(self.hands)
+        self.mean_contacts = [(np.zeros(3), np.full(3, np.nan), "") for _ in self.hands]
         self._retract: list[np.ndarray | None] = [None] * len(self.hands)
         self._mj.mj_forward(self.model, d)
 
@@ -218,7 +219,7 @@ class ContactCell:
         if t < h.t_touch + h.duration:  # push: force along d, hold the line across it
             e = touch - x
             e_perp, v_perp = e - (e @ d) * d, v - (v @ d) * d
-            return h.push_force(t) * d + K * e_perp - D * v_perp - 5.0 * (v @ d) * d
+            return h.push_force(t) * d + K * e_perp - D * v_perp - 30.0 * (v @ d) * d
         if self._retract[k] is None:
             self._retract[k] = x.copy()
         back = self._retract[k] - min((t - h.t_touch - h.duration) * 0.3, 0.15) * d
@@ -227,9 +228,12 @@ class ContactCell:
     def step(self, qd_cmd: np.ndarray, n: int) -> np.ndarray:
         """Run ``n`` physics steps with the joint velocity command ``qd_cmd`` (7,) rad/s (zero-order hold).
 
-        Returns the mean motor torque (7,) N m applied over those steps."""
+        Returns the mean motor torque (7,) N m applied over those steps; :attr:`mean_contacts` holds the
+        true contacts averaged over them (see :meth:`contacts`)."""
         mj, m, d = self._mj, self.model, self.data
         tau_sum = np.zeros(len(self.dof))
+        nh = len(self.hands)
+        f_sum, fp_sum, w, links = np.zeros((nh, 3)), np.zeros((nh, 3)), np.zeros((nh, 1)), [""] * nh
         h = m.opt.timestep
         ix = np.ix_(self.dof, self.dof)
         for _ in range(n):
@@ -244,10 +248,18 @@ class ContactCell:
                 d.ctrl[len(self.dof) + 3 * k : len(self.dof) + 3 * k + 3] = self._hand_force(k, d.time)
             mj.mj_step2(m, d)
             tau_sum += d.qfrc_actuator[self.dof]
-            if d.ncon and any(o is None for o in self.onset):
-                for k, (f, _, _) in enumerate(self.contacts()):
-                    if self.onset[k] is None and np.linalg.norm(f) > 1.0:
+            if d.ncon:
+                for k, (f, p, link) in enumerate(self.contacts()):
+                    fn = float(np.linalg.norm(f))
+                    if fn > 0:
+                        f_sum[k] += f
+                        fp_sum[k] += fn * p
+                        w[k] += fn
+                        links[k] = link
+                    if self.onset[k] is None and fn > 1.0:
                         self.onset[k] = float(d.time)
+        pts = np.where(w > 0, fp_sum / np.maximum(w, 1e-300), np.nan)
+        self.mean_contacts = [(f_sum[k] / n, pts[k], links[k]) for k in range(nh)]
         return tau_sum / n
 
     def contacts(self) -> list[tuple[np.ndarray, np.ndarray, str]]:

@@ -109,18 +109,13 @@ class ContactLog:
 
 
 def _background(cell: ContactCell, sim: KinectSim) -> np.ndarray:
-    """Exact depth of the cell without the hands (the tracker's background model)."""
-    import mujoco
+    """Exact depth of the static cell, without the robot and the hands (the tracker's background model;
+    a real cell would take, e.g., the per-pixel farthest reading over frames with the robot moving)."""
+    from depthguard.sim.depthcam import raycast_depth
 
-    d = cell.data
-    saved = d.qpos.copy()
-    for hd in cell.hand_dof:
-        d.qpos[cell.model.jnt_qposadr[cell.model.dof_jntid[hd]]] = (0.0, 0.0, -5.0)
-    mujoco.mj_forward(cell.model, d)
-    bg = sim.exact_depth(d)
-    d.qpos[:] = saved
-    mujoco.mj_forward(cell.model, d)
-    return bg
+    groups = np.ones(6, np.uint8)
+    groups[1] = groups[2] = 0  # robot, people
+    return raycast_depth(cell.model, cell.data, sim.camera, geomgroup=groups)
 
 
 class _Camera:
@@ -160,7 +155,7 @@ class _Camera:
 
 
 def _contact_truth(cell: ContactCell) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    cs = cell.contacts()
+    cs = cell.mean_contacts  # averaged over the control period, like the motor torque
     return np.array([c[0] for c in cs]), np.array([c[1] for c in cs]), [c[2] for c in cs]
 
 
@@ -175,6 +170,13 @@ def _free_target(setup: ExperimentSetup, ee0: np.ndarray, t: float) -> tuple[np.
     off = rad * np.array([math.cos(s) - 1.0, 0.0, math.sin(s)])
     vel = rad * sd * np.array([-math.sin(s), 0.0, math.cos(s)])
     return ee0 + off, vel
+
+
+def _set_contacts(adm: ContactAdmittance, surf: RobotSurface, q: np.ndarray, cps: list) -> None:
+    """Give the admittance the contact points (vertices fixed on their links) posed at ``q``."""
+    R, p = surf.model.joint_poses(q)
+    world = [R[surf.joint[c.vertex]] @ c.local + p[surf.joint[c.vertex]] for c in cps]
+    adm.set_contacts(q, [c.link for c in cps], world)
 
 
 def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[ContactLog, ContactCell, _Camera]:
@@ -217,15 +219,17 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
             c0 += t_frame[-1]
             log.frames.append((t, depth, [h.position for h in hands_seen]))
             next_frame += 1.0 / setup.fps
-            if det.active or not contacts:  # contact points follow a hand that slides
-                cps = [contact_from_hand(surf, q, V, h.position) for h in hands_seen]
-                contacts = [(c.link, c.position) for c in cps]
-                if det.active and contacts:
-                    adm.set_contacts(q, [c[0] for c in contacts], [c[1] for c in contacts])
+            # candidate contact points (Algorithm 1); in contact they follow a hand that slides, and a
+            # hand hidden from the camera keeps its last contact point
+            cps = [contact_from_hand(surf, q, V, h.position) for h in hands_seen]
+            if not det.active or len(cps) >= len(adm.contacts):
+                contacts = cps
+            if det.active and contacts:
+                _set_contacts(adm, surf, q, contacts)
         hand_d = min((h.distance for h in hands_seen), default=None)
         state = det.step(r, dt, hand_d)
         if state.onset and contacts:
-            adm.set_contacts(q, [c[0] for c in contacts], [c[1] for c in contacts])
+            _set_contacts(adm, surf, q, contacts)
         f_hat = np.zeros((len(adm.contacts), 3))
         P, n_un = np.eye(3 * max(1, len(adm.contacts))), 0
         if state.active and adm.contacts:
