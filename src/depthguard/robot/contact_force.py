@@ -23,8 +23,11 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 __all__ = ["ForceEstimate", "estimate_contact_forces", "point_jacobian", "observable_error"]
+
+_JOINT_OF_LINK: dict[int, dict[str, int]] = {}
 
 
 class ForceEstimate(NamedTuple):
@@ -62,11 +65,15 @@ def point_jacobian(model, q: np.ndarray, link: str, point_world: np.ndarray, upd
 
     if update:
         pin.computeJointJacobians(model.model, model.data, q)
-    jid = model.model.frames[model.frame_id(link)].parentJoint
+    cache = _JOINT_OF_LINK.setdefault(id(model), {})
+    jid = cache.get(link)
+    if jid is None:
+        jid = cache[link] = int(model.model.frames[model.frame_id(link)].parentJoint)
     J = pin.getJointJacobian(model.model, model.data, jid, pin.LOCAL_WORLD_ALIGNED)
-    d = np.asarray(point_world, float) - model.data.oMi[jid].translation
-    # v_p = v_o + ω × d
-    return J[:3] + np.cross(J[3:].T, d).T
+    dx, dy, dz = np.asarray(point_world, float) - model.data.oMi[jid].translation
+    # v_p = v_o + ω × d  ->  J_v + [ω]× d = J_v - [d]× J_ω
+    Jw = J[3:]
+    return J[:3] + np.array([[0.0, dz, -dy], [-dz, 0.0, dx], [dy, -dx, 0.0]]) @ Jw
 
 
 def estimate_contact_forces(
@@ -86,29 +93,43 @@ def estimate_contact_forces(
         tol: relative singular value below which a direction is reported unobservable.
     """
     if isinstance(jacobians, np.ndarray) and jacobians.ndim == 2:
-        Js = [np.asarray(jacobians, float)]
+        Js = [jacobians]
     else:
         Js = [np.asarray(J, float) for J in jacobians]
     if not Js or Js[0].ndim != 2:
         raise ValueError("jacobians must be one (3, n) array or a list of them")
     n = Js[0].shape[1]
-    if any(J.shape != (3, n) or not np.all(np.isfinite(J)) for J in Js):
+    if any(J.shape != (3, n) for J in Js):
         raise ValueError(f"jacobians must all be finite with shape (3, n), got {[J.shape for J in Js]}")
     r = np.asarray(r, float)
-    if r.shape != (n,) or not np.all(np.isfinite(r)):
+    if r.shape != (n,):
         raise ValueError(f"r must be finite with shape ({n},), got shape {r.shape}")
-    A = np.vstack(Js).T  # (n, 3k) = (J_1ᵀ … J_kᵀ)
-    G = A.T @ A
-    w, V = np.linalg.eigh(G)  # ascending eigenvalues σ²
-    w = np.maximum(w, 0.0)
-    sig = np.sqrt(w)
-    lam2 = np.where(sig < eps, lambda_max**2 * (1.0 - (sig / eps) ** 2), 0.0)
-    inv = np.divide(1.0, w + lam2, out=np.zeros_like(w), where=(w + lam2) > 1e-300)
-    stacked = V @ (inv * (V.T @ (A.T @ r)))
+    A = np.ascontiguousarray((Js[0] if len(Js) == 1 else np.vstack(Js)).T, dtype=float)  # (n, 3k) = (J_1ᵀ … J_kᵀ)
+    if not np.isfinite(A.sum() + r.sum()) and not (np.all(np.isfinite(A)) and np.all(np.isfinite(r))):
+        raise ValueError("jacobians and r must be finite (no NaN or inf)")
+    stacked, sig, V, lam2 = _damped_solve(A, r, float(eps), float(lambda_max))
     bad = sig < tol * max(sig[-1], 1e-300)
     U = V[:, bad]
-    P = np.eye(A.shape[1]) - U @ U.T
-    return ForceEstimate(stacked.reshape(-1, 3), stacked, sig[::-1].copy(), U, P, float(lam2.max()))
+    P = np.eye(A.shape[1]) - U @ U.T if bad.any() else np.eye(A.shape[1])
+    return ForceEstimate(stacked.reshape(-1, 3), stacked, sig[::-1].copy(), U, P, lam2)
+
+
+@njit(cache=True)
+def _damped_solve(A, r, eps, lambda_max):
+    """Selectively damped ``(A)^# r`` from the eigen-decomposition of ``AᵀA``: (F, σ ascending, V, max λ²)."""
+    w, V = np.linalg.eigh(A.T @ A)  # ascending σ²
+    w = np.maximum(w, 0.0)
+    sig = np.sqrt(w)
+    lam2 = np.zeros_like(w)
+    for i in range(len(w)):
+        if sig[i] < eps:
+            lam2[i] = lambda_max**2 * (1.0 - (sig[i] / eps) ** 2)
+    den = w + lam2
+    inv = np.zeros_like(w)
+    for i in range(len(w)):
+        if den[i] > 1e-300:
+            inv[i] = 1.0 / den[i]
+    return V @ (inv * (V.T @ (A.T @ r))), sig, V, lam2.max()
 
 
 def observable_error(est: ForceEstimate, applied: np.ndarray) -> tuple[np.ndarray, float]:

@@ -41,11 +41,13 @@ No simulator is imported here; pinocchio is imported when a :class:`RigidBodyDyn
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from depthguard.validation import check_finite_array, check_positive
 
@@ -85,15 +87,18 @@ class RigidBodyDynamics:
         self.damping = check_finite_array(damping, (n,), "damping")
         if np.any(self.armature < 0) or np.any(self.damping < 0):
             raise ValueError("armature and damping must be >= 0")
-        self._iu = np.triu_indices(n, 1)
+        self._arm = np.diag(self.armature)
+        # pinocchio's crba fills the upper triangle (older versions) or both (pinocchio >= 3 in Python):
+        # find out once, then mirror only when needed
+        probe = np.array(pin.crba(self.model, self.data, np.linspace(0.1, 0.7, n)))
+        self._mirror = not np.allclose(probe, probe.T, atol=1e-12)
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         """(n, n) symmetric inertia matrix ``M(q)`` including the armature, kg m²."""
-        M = np.array(self._pin.crba(self.model, self.data, q))
-        iu = self._iu
-        M[(iu[1], iu[0])] = M[iu]  # crba fills the upper triangle: mirror it
-        M[np.diag_indices(self.n_dof)] += self.armature
-        return M
+        M = self._pin.crba(self.model, self.data, q)
+        if self._mirror:
+            M = np.triu(M) + np.triu(M, 1).T
+        return M + self._arm
 
     def terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``M`` (n, n), ``C`` (n, n) with ``Ṁ = C + Cᵀ``, and ``g`` (n,) N m at ``(q, q̇)``."""
@@ -123,6 +128,17 @@ def discrete_time_constant(gain: float | np.ndarray, dt: float) -> np.ndarray:
     """Time constant (s) of the discrete residual filter of :class:`MomentumObserver` per joint."""
     a = np.asarray(gain, float) * dt / 2.0
     return -dt / np.log((1.0 - a) / (1.0 + a))
+
+
+@njit(cache=True)
+def _observer_step(M, C, g, qd, tau, damping, gain, h, average, integral, p0, beta_prev, tau_prev, r_prev):
+    """One discrete residual update (module docstring): returns (r, integral, beta), each (n,)."""
+    p = M @ qd
+    beta = C.T @ qd - g - damping * qd
+    tau_int = tau * h if average else 0.5 * h * (tau + tau_prev)
+    partial = integral + tau_int + 0.5 * h * (beta + beta_prev) + 0.5 * h * r_prev
+    r = gain * (p - p0 - partial) / (1.0 + 0.5 * gain * h)
+    return r, partial + 0.5 * h * r, beta
 
 
 class MomentumObserver:
@@ -164,23 +180,22 @@ class MomentumObserver:
         (n,) N m. Returns the residual ``r`` (n,) N m (an estimate of τ_ext). Non-finite input raises
         ``ValueError`` (the caller should then treat the robot as in contact, i.e. stop)."""
         n = self.dyn.n_dof
-        q = check_finite_array(q, (n,), "q")
-        qd = check_finite_array(qd, (n,), "qd")
-        tau = check_finite_array(tau, (n,), "tau")
+        q, qd, tau = (np.asarray(x, dtype=float) for x in (q, qd, tau))
+        if q.shape != (n,) or qd.shape != (n,) or tau.shape != (n,) or not np.isfinite(q.sum() + qd.sum() + tau.sum()):
+            for x, name in ((q, "q"), (qd, "qd"), (tau, "tau")):
+                check_finite_array(x, (n,), name)  # raises with the field's name
         h = self.dt if dt is None else check_positive(dt, "dt")
         M, C, g = self.dyn.terms(q, qd)
-        p = M @ qd
-        beta = C.T @ qd - g - self.dyn.damping * qd
         if self._p0 is None:
-            self._p0 = p
-            self._beta_prev, self._tau_prev = beta, tau
+            self._p0 = M @ qd
+            self._beta_prev = C.T @ qd - g - self.dyn.damping * qd
+            self._tau_prev = tau
             return self.r.copy()
-        tau_int = tau * h if self.tau_mode == "average" else 0.5 * h * (tau + self._tau_prev)
-        partial = self._integral + tau_int + 0.5 * h * (beta + self._beta_prev) + 0.5 * h * self.r
-        k = self.gain
-        self.r = k * (p - self._p0 - partial) / (1.0 + 0.5 * k * h)
-        self._integral = partial + 0.5 * h * self.r
-        self._beta_prev, self._tau_prev = beta, tau
+        self.r, self._integral, self._beta_prev = _observer_step(
+            M, C, g, qd, tau, self.dyn.damping, self.gain, h, self.tau_mode == "average",
+            self._integral, self._p0, self._beta_prev, self._tau_prev, self.r,
+        )
+        self._tau_prev = tau
         return self.r.copy()
 
 
@@ -252,10 +267,8 @@ class ContactDetector:
     def reset(self) -> None:
         self.active, self.label, self._below, self._prev_norm = False, "", 0, 0.0
 
-    def _over(self, r: np.ndarray, ratio: float) -> bool:
-        with np.errstate(over="ignore"):
-            big = np.linalg.norm(r) > ratio * self.r_th
-        if big:
+    def _over(self, r: np.ndarray, norm: float, ratio: float) -> bool:
+        if norm > ratio * self.r_th:
             return True
         return self.r_th_joint is not None and bool(np.any(np.abs(r) > ratio * self.r_th_joint))
 
@@ -263,17 +276,18 @@ class ContactDetector:
         """Feed one residual ``r`` (n,) N m of period ``dt`` s. Non-finite ``r`` counts as a contact
         (safety: the caller cannot trust the robot state)."""
         r = np.asarray(r, float)
-        with np.errstate(over="ignore"):
-            norm = float(np.linalg.norm(r)) if np.all(np.isfinite(r)) else np.inf
-        rate = (norm - self._prev_norm) / dt
-        self._prev_norm = norm
+        norm = math.sqrt(float(np.dot(r, r)))  # BLAS: overflow gives inf without a warning; NaN stays NaN
+        if not math.isfinite(norm):
+            norm = math.inf
+        rate = (norm - self._prev_norm) / dt if math.isfinite(norm) else math.inf
+        self._prev_norm = norm if math.isfinite(norm) else self._prev_norm
         onset = release = False
         if not self.active:
-            if not np.isfinite(norm) or self._over(r, 1.0):
+            if not math.isfinite(norm) or self._over(r, norm, 1.0):
                 self.active, onset, self._below = True, True, 0
                 self.label = self.classifier(ContactEvidence(r.copy(), rate, hand_distance))
         else:
-            self._below = self._below + 1 if np.isfinite(norm) and not self._over(r, self.release_ratio) else 0
+            self._below = self._below + 1 if math.isfinite(norm) and not self._over(r, norm, self.release_ratio) else 0
             if self._below >= self.release_cycles:
                 self.active, release, self.label = False, True, ""
         return DetectionState(self.active, onset, release, self.label)
