@@ -91,7 +91,8 @@ mujoco = pytest.importorskip("mujoco")
 
 
 @pytest.mark.parametrize(
-    ("link", "direction"), [("lwr_link_6", (0.0, 1.0, 0.0)), ("lwr_link_3", (0.0, 0.0, -1.0)), ("lwr_link_4", (0.0, 1.0, 0.0))]
+    ("link", "direction"),
+    [("lwr_link_6", (0.0, 1.0, 0.0)), ("lwr_link_3", (0.0, 0.0, -1.0)), ("lwr_link_4", (0.0, 1.0, 0.0))],
 )
 def test_contact_point_from_a_kinect_frame_matches_the_simulator(robot, surface, link, direction):
     """A hand pressed on a link, seen by the simulated Kinect 2.8 m behind the robot: the contact point

@@ -147,7 +147,10 @@ def test_model_errors_need_a_larger_threshold_which_then_avoids_false_positives(
         report[label] = {"max_r_norm": peak_a, "false_positive_at_r_th": peak_a > R_TH, "safe_r_th": 1.5 * peak_a}
         assert peak_b < 1.5 * peak_a  # the calibrated threshold avoids false positives on another motion
     with capsys.disabled():
-        print("\nmodel-error study (free motion, N m):", {k: {a: round(b, 2) for a, b in v.items()} for k, v in report.items()})
+        print(
+            "\nmodel-error study (free motion, N m):",
+            {k: {a: round(b, 2) for a, b in v.items()} for k, v in report.items()},
+        )
     assert report["mass+10%"]["false_positive_at_r_th"] and report["mass-10%"]["false_positive_at_r_th"]
     assert report["friction 0.5 N m"]["max_r_norm"] > 0.4  # friction shows up in r
 

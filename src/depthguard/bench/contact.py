@@ -82,8 +82,10 @@ def run_contact_benchmark(quick: bool = False) -> dict:
         det.step(r, 0.005)
         estimate_contact_forces(point_jacobian(robot, q, link, point), r)
 
-    out: dict = {"machine": _machine(), "parameters": {"dof": 7, "width": cam.width, "height": cam.height,
-                                                       "repeat": repeat, "quick": quick}}
+    out: dict = {
+        "machine": _machine(),
+        "parameters": {"dof": 7, "width": cam.width, "height": cam.height, "repeat": repeat, "quick": quick},
+    }
     out["residual_cycle"] = time_calls(residual_cycle, repeat)
     out["dynamics_terms"] = time_calls(lambda: dyn.terms(q, qd), repeat)
     surf = RobotSurface(robot, spacing=0.01)

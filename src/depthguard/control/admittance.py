@@ -172,4 +172,6 @@ class ContactAdmittance:
     def settled(self, tol: float = 0.005, vtol: float = 0.01) -> bool:
         """True when every contact point is back within ``tol`` m of its origin and slower than ``vtol`` m/s."""
         e = self.errors()
-        return all(np.linalg.norm(ei) < tol and np.linalg.norm(c.v) < vtol for ei, c in zip(e, self.contacts))
+        return all(
+            np.linalg.norm(ei) < tol and np.linalg.norm(c.v) < vtol for ei, c in zip(e, self.contacts, strict=True)
+        )

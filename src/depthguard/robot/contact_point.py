@@ -214,8 +214,16 @@ def _roi(camera: Camera, centres: np.ndarray, reach: np.ndarray) -> tuple[int, i
     return (u0, u1, v0, v1) if u1 > u0 and v1 > v0 else None
 
 
-def _hand_at(camera: Camera, depth: np.ndarray, fg: np.ndarray, nearest: np.ndarray, centre: np.ndarray,
-             radius: float, hand_radius: float, depth_offset: float) -> tuple[np.ndarray, np.ndarray, int] | None:
+def _hand_at(
+    camera: Camera,
+    depth: np.ndarray,
+    fg: np.ndarray,
+    nearest: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+    hand_radius: float,
+    depth_offset: float,
+) -> tuple[np.ndarray, np.ndarray, int] | None:
     """Hand centroid around the pixel of a depth-space nearest point: (position, seed, n_points)."""
     uvd = camera.project(nearest)
     if not np.all(np.isfinite(uvd)):
@@ -223,7 +231,9 @@ def _hand_at(camera: Camera, depth: np.ndarray, fg: np.ndarray, nearest: np.ndar
     u = int(np.clip(np.floor(uvd[0]), 0, camera.width - 1))
     v = int(np.clip(np.floor(uvd[1]), 0, camera.height - 1))
     # the pixel's own measured point (the nearest point may lie in the gray area behind it)
-    win = np.where(fg[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], depth[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], np.inf)
+    win = np.where(
+        fg[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], depth[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], np.inf
+    )
     zc = float(win.min())
     if not np.isfinite(zc):
         return None

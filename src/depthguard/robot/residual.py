@@ -153,8 +153,9 @@ class MomentumObserver:
     Call :meth:`update` once per cycle; the first call initialises ``p(0)`` and returns zeros.
     """
 
-    def __init__(self, dynamics: RigidBodyDynamics, gain: float | np.ndarray = 100.0, dt: float = 0.005,
-                 tau_mode: str = "sample") -> None:
+    def __init__(
+        self, dynamics: RigidBodyDynamics, gain: float | np.ndarray = 100.0, dt: float = 0.005, tau_mode: str = "sample"
+    ) -> None:
         n = dynamics.n_dof
         self.dyn = dynamics
         self.dt = check_positive(dt, "dt")
@@ -192,8 +193,20 @@ class MomentumObserver:
             self._tau_prev = tau
             return self.r.copy()
         self.r, self._integral, self._beta_prev = _observer_step(
-            M, C, g, qd, tau, self.dyn.damping, self.gain, h, self.tau_mode == "average",
-            self._integral, self._p0, self._beta_prev, self._tau_prev, self.r,
+            M,
+            C,
+            g,
+            qd,
+            tau,
+            self.dyn.damping,
+            self.gain,
+            h,
+            self.tau_mode == "average",
+            self._integral,
+            self._p0,
+            self._beta_prev,
+            self._tau_prev,
+            self.r,
         )
         self._tau_prev = tau
         return self.r.copy()

@@ -108,8 +108,17 @@ class ContactCell:
             does not know it).
     """
 
-    def __init__(self, hands: list[HandScript], camera: Camera, q0: np.ndarray, timestep: float = 0.001,
-                 armature: float = 0.05, kp: float = 900.0, kd: float = 60.0, frictionloss: float = 0.0) -> None:
+    def __init__(
+        self,
+        hands: list[HandScript],
+        camera: Camera,
+        q0: np.ndarray,
+        timestep: float = 0.001,
+        armature: float = 0.05,
+        kp: float = 900.0,
+        kd: float = 60.0,
+        frictionloss: float = 0.0,
+    ) -> None:
         import mujoco
 
         from depthguard.robot.model import load_lwr4, lwr4_urdf_path
@@ -134,8 +143,7 @@ class ContactCell:
             ("table", G.mjGEOM_BOX, [0, 0, -0.4], [0.3, 0.3, 0.4], [0.6, 0.6, 0.65, 1]),
             ("wall", G.mjGEOM_BOX, [1.6, 0, 0.7], [0.05, 2.5, 1.5], [0.85, 0.85, 0.8, 1]),
         ):
-            wb.add_geom(name=name, type=typ, pos=pos, size=size, rgba=rgba, group=GROUP_ENV, contype=0,
-                        conaffinity=0)
+            wb.add_geom(name=name, type=typ, pos=pos, size=size, rgba=rgba, group=GROUP_ENV, contype=0, conaffinity=0)
         q0 = self.q0
         self._touch = []
         for h in self.hands:
@@ -145,18 +153,36 @@ class ContactCell:
             body = wb.add_body(name=h.name, pos=[0, 0, 0], gravcomp=1.0)
             for ax, nm in zip(np.eye(3), "xyz", strict=True):
                 body.add_joint(name=f"{h.name}_{nm}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=ax)
-            body.add_geom(name=f"{h.name}_palm", type=G.mjGEOM_SPHERE, size=[h.radius, 0, 0], mass=1.0,
-                          group=GROUP_PEOPLE, contype=1, conaffinity=2, rgba=[0.3, 0.5, 0.9, 1])
+            body.add_geom(
+                name=f"{h.name}_palm",
+                type=G.mjGEOM_SPHERE,
+                size=[h.radius, 0, 0],
+                mass=1.0,
+                group=GROUP_PEOPLE,
+                contype=1,
+                conaffinity=2,
+                rgba=[0.3, 0.5, 0.9, 1],
+            )
             f = -h.unit() + np.array([0.0, 0.0, 0.4])
             f /= np.linalg.norm(f)
-            body.add_geom(name=f"{h.name}_forearm", type=G.mjGEOM_CAPSULE, size=[0.035, 0, 0], mass=0.01,
-                          fromto=np.concatenate([f * (h.radius + 0.04), f * 0.34]), group=GROUP_PEOPLE,
-                          contype=0, conaffinity=0, rgba=[0.3, 0.5, 0.9, 1])
+            body.add_geom(
+                name=f"{h.name}_forearm",
+                type=G.mjGEOM_CAPSULE,
+                size=[0.035, 0, 0],
+                mass=0.01,
+                fromto=np.concatenate([f * (h.radius + 0.04), f * 0.34]),
+                group=GROUP_PEOPLE,
+                contype=0,
+                conaffinity=0,
+                rgba=[0.3, 0.5, 0.9, 1],
+            )
         for jn in arm_joints:
             spec.add_actuator(name=f"{jn}_motor", target=jn, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         for h in self.hands:
             for nm in "xyz":
-                spec.add_actuator(name=f"{h.name}_{nm}_motor", target=f"{h.name}_{nm}", trntype=mujoco.mjtTrn.mjTRN_JOINT)
+                spec.add_actuator(
+                    name=f"{h.name}_{nm}_motor", target=f"{h.name}_{nm}", trntype=mujoco.mjtTrn.mjTRN_JOINT
+                )
         self.spec = spec
         m = self.model = spec.compile()
         self.data = mujoco.MjData(m)
@@ -172,8 +198,9 @@ class ContactCell:
         ]
         self.hand_geom = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"{h.name}_palm") for h in self.hands]
         self.robot_geoms = set(np.flatnonzero(m.geom_group == GROUP_ROBOT).tolist())
-        self.geom_body = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, m.geom_bodyid[g]) or "world"
-                          for g in range(m.ngeom)]
+        self.geom_body = [
+            mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, m.geom_bodyid[g]) or "world" for g in range(m.ngeom)
+        ]
         self._M = np.zeros((m.nv, m.nv))
         self.reset()
 
@@ -285,7 +312,9 @@ class ContactCell:
             out.append((F, P / w if w > 0 else np.full(3, np.nan), link))
         return out
 
-    def set_applied_force(self, link: str | None, point: np.ndarray | None = None, force: np.ndarray | None = None) -> None:
+    def set_applied_force(
+        self, link: str | None, point: np.ndarray | None = None, force: np.ndarray | None = None
+    ) -> None:
         """Apply a constant external ``force`` (3,) N at world ``point`` (3,) m of ``link`` from now on
         (``mj_applyFT`` into ``qfrc_applied``); ``link=None`` removes it."""
         mj, m, d = self._mj, self.model, self.data

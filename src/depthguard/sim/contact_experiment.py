@@ -72,14 +72,27 @@ def make_setup(name: str, contacts: int = 1, quick: bool = False, rate: float | 
     t_touch = 1.15
     side6 = HandScript("hand0", "lwr_link_6", 0.5, (0.0, 1.0, 0.0), 20.0, t_touch, 0.74, approach=0.1, v_approach=0.25)
     if name == "soft":
-        hands = [side6] if contacts == 1 else [side6, HandScript("hand1", "lwr_link_3", 0.45, (0.0, 1.0, 0.0), 25.0,
-                                                                  t_touch, 0.74, approach=0.1, v_approach=0.25)]
-        return ExperimentSetup("soft", SOFT, hands, t_end=t_touch + 0.74 + (1.2 if quick else 2.5),
-                               rate=rate or 200.0)
+        hands = (
+            [side6]
+            if contacts == 1
+            else [
+                side6,
+                HandScript(
+                    "hand1", "lwr_link_3", 0.45, (0.0, 1.0, 0.0), 25.0, t_touch, 0.74, approach=0.1, v_approach=0.25
+                ),
+            ]
+        )
+        return ExperimentSetup("soft", SOFT, hands, t_end=t_touch + 0.74 + (1.2 if quick else 2.5), rate=rate or 200.0)
     hold = 1.5 if quick else 5.0
     push = HandScript("hand0", "lwr_link_3", 0.5, (0.0, 0.0, -1.0), 40.0, t_touch, hold, approach=0.1, v_approach=0.25)
-    hands = [push] if contacts == 1 else [push, HandScript("hand1", "lwr_link_6", 0.5, (0.0, 1.0, 0.0), 20.0, t_touch,
-                                                           hold, approach=0.1, v_approach=0.25)]
+    hands = (
+        [push]
+        if contacts == 1
+        else [
+            push,
+            HandScript("hand1", "lwr_link_6", 0.5, (0.0, 1.0, 0.0), 20.0, t_touch, hold, approach=0.1, v_approach=0.25),
+        ]
+    )
     return ExperimentSetup("stiff", STIFF, hands, t_end=t_touch + hold + (0.6 if quick else 1.0), rate=rate or 200.0)
 
 
@@ -147,10 +160,23 @@ class _Camera:
             n = len(idx)
             geomid = np.empty(n, np.int32)
             dist = np.empty(n)
-            mujoco.mj_multiRay(self.cell.model, self.cell.data, np.asarray(cam.position, float),
-                               np.ascontiguousarray(self.rays[idx]).ravel(), None, 1, -1, geomid, dist, None, n, 1e3)
+            mujoco.mj_multiRay(
+                self.cell.model,
+                self.cell.data,
+                np.asarray(cam.position, float),
+                np.ascontiguousarray(self.rays[idx]).ravel(),
+                None,
+                1,
+                -1,
+                geomid,
+                dist,
+                None,
+                n,
+                1e3,
+            )
             dist[geomid < 0] = np.nan
-            out[v0:v1, u0:u1] = self.sim.sensor_effects(dist.reshape(v1 - v0, u1 - u0))
+            with np.errstate(invalid="ignore"):  # inf - inf at missing pixels in the edge test
+                out[v0:v1, u0:u1] = self.sim.sensor_effects(dist.reshape(v1 - v0, u1 - u0))
         return out
 
 
@@ -179,6 +205,40 @@ def _set_contacts(adm: ContactAdmittance, surf: RobotSurface, q: np.ndarray, cps
     adm.set_contacts(q, [c.link for c in cps], world)
 
 
+def _frame(camera: _Camera, surf: RobotSurface, q: np.ndarray, n_hands: int, log: ContactLog, t: float):
+    """One depth frame: capture, self-filter, foreground, hands near the robot. Returns (vertices, hands)."""
+    V, S = surf.pose(q)
+    depth = camera.capture(S, surf.axis_radii)
+    sf = self_filter(camera.cam, depth, q, surf.model)
+    fg = foreground_mask(depth, camera.bg, sf.mask, camera.bg_margin)
+    hands = [h for h in locate_hands(camera.cam, depth, fg, S, surf.axis_radii, n_hands) if h.distance < 0.1]
+    log.frames.append((t, depth, [h.position for h in hands]))
+    return V, hands
+
+
+def _log_cycle(log: ContactLog, cell: ContactCell, adm: ContactAdmittance, q, r, state, f_hat, truth, P, n_un) -> None:
+    """Append one control cycle to the log."""
+    robot = cell.robot
+    f_true, p_true, l_true = truth
+    log.t.append(cell.t)
+    log.q.append(q)
+    log.r.append(r)
+    log.tau_ext.append(cell.tau_ext())
+    log.active.append(state.active)
+    log.label.append(state.label)
+    log.f_hat.append(np.array(f_hat, copy=True))
+    log.f_true.append(f_true)
+    log.p_true.append(p_true)
+    log.links_true.append(l_true)
+    Rj, pj = robot.joint_poses(q)
+    log.p_hat.append(np.array([Rj[c.joint] @ c.local + pj[c.joint] for c in adm.contacts]).reshape(-1, 3))
+    log.links_hat.append([c.link for c in adm.contacts])
+    log.projector.append(P)
+    log.n_unobservable.append(n_un)
+    log.disp.append(adm.errors() if adm.contacts else np.zeros((0, 3)))
+    log.ee.append(robot.frame_pose(q)[1])
+
+
 def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[ContactLog, ContactCell, _Camera]:
     """Run one experiment; returns the log, the cell and the camera (for outputs)."""
     cell = ContactCell(setup.hands, kinect_camera(CAMERA_EYE, CAMERA_TARGET, width=64, height=48), np.array(Q0))
@@ -199,7 +259,7 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
     ee0 = robot.frame_pose(q)[1]
     qd_cmd = np.zeros(7)
     hands_seen: list = []
-    contacts: list = []  # (link, local point in the link's joint frame)
+    contacts: list = []  # ContactPoint candidates (vertices fixed on their links)
     next_frame, t_frame, t_ctrl = 0.0, [], []
     steps = int(round(setup.t_end / dt))
     for _k in range(steps):
@@ -210,14 +270,9 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
         f_true, p_true, l_true = _contact_truth(cell)
         if t + 1e-9 >= next_frame:  # a depth frame (30 Hz)
             f0 = time.perf_counter()
-            V, S = surf.pose(q)
-            depth = camera.capture(S, surf.axis_radii)
-            sf = self_filter(camera.cam, depth, q, robot)
-            fg = foreground_mask(depth, camera.bg, sf.mask, camera.bg_margin)
-            hands_seen = [h for h in locate_hands(camera.cam, depth, fg, S, surf.axis_radii, n_hands) if h.distance < 0.1]
+            V, hands_seen = _frame(camera, surf, q, n_hands, log, t)
             t_frame.append(time.perf_counter() - f0)
             c0 += t_frame[-1]
-            log.frames.append((t, depth, [h.position for h in hands_seen]))
             next_frame += 1.0 / setup.fps
             # candidate contact points (Algorithm 1); in contact they follow a hand that slides, and a
             # hand hidden from the camera keeps its last contact point
@@ -234,8 +289,10 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
         P, n_un = np.eye(3 * max(1, len(adm.contacts))), 0
         if state.active and adm.contacts:
             R, p = robot.joint_poses(q)
-            Js = [point_jacobian(robot, q, c.link, R[c.joint] @ c.local + p[c.joint], update=(i == 0))
-                  for i, c in enumerate(adm.contacts)]
+            Js = [
+                point_jacobian(robot, q, c.link, R[c.joint] @ c.local + p[c.joint], update=(i == 0))
+                for i, c in enumerate(adm.contacts)
+            ]
             est = estimate_contact_forces(Js, r)
             f_hat, P, n_un = est.forces, est.projector, est.unobservable.shape[1]
         ee_t, ee_v = _free_target(setup, ee0, t)
@@ -246,23 +303,7 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
             if not state.active and adm.contacts and adm.settled():
                 adm.clear()
         t_ctrl.append(time.perf_counter() - c0)
-        log.t.append(t)
-        log.q.append(q)
-        log.r.append(r)
-        log.tau_ext.append(cell.tau_ext())
-        log.active.append(state.active)
-        log.label.append(state.label)
-        log.f_hat.append(f_hat.copy())
-        log.f_true.append(f_true)
-        log.p_true.append(p_true)
-        log.links_true.append(l_true)
-        Rj, pj = robot.joint_poses()
-        log.p_hat.append(np.array([Rj[c.joint] @ c.local + pj[c.joint] for c in adm.contacts]).reshape(-1, 3))
-        log.links_hat.append([c.link for c in adm.contacts])
-        log.projector.append(P)
-        log.n_unobservable.append(n_un)
-        log.disp.append(adm.errors() if adm.contacts else np.zeros((0, 3)))
-        log.ee.append(robot.frame_pose(q)[1])
+        _log_cycle(log, cell, adm, q, r, state, f_hat, (f_true, p_true, l_true), P, n_un)
         if progress and _k % int(setup.rate) == 0:
             print(f"  t = {t:5.2f} s  |r| = {np.linalg.norm(r):6.2f} N m  contact = {state.active}", flush=True)
     log.onset_true = list(cell.onset)

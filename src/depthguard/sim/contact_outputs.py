@@ -119,7 +119,9 @@ def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None
         w.start(profile="", library="depthguard")
 
         def channel(topic: str, title: str) -> int:
-            sid = w.register_schema(name=title, encoding="jsonschema", data=json.dumps({"title": title, "type": "object"}).encode())
+            sid = w.register_schema(
+                name=title, encoding="jsonschema", data=json.dumps({"title": title, "type": "object"}).encode()
+            )
             return w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
 
         def put(ch: int, t: float, msg: dict) -> None:
@@ -132,23 +134,62 @@ def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None
 
         st = max(1, cam.width // 320)
         K = [cam.fx / st, 0, cam.cx / st, 0, cam.fy / st, cam.cy / st, 0, 0, 1]
-        put(channel("/camera0/calibration", "foxglove.CameraCalibration"), 0.0, {
-            "timestamp": stamp(0.0), "frame_id": "camera0", "width": cam.width // st, "height": cam.height // st,
-            "distortion_model": "plumb_bob", "D": [0.0] * 5, "K": K, "R": cam.R.ravel().tolist(),
-            "P": [K[0], 0, K[2], 0, 0, K[4], K[5], 0, 0, 0, 1, 0]})
-        ch_d, ch_o = channel("/camera0/depth", "foxglove.RawImage"), channel("/camera0/contact_overlay", "foxglove.RawImage")
+        put(
+            channel("/camera0/calibration", "foxglove.CameraCalibration"),
+            0.0,
+            {
+                "timestamp": stamp(0.0),
+                "frame_id": "camera0",
+                "width": cam.width // st,
+                "height": cam.height // st,
+                "distortion_model": "plumb_bob",
+                "D": [0.0] * 5,
+                "K": K,
+                "R": cam.R.ravel().tolist(),
+                "P": [K[0], 0, K[2], 0, 0, K[4], K[5], 0, 0, 0, 1, 0],
+            },
+        )
+        ch_d, ch_o = (
+            channel("/camera0/depth", "foxglove.RawImage"),
+            channel("/camera0/contact_overlay", "foxglove.RawImage"),
+        )
         for n, (t, depth, _) in enumerate(log.frames):
             if n % 3:
                 continue
             mm = np.nan_to_num(depth[::st, ::st] * 1000.0, nan=0.0).clip(0, 65535).astype("<u2")
-            put(ch_d, t, {"timestamp": stamp(t), "frame_id": "camera0", "width": mm.shape[1], "height": mm.shape[0],
-                          "encoding": "16UC1", "step": mm.shape[1] * 2, "data": base64.b64encode(mm.tobytes()).decode()})
+            put(
+                ch_d,
+                t,
+                {
+                    "timestamp": stamp(t),
+                    "frame_id": "camera0",
+                    "width": mm.shape[1],
+                    "height": mm.shape[0],
+                    "encoding": "16UC1",
+                    "step": mm.shape[1] * 2,
+                    "data": base64.b64encode(mm.tobytes()).decode(),
+                },
+            )
             i = _cycle_at(log, t)
             ov = overlay_image(cam, depth, log.p_hat[i], log.f_hat[i], st)
-            put(ch_o, t, {"timestamp": stamp(t), "frame_id": "camera0", "width": ov.shape[1], "height": ov.shape[0],
-                          "encoding": "rgb8", "step": ov.shape[1] * 3, "data": base64.b64encode(ov.tobytes()).decode()})
-        ch_j, ch_r, ch_c = channel("/joint_states", "depthguard.JointState"), channel("/residual", "depthguard.Residual"), \
-            channel("/contact", "depthguard.Contact")
+            put(
+                ch_o,
+                t,
+                {
+                    "timestamp": stamp(t),
+                    "frame_id": "camera0",
+                    "width": ov.shape[1],
+                    "height": ov.shape[0],
+                    "encoding": "rgb8",
+                    "step": ov.shape[1] * 3,
+                    "data": base64.b64encode(ov.tobytes()).decode(),
+                },
+            )
+        ch_j, ch_r, ch_c = (
+            channel("/joint_states", "depthguard.JointState"),
+            channel("/residual", "depthguard.Residual"),
+            channel("/contact", "depthguard.Contact"),
+        )
         every = max(1, int(round(setup.rate / 100)))
 
         def lst(a) -> list:
@@ -157,10 +198,27 @@ def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None
         for i in range(0, len(log.t), every):
             t = log.t[i]
             put(ch_j, t, {"t": t, "position": lst(log.q[i])})
-            put(ch_r, t, {"r": lst(log.r[i]), "tau_ext_true": lst(log.tau_ext[i]), "active": bool(log.active[i]),
-                          "label": log.label[i]})
-            put(ch_c, t, {"points": lst(log.p_hat[i]), "forces": lst(log.f_hat[i]), "links": log.links_hat[i],
-                          "true_points": lst(log.p_true[i]), "true_forces": lst(log.f_true[i])})
+            put(
+                ch_r,
+                t,
+                {
+                    "r": lst(log.r[i]),
+                    "tau_ext_true": lst(log.tau_ext[i]),
+                    "active": bool(log.active[i]),
+                    "label": log.label[i],
+                },
+            )
+            put(
+                ch_c,
+                t,
+                {
+                    "points": lst(log.p_hat[i]),
+                    "forces": lst(log.f_hat[i]),
+                    "links": log.links_hat[i],
+                    "true_points": lst(log.p_true[i]),
+                    "true_forces": lst(log.f_true[i]),
+                },
+            )
         w.finish()
 
 
@@ -173,8 +231,12 @@ def write_outputs(out_dir: Path, setup: ExperimentSetup, log: ContactLog, camera
 
     out_dir.mkdir(parents=True, exist_ok=True)
     onsets = [o for o in log.onset_true if o is not None]
-    files = {"plot": str(out_dir / f"contact_{setup.name}.png"), "depth": str(out_dir / "depth_contact.png"),
-             "recording": str(out_dir / "recording.mcap"), "metrics": str(out_dir / "metrics.json")}
+    files = {
+        "plot": str(out_dir / f"contact_{setup.name}.png"),
+        "depth": str(out_dir / "depth_contact.png"),
+        "recording": str(out_dir / "recording.mcap"),
+        "metrics": str(out_dir / "metrics.json"),
+    }
     _plot(Path(files["plot"]), setup, log, min(onsets) if onsets else 0.0)
     if log.frames:
         n = _mid_frame(setup, log)

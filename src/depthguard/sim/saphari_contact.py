@@ -128,8 +128,14 @@ def compute_metrics(setup: ExperimentSetup, log: ContactLog) -> dict:
     }
 
 
-def run(name: str, quick: bool = False, avoidance: bool = True, out_dir: str | Path | None = None,
-        progress: bool = False, options: dict | None = None) -> dict:
+def run(
+    name: str,
+    quick: bool = False,
+    avoidance: bool = True,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+    options: dict | None = None,
+) -> dict:
     """CLI entry (``depthguard.cli.EXTRA_SCENARIOS``): ``name`` is ``saphari-contact-soft`` or ``-stiff``;
     ``options`` may hold ``contacts`` (1 or 2) and ``rate`` (Hz); ``avoidance`` is not used here."""
     options = options or {}
