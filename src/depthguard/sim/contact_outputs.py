@@ -67,6 +67,22 @@ def _series(log: ContactLog, key: str, k: int) -> np.ndarray:
     return out
 
 
+def _observable_true(log: ContactLog) -> list[np.ndarray]:
+    """Per cycle, the observable part P F of the true forces matched to the estimated contacts, (k, 3)."""
+    from depthguard.sim.saphari_contact import _match
+
+    out = []
+    for i in range(len(log.t)):
+        F, k = log.f_true[i], len(log.f_hat[i])
+        if k == 0:
+            out.append(np.zeros((0, 3)))
+            continue
+        match = _match(log.p_hat[i], log.p_true[i], np.linalg.norm(F, axis=1) > 1.0)
+        Fm = np.concatenate([F[j] if j is not None else np.zeros(3) for j in match])
+        out.append((log.projector[i] @ Fm).reshape(-1, 3))
+    return out
+
+
 def _plot(path: Path, setup: ExperimentSetup, log: ContactLog, t0: float) -> None:
     import matplotlib
 
@@ -82,15 +98,16 @@ def _plot(path: Path, setup: ExperimentSetup, log: ContactLog, t0: float) -> Non
     ax[0].set_ylabel("residual [N m]")
     ax[0].legend(ncol=7, fontsize=7)
     colors = "rgb"
+    pf = _observable_true(log)
     for k in range(max((len(f) for f in log.f_hat), default=0)):
-        fh, ft = _series(log, "f_hat", k), np.array([f[k] if len(f) > k else np.full(3, np.nan) for f in log.f_true])
+        fh, ft = _series(log, "f_hat", k), np.array([f[k] if len(f) > k else np.full(3, np.nan) for f in pf])
         for c in range(3):
             ax[1].plot(t, fh[:, c], colors[c], ls="-" if k == 0 else "-.", label=f"F̂{'xyz'[c]} #{k + 1}")
             ax[1].plot(t, ft[:, c], colors[c], ls="--", lw=0.8)
         dp = _series(log, "disp", k)
         for c in range(3):
             ax[2].plot(t, dp[:, c], colors[c], ls="-" if k == 0 else "-.", label=f"e{'xyz'[c]} #{k + 1}")
-    ax[1].set_ylabel("force [N] (dashed: true)")
+    ax[1].set_ylabel("force [N] (dashed: observable part of the true force)")
     ax[1].legend(ncol=3, fontsize=7)
     ax[2].set_ylabel("contact point displacement [m]")
     ax[2].set_xlabel("time from contact onset [s]")
