@@ -1,0 +1,265 @@
+"""Figures and recording of the contact experiments (SAPHARI D4.1.1 Figs. 23-28).
+
+* ``contact_<exp>.png``: residual components (Figs. 24 top left, 26), estimated force components with the
+  observable part of the true force dashed (Figs. 24 top right, 27), Cartesian displacement of the contact
+  point from its position at the onset (Figs. 24 bottom, 28); time 0 is the contact onset.
+* ``depth_contact.png``: the depth image at the middle of the push with the estimated force drawn in red
+  at the contact point (Figs. 23, 25).
+* ``recording.mcap`` (Foxglove, JSON channels): ``/camera0/calibration``, ``/camera0/depth``
+  (``foxglove.RawImage`` 16UC1, 320×240, 10 Hz), ``/camera0/contact_overlay`` (rgb8 depth image with the
+  force arrow, 10 Hz), ``/joint_states``, ``/residual`` and ``/contact`` (estimated and true contact
+  points and forces, detection state) at 100 Hz.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.sim.contact_experiment import ContactLog, ExperimentSetup
+
+__all__ = ["write_outputs", "overlay_image"]
+
+FORCE_SCALE = 0.01  # m per N for the drawn arrows (40 N -> 0.4 m)
+
+
+def _gray(depth: np.ndarray, near: float = 2.3, far: float = 4.5) -> np.ndarray:
+    d = np.nan_to_num(depth, nan=far)
+    g = (40 + 215 * (1.0 - np.clip((d - near) / (far - near), 0, 1))).astype(np.uint8)
+    g[~np.isfinite(depth)] = 0
+    return np.repeat(g[..., None], 3, axis=2)
+
+
+def _line(img: np.ndarray, a: np.ndarray, b: np.ndarray, color=(255, 0, 0), width: int = 1) -> None:
+    n = int(max(abs(b[0] - a[0]), abs(b[1] - a[1]), 1)) * 2
+    for s in np.linspace(0, 1, n + 1):
+        x, y = (1 - s) * a + s * b
+        u0, v0 = int(x) - width // 2, int(y) - width // 2
+        img[max(v0, 0) : max(v0 + width, 0), max(u0, 0) : max(u0 + width, 0)] = color
+
+
+def overlay_image(camera, depth: np.ndarray, points: np.ndarray, forces: np.ndarray, step: int = 1) -> np.ndarray:
+    """(H/step, W/step, 3) uint8: the depth image in gray with each force (k, 3) N drawn as a red arrow
+    from its contact point (k, 3) m."""
+    img = _gray(depth[::step, ::step])
+    for p, f in zip(np.reshape(points, (-1, 3)), np.reshape(forces, (-1, 3)), strict=True):
+        if not np.all(np.isfinite(p)) or np.linalg.norm(f) < 1e-6:
+            continue
+        a = camera.project(p)[:2] / step
+        b = camera.project(p + FORCE_SCALE * f)[:2] / step
+        if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+            _line(img, a, b, width=max(1, 3 // step))
+            d = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+            for rot in (np.array([[0.87, -0.5], [0.5, 0.87]]), np.array([[0.87, 0.5], [-0.5, 0.87]])):
+                _line(img, b, b - 8 / step * (rot @ d), width=max(1, 3 // step))
+    return img
+
+
+def _series(log: ContactLog, key: str, k: int) -> np.ndarray:
+    """(T, 3) component k of a per-cycle list of (m, 3) arrays (NaN where absent)."""
+    out = np.full((len(log.t), 3), np.nan)
+    for i, a in enumerate(getattr(log, key)):
+        if len(a) > k:
+            out[i] = a[k]
+    return out
+
+
+def _observable_true(log: ContactLog) -> list[np.ndarray]:
+    """Per cycle, the observable part P F of the true forces matched to the estimated contacts, (k, 3)."""
+    from depthguard.sim.saphari_contact import _match
+
+    out = []
+    for i in range(len(log.t)):
+        F, k = log.f_true[i], len(log.f_hat[i])
+        if k == 0:
+            out.append(np.zeros((0, 3)))
+            continue
+        match = _match(log.p_hat[i], log.p_true[i], np.linalg.norm(F, axis=1) > 1.0)
+        Fm = np.concatenate([F[j] if j is not None else np.zeros(3) for j in match])
+        out.append((log.projector[i] @ Fm).reshape(-1, 3))
+    return out
+
+
+def _plot(path: Path, setup: ExperimentSetup, log: ContactLog, t0: float) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.array(log.t) - t0
+    r = np.array(log.r)
+    fig, ax = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    for j in range(r.shape[1]):
+        ax[0].plot(t, r[:, j], label=f"r{j + 1}")
+    ax[0].axhline(setup.r_th, color="k", lw=0.5, ls=":")
+    ax[0].set_ylabel("residual [N m]")
+    ax[0].legend(ncol=7, fontsize=7)
+    colors = "rgb"
+    pf = _observable_true(log)
+    for k in range(max((len(f) for f in log.f_hat), default=0)):
+        fh, ft = _series(log, "f_hat", k), np.array([f[k] if len(f) > k else np.full(3, np.nan) for f in pf])
+        for c in range(3):
+            ax[1].plot(t, fh[:, c], colors[c], ls="-" if k == 0 else "-.", label=f"F̂{'xyz'[c]} #{k + 1}")
+            ax[1].plot(t, ft[:, c], colors[c], ls="--", lw=0.8)
+        dp = _series(log, "disp", k)
+        for c in range(3):
+            ax[2].plot(t, dp[:, c], colors[c], ls="-" if k == 0 else "-.", label=f"e{'xyz'[c]} #{k + 1}")
+    ax[1].set_ylabel("force [N] (dashed: observable part of the true force)")
+    ax[1].legend(ncol=3, fontsize=7)
+    ax[2].set_ylabel("contact point displacement [m]")
+    ax[2].set_xlabel("time from contact onset [s]")
+    ax[2].legend(ncol=3, fontsize=7)
+    fig.suptitle(f"SAPHARI §6.3 {setup.name} admittance, {len(setup.hands)} contact(s), {setup.rate:g} Hz")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _mid_frame(setup: ExperimentSetup, log: ContactLog) -> int:
+    tm = setup.hands[0].t_touch + 0.5 * setup.hands[0].duration
+    return int(np.argmin([abs(f[0] - tm) for f in log.frames]))
+
+
+def _cycle_at(log: ContactLog, t: float) -> int:
+    return int(np.argmin(np.abs(np.array(log.t) - t)))
+
+
+def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None:
+    from mcap.writer import CompressionType, Writer
+
+    cam = camera.cam
+    with open(path, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        w.start(profile="", library="depthguard")
+
+        def channel(topic: str, title: str) -> int:
+            sid = w.register_schema(
+                name=title, encoding="jsonschema", data=json.dumps({"title": title, "type": "object"}).encode()
+            )
+            return w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+
+        def put(ch: int, t: float, msg: dict) -> None:
+            ns = int(round(t * 1e9))
+            w.add_message(ch, log_time=ns, publish_time=ns, data=json.dumps(msg).encode())
+
+        def stamp(t: float) -> dict:
+            ns = int(round(t * 1e9))
+            return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+        st = max(1, cam.width // 320)
+        K = [cam.fx / st, 0, cam.cx / st, 0, cam.fy / st, cam.cy / st, 0, 0, 1]
+        put(
+            channel("/camera0/calibration", "foxglove.CameraCalibration"),
+            0.0,
+            {
+                "timestamp": stamp(0.0),
+                "frame_id": "camera0",
+                "width": cam.width // st,
+                "height": cam.height // st,
+                "distortion_model": "plumb_bob",
+                "D": [0.0] * 5,
+                "K": K,
+                "R": cam.R.ravel().tolist(),
+                "P": [K[0], 0, K[2], 0, 0, K[4], K[5], 0, 0, 0, 1, 0],
+            },
+        )
+        ch_d, ch_o = (
+            channel("/camera0/depth", "foxglove.RawImage"),
+            channel("/camera0/contact_overlay", "foxglove.RawImage"),
+        )
+        for n, (t, depth, _) in enumerate(log.frames):
+            if n % 3:
+                continue
+            mm = np.nan_to_num(depth[::st, ::st] * 1000.0, nan=0.0).clip(0, 65535).astype("<u2")
+            put(
+                ch_d,
+                t,
+                {
+                    "timestamp": stamp(t),
+                    "frame_id": "camera0",
+                    "width": mm.shape[1],
+                    "height": mm.shape[0],
+                    "encoding": "16UC1",
+                    "step": mm.shape[1] * 2,
+                    "data": base64.b64encode(mm.tobytes()).decode(),
+                },
+            )
+            i = _cycle_at(log, t)
+            ov = overlay_image(cam, depth, log.p_hat[i], log.f_hat[i], st)
+            put(
+                ch_o,
+                t,
+                {
+                    "timestamp": stamp(t),
+                    "frame_id": "camera0",
+                    "width": ov.shape[1],
+                    "height": ov.shape[0],
+                    "encoding": "rgb8",
+                    "step": ov.shape[1] * 3,
+                    "data": base64.b64encode(ov.tobytes()).decode(),
+                },
+            )
+        ch_j, ch_r, ch_c = (
+            channel("/joint_states", "depthguard.JointState"),
+            channel("/residual", "depthguard.Residual"),
+            channel("/contact", "depthguard.Contact"),
+        )
+        every = max(1, int(round(setup.rate / 100)))
+
+        def lst(a) -> list:
+            return np.nan_to_num(np.asarray(a, float), nan=0.0).round(5).tolist()
+
+        for i in range(0, len(log.t), every):
+            t = log.t[i]
+            put(ch_j, t, {"t": t, "position": lst(log.q[i])})
+            put(
+                ch_r,
+                t,
+                {
+                    "r": lst(log.r[i]),
+                    "tau_ext_true": lst(log.tau_ext[i]),
+                    "active": bool(log.active[i]),
+                    "label": log.label[i],
+                },
+            )
+            put(
+                ch_c,
+                t,
+                {
+                    "points": lst(log.p_hat[i]),
+                    "forces": lst(log.f_hat[i]),
+                    "links": log.links_hat[i],
+                    "true_points": lst(log.p_true[i]),
+                    "true_forces": lst(log.f_true[i]),
+                },
+            )
+        w.finish()
+
+
+def write_outputs(out_dir: Path, setup: ExperimentSetup, log: ContactLog, camera, metrics: dict) -> dict[str, str]:
+    """Write ``metrics.json``, the figures and ``recording.mcap`` into ``out_dir``; returns their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    onsets = [o for o in log.onset_true if o is not None]
+    files = {
+        "plot": str(out_dir / f"contact_{setup.name}.png"),
+        "depth": str(out_dir / "depth_contact.png"),
+        "recording": str(out_dir / "recording.mcap"),
+        "metrics": str(out_dir / "metrics.json"),
+    }
+    _plot(Path(files["plot"]), setup, log, min(onsets) if onsets else 0.0)
+    if log.frames:
+        n = _mid_frame(setup, log)
+        t, depth, _ = log.frames[n]
+        i = _cycle_at(log, t)
+        plt.imsave(files["depth"], overlay_image(camera.cam, depth, log.p_hat[i], log.f_hat[i]))
+    _record(Path(files["recording"]), setup, log, camera)
+    Path(files["metrics"]).write_text(json.dumps(metrics, indent=2, default=float))
+    return files
