@@ -142,7 +142,7 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
     chk = check_inputs(inp, ctrl.n, ctrl.points.n_points, M_TASK, ctrl.config, st.t_prev)
     t_prev = st.t_prev if math.isnan(chk.t) else max(st.t_prev, chk.t)
     status, st = _resume_latch(ctrl.config, chk, st._replace(t_prev=t_prev))
-    otg = _sync_state(st.otg, chk)
+    otg = _sync_state(st.otg, chk, ctrl.v_max)
     if otg is None:  # no joint state yet: nothing to command but rest
         return _rest_output(ctrl, status), st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
     b = joint_bounds(ctrl, otg)
@@ -180,14 +180,15 @@ def _resume_latch(cfg: ControllerConfig, chk: CheckedInput, st: ControllerState)
     return CycleStatus.STOP_RESUME_WAIT, st._replace(valid_since=since, valid_cycles=cycles)
 
 
-def _sync_state(otg: OtgState | None, chk: CheckedInput) -> OtgState | None:
+def _sync_state(otg: OtgState | None, chk: CheckedInput, v_max: np.ndarray) -> OtgState | None:
     """The generator state for this cycle: the previous one at the measured ``q`` (if valid); at start,
-    the measured motion (from rest if the measured velocity is unusable); None if there is none yet."""
+    the measured motion (from rest if the measured velocity is unusable; clipped to ``v_max``, which the
+    robot cannot exceed); None if there is no joint state yet."""
     if otg is None:
         if chk.q is None:
             return None
-        v0 = chk.qdot if chk.qdot is not None else np.zeros_like(chk.q)
-        return OtgState(chk.q.copy(), v0.copy(), np.zeros_like(chk.q))
+        v0 = np.clip(chk.qdot, -v_max, v_max) if chk.qdot is not None else np.zeros_like(chk.q)
+        return OtgState(chk.q.copy(), v0, np.zeros_like(chk.q))
     if chk.q is not None:
         return OtgState(chk.q.copy(), otg.velocity, otg.acceleration)
     return otg
