@@ -7,10 +7,14 @@ acceleration and jerk limits. In velocity mode it does not enforce joint *positi
 to speeds from which the joint can still brake in time:
 
 ``v_b(d) = a (-(a/(2j) + T) + sqrt((a/(2j) + T)^2 + 2 d / a))``, the largest v with
-``v^2/(2a) + v a/(2j) + v T <= d``: braking distance under acceleration limit a and jerk limit j
-(an upper bound of the exact jerk-limited braking distance), plus T seconds of latency. ``d`` is the
-distance to the limit (less a margin) and a is a fraction ``brake_fraction`` of the acceleration limit,
-which leaves room for an acceleration that is still building up when braking starts.
+``v^2/(2a) + v a/(2j) + v T <= d``: the braking distance from zero acceleration under acceleration limit
+a and jerk limit j, plus T seconds of latency at speed v. The braking term is exact when the stop reaches
+the acceleration limit (``v >= a^2/j``) and an upper bound otherwise (``v sqrt(v/j)``, by AM-GM);
+tests/test_otg.py checks both against an independent integration of the jerk-limited profile. ``d`` is
+the distance to the limit (less a margin) and a is a fraction ``brake_fraction`` of the acceleration
+limit: the rest is a reserve. It does not cover an arbitrary acceleration towards the limit at the
+moment braking starts; the controller keeps the acceleration towards a limit at or below 0 whenever
+the velocity sits on this bound (:mod:`depthguard.control.bounded`) and plans a little ahead of it.
 """
 
 from __future__ import annotations
