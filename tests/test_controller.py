@@ -201,7 +201,7 @@ def _stop_run(points, make_input, steps=600):
     [
         ("stale_distances", CycleStatus.STOP_STALE_DISTANCES),
         ("missing_distances", CycleStatus.STOP_STALE_DISTANCES),
-        ("nan_distances", CycleStatus.STOP_STALE_DISTANCES),
+        ("nan_distances", CycleStatus.STOP_INVALID_INPUT),
         ("stale_joints", CycleStatus.STOP_STALE_JOINTS),
         ("nan_joints", CycleStatus.STOP_INVALID_INPUT),
     ],
@@ -235,14 +235,18 @@ def test_safe_stop_when_data_goes_stale(points, case: str, expected: CycleStatus
     assert speed[0] > 0.05  # no velocity jump at the trigger: it brakes
 
 
-def test_fresh_data_resumes_after_a_stop(points) -> None:
-    ctrl = AvoidanceController(points)
+def test_fresh_data_resumes_after_a_stop_once_valid_for_resume_time(points) -> None:
+    ctrl = AvoidanceController(points)  # resume_time 0.1 s
     N = points.n_points
     dist, dirs = np.full(N, np.inf), np.zeros((N, 3))
     out = ctrl.step(CycleInput(1.0, Q0, np.zeros(7), 1.0, np.zeros(3), dist, dirs, 0.0))
     assert out.status == CycleStatus.STOP_STALE_DISTANCES
-    out = ctrl.step(CycleInput(1.001, Q0, np.zeros(7), 1.001, np.zeros(3), dist, dirs, 1.0))
-    assert out.status == CycleStatus.OK
+    statuses = []
+    for k in range(1, 102):
+        t = 1.0 + k * 0.001
+        statuses.append(ctrl.step(CycleInput(t, Q0, np.zeros(7), t, np.zeros(3), dist, dirs, t)).status)
+    assert statuses[:100] == [CycleStatus.STOP_RESUME_WAIT] * 100
+    assert statuses[100] == CycleStatus.OK
 
 
 @pytest.mark.slow

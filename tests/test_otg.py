@@ -71,19 +71,65 @@ def test_position_limits_hold_when_driving_into_them() -> None:
     _check_limits(states, v_max, a_max, j_max)
 
 
-@pytest.mark.parametrize("d", [0.0, 0.001, 0.05, 0.3, 1.0])
-def test_braking_bound_lets_the_joint_stop_in_time(d: float) -> None:
+def _segment(p: float, v: float, a: float, jerk: float, t: float) -> tuple[float, float, float]:
+    """Exact motion under constant jerk for t seconds."""
+    return p + v * t + a * t * t / 2 + jerk * t**3 / 6, v + a * t + jerk * t * t / 2, a + jerk * t
+
+
+def _stopping_distance(v: float, a_lim: float, j_lim: float) -> float:
+    """Independent reference: distance of the time-optimal jerk-limited stop from speed v > 0 at zero
+    acceleration (jerk -j to the peak deceleration, hold it, jerk +j back to 0 as v reaches 0), by exact
+    integration of its constant-jerk segments. Peak deceleration min(a, sqrt(j v))."""
+    a_p = min(a_lim, np.sqrt(j_lim * v))
+    t_hold = max(v - a_p * a_p / j_lim, 0.0) / a_p if a_p > 0 else 0.0
+    p, vv, a = _segment(0.0, v, 0.0, -j_lim, a_p / j_lim)
+    p, vv, a = _segment(p, vv, a, 0.0, t_hold)
+    p, vv, a = _segment(p, vv, a, j_lim, a_p / j_lim)
+    assert abs(vv) <= 1e-9 * max(1.0, v) and abs(a) <= 1e-9
+    return p
+
+
+@pytest.mark.parametrize("latency", [0.0, 0.002, 0.01])
+@pytest.mark.parametrize("margin", [0.0, 0.02])
+def test_braking_bound_is_the_exact_jerk_limited_stopping_speed(latency: float, margin: float) -> None:
+    """With brake_fraction 1 the bound v_b(d) travels ``latency * v_b`` and then stops exactly at the
+    margin when the profile reaches the acceleration limit (v_b >= a^2/j), and before it otherwise; a
+    slightly faster joint would overrun it. Checked against an independent integration of the profile."""
     a_max, j_max = np.array([10.0]), np.array([500.0])
-    q = np.array([1.0 - d])
-    _, hi = position_limited_velocity_bounds(q, np.array([-1.0]), np.array([1.0]), a_max, j_max, 0.0)
-    assert hi[0] >= 0.0
-    # brake from hi with Ruckig at the full limits: the stop must come before q_max = 1
+    q_max = 1.0
+    for d in np.geomspace(1e-4, 2.0, 40):
+        q = np.array([q_max - margin - d])
+        lo, hi = position_limited_velocity_bounds(
+            q, np.array([-5.0]), np.array([q_max]), a_max, j_max, latency, margin, brake_fraction=1.0
+        )
+        v = float(hi[0])
+        assert v > 0.0 and lo[0] < 0.0
+        travel = latency * v + _stopping_distance(v, 10.0, 500.0)
+        assert travel <= d * (1 + 1e-9)  # never past q_max - margin
+        if v >= 10.0**2 / 500.0:  # trapezoidal profile: the bound is exact, not conservative
+            assert travel == pytest.approx(d, rel=1e-9)
+            assert latency * v * 1.001 + _stopping_distance(v * 1.001, 10.0, 500.0) > d
+        # (triangular profile, v < a^2/j: v^2/(2a) + v a/(2j) >= v sqrt(v/j) by AM-GM, so conservative)
+
+
+@pytest.mark.parametrize("brake_fraction", [0.5, 1.0])
+def test_ruckig_braking_from_the_bound_stops_within_the_margin(brake_fraction: float) -> None:
+    """Ruckig's own braking (full limits, from zero acceleration) from v_b stops at or before
+    q_max - margin; with brake_fraction 1 it stops right at it (no hidden slack)."""
+    a_max, j_max, margin = np.array([10.0]), np.array([500.0]), 0.02
     otg = JointOtg(1, DT, a_max, j_max)
-    s = OtgState(q.copy(), hi.copy(), np.zeros(1))
-    for _ in range(2000):
-        s, _, _ = otg.step(s, np.zeros(1))
-    assert s.position[0] <= 1.0 + 1e-12
-    assert abs(s.velocity[0]) < 1e-12
+    for d in (0.0005, 0.01, 0.05, 0.3, 1.0):
+        q = np.array([1.0 - margin - d])
+        _, hi = position_limited_velocity_bounds(
+            q, np.array([-1.0]), np.array([1.0]), a_max, j_max, 0.0, margin, brake_fraction
+        )
+        s = OtgState(q.copy(), hi.copy(), np.zeros(1))
+        for _ in range(2000):
+            s, _, _ = otg.step(s, np.zeros(1))
+        assert abs(s.velocity[0]) < 1e-12
+        assert s.position[0] <= 1.0 - margin + 1e-9
+        if brake_fraction == 1.0 and hi[0] >= 10.0**2 / 500.0:
+            assert s.position[0] == pytest.approx(1.0 - margin, abs=1e-6)
 
 
 def test_bounds_contain_zero_and_vanish_beyond_the_limits() -> None:

@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from depthguard.control import sns_velocity
+from depthguard.control.endeffector import dls_damping
+from depthguard.control.sns import sns_velocity_raw, sns_velocity_unchecked
 
 
 def _max_feasible_scale(J: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
@@ -44,14 +46,34 @@ def problems(draw, max_m: int = 3, max_n: int = 7):
     return J, x, lo, hi
 
 
+def _near_singular(J: np.ndarray, sigma_min: float) -> np.ndarray:
+    """J with its smallest singular value set to ``sigma_min`` (the controller's damped path)."""
+    U, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    sv[-1] = sigma_min
+    return np.ascontiguousarray(U @ np.diag(sv) @ Vt)
+
+
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(problems(max_m=6, max_n=9))
-def test_bounds_always_respected(p) -> None:
-    J, x, lo, hi = p
-    q, s = sns_velocity(J, x, lo, hi)
-    assert q.shape == (J.shape[1],)
+@given(problems(max_m=6, max_n=9), st.sampled_from(["none", "random", "near_singular"]), st.floats(0.0001, 0.05))
+def test_bounds_respected_by_the_solver_itself_before_any_clip(p, damping_case: str, x) -> None:
+    """The raw solver's output (no final guard, no clip) is within the bounds to 1e-9, also with damping,
+    and the guarded result is that output clipped (the guard never had to replace it by zero)."""
+    J, xd, lo, hi = p
+    lam = 0.0
+    if damping_case == "random":
+        lam = x
+    elif damping_case == "near_singular":  # as in the controller: lambda from dls_damping near a singularity
+        J = _near_singular(J, x * 0.2)
+        lam = dls_damping(J)
+        assert lam > 0.0
+    J = np.ascontiguousarray(J)
+    q, s = sns_velocity_raw(J, xd, lo, hi, lam)
+    assert q.shape == (J.shape[1],) and np.all(np.isfinite(q))
     assert 0.0 <= s <= 1.0
-    assert np.all(q >= lo - 1e-12) and np.all(q <= hi + 1e-12)
+    assert np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9)
+    qg, sg = sns_velocity_unchecked(J, xd, lo, hi, lam)
+    np.testing.assert_array_equal(qg, np.clip(q, lo, hi))
+    assert sg == s
 
 
 @settings(max_examples=300, deadline=None)
@@ -76,7 +98,7 @@ def test_matches_pseudo_inverse_when_nothing_saturates(p) -> None:
 
 
 @settings(max_examples=200, deadline=None)
-@given(problems())
+@given(problems(max_m=6, max_n=9))
 def test_no_larger_feasible_scale_exists(p) -> None:
     J, x, lo, hi = p
     if np.linalg.matrix_rank(J) < J.shape[0]:
@@ -85,6 +107,22 @@ def test_no_larger_feasible_scale_exists(p) -> None:
     s_lp = _max_feasible_scale(J, x, lo, hi)
     assert s >= s_lp - 1e-6  # scaling only as much as the task is infeasible
     assert s <= s_lp + 1e-6
+
+
+@settings(max_examples=150, deadline=None)
+@given(problems(max_m=6, max_n=9), st.floats(0.0001, 0.02))
+def test_damped_path_never_scales_more_than_the_lp_optimum(p, sigma_min: float) -> None:
+    """The controller's real path near a singularity (damping from dls_damping > 0): the task is never
+    scaled down more than the exact optimum requires (linprog on the undamped task), and the bounds hold
+    before the clip."""
+    J, x, lo, hi = p
+    J = _near_singular(J, sigma_min)
+    lam = dls_damping(J)
+    assert lam > 0.0
+    q, s = sns_velocity_raw(J, x, lo, hi, lam)
+    assert np.all(q >= lo - 1e-9) and np.all(q <= hi + 1e-9)
+    s_lp = _max_feasible_scale(J, x, lo, hi)
+    assert s >= s_lp - 1e-6
 
 
 def test_null_space_compensates_a_saturated_joint() -> None:

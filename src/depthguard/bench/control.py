@@ -1,4 +1,4 @@
-"""Benchmarks of the control stage and of the self-filter (DESIGN.md §7).
+"""Benchmarks of the control stage and of the self-filter.
 
 ``run_control_benchmark`` times one 1 kHz control cycle for the shipped 7-DOF LWR and the 9 RA-L'16
 control points (distance query excluded): forward kinematics + Jacobians, control points, body bounds,
@@ -48,7 +48,7 @@ def _inputs(points, q: np.ndarray, constrained: bool):
 
 def run_control_benchmark(quick: bool = False) -> dict:
     """Time the control cycle and its parts; returns a JSON-able dict (µs, median and p99)."""
-    from depthguard.control.body import _body_bounds
+    from depthguard.control.body import body_bounds_inplace
     from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput
     from depthguard.control.endeffector import dls_damping
     from depthguard.control.otg import OtgState
@@ -79,7 +79,7 @@ def run_control_benchmark(quick: bool = False) -> dict:
         st = points.evaluate(q, updated=True)
         J = np.ascontiguousarray(st.jacobians[0])
         lo, hi = -ctrl.v_max.copy(), ctrl.v_max.copy()
-        _body_bounds(st.jacobians, dist, dirs, ctrl.body_use, ctrl.v_max, 0.4, 6.0, 0.0, 1e-6, lo, hi)
+        body_bounds_inplace(st.jacobians, dist, dirs, ctrl.body_use, ctrl.v_max, 0.4, 6.0, 0.0, 1e-6, lo, hi)
         lam = dls_damping(J)
         xc = xdot_d.copy()
         otg_state = OtgState(q.copy(), np.zeros(7), np.zeros(7))
@@ -87,7 +87,7 @@ def run_control_benchmark(quick: bool = False) -> dict:
 
         def body(st=st, dist=dist, dirs=dirs, ctrl=ctrl) -> None:
             a, b = -ctrl.v_max.copy(), ctrl.v_max.copy()
-            _body_bounds(st.jacobians, dist, dirs, ctrl.body_use, ctrl.v_max, 0.4, 6.0, 0.0, 1e-6, a, b)
+            body_bounds_inplace(st.jacobians, dist, dirs, ctrl.body_use, ctrl.v_max, 0.4, 6.0, 0.0, 1e-6, a, b)
 
         def pinv_clip(J=J, lo=lo, hi=hi, xc=xc) -> None:
             np.clip(np.linalg.pinv(J) @ xc, lo, hi)

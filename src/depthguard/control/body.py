@@ -2,9 +2,9 @@
 
 ICRA'12 §V-C, eqs. 12-14. For each body control point C with distance ``D`` (from its sphere surface,
 m) to the nearest obstacle and the repulsive unit direction ``n = D/||D||`` (from the obstacle towards
-the point, DESIGN.md §3):
+the point, see docs/conventions.md):
 
-* risk (eq. 12, DESIGN.md §4 reading): ``f(D) = 1 / (1 + exp((D 2/rho - 1) alpha))``, about 1 at contact
+* risk (eq. 12, as read in docs/conventions.md): ``f(D) = 1 / (1 + exp((D 2/rho - 1) alpha))``, about 1 at contact
   and about 0 at ``rho``;
 * influence (eq. 13): ``s = J_C^T n f(D)``; ``s_i > 0`` means that a positive velocity of joint i moves
   C along n, away from the obstacle, so the *negative* direction of joint i moves C towards it;
@@ -31,11 +31,11 @@ from numba import njit
 
 from depthguard.repulsion import risk  # ICRA'12 eq. 12, shared with the distance stage
 
-__all__ = ["risk", "body_velocity_bounds"]
+__all__ = ["risk", "body_velocity_bounds", "body_bounds_inplace"]
 
 
 @njit(cache=True)
-def _body_bounds(
+def body_bounds_inplace(
     jac: np.ndarray,
     dist: np.ndarray,
     dirs: np.ndarray,
@@ -48,6 +48,11 @@ def _body_bounds(
     qmin: np.ndarray,
     qmax: np.ndarray,
 ) -> None:
+    """:func:`body_velocity_bounds` for the real-time path: no validation, bounds tightened in place.
+
+    Arrays float64, C-contiguous: jac (N, 3, n), dist (N,) (finite >= 0 or inf), dirs (N, 3) (finite
+    where dist is finite), use (N,) bool, v_max (n,); qmin/qmax (n,) are tightened in place.
+    """
     N, _, n = jac.shape
     for k in range(N):
         if not use[k]:
@@ -89,7 +94,8 @@ def body_velocity_bounds(
     Args:
         jacobians: (N, 3, n) positional Jacobians of the control points.
         distances: (N,) distances from the sphere surfaces to the nearest obstacle, m (inf = none).
-        directions: (N, 3) unit repulsive directions, from the obstacle towards the point.
+        directions: (N, 3) unit repulsive directions, from the obstacle towards the point; finite
+            wherever the distance is finite (ignored where it is inf).
         v_max: (n,) original joint velocity bounds ``V_max,i`` (> 0), rad/s.
         rho: distance of influence, m; alpha: steepness of the risk function.
         use: (N,) bool, points that take part (default all); the end effector is usually excluded
@@ -114,9 +120,12 @@ def body_velocity_bounds(
         raise ValueError(f"v_max must be ({n},) positive numbers, got {v_max!r}")
     if np.any(np.isnan(dist)) or np.any(dist < 0):
         raise ValueError("distances must be >= 0 (inf for none), without NaN")
+    bad = np.isfinite(dist) & ~np.all(np.isfinite(dirs), axis=1)
+    if np.any(bad):
+        raise ValueError(f"directions must be finite where the distance is finite (point {int(np.argmax(bad))} is not)")
     if not (rho > 0 and alpha > 0):
         raise ValueError(f"rho and alpha must be > 0, got rho={rho}, alpha={alpha}")
     use_a = np.ones(N, dtype=np.bool_) if use is None else np.ascontiguousarray(use, dtype=np.bool_)
     qmin, qmax = -vmax.copy(), vmax.copy()
-    _body_bounds(jac, dist, dirs, use_a, vmax, rho, alpha, contact_distance, influence_eps, qmin, qmax)
+    body_bounds_inplace(jac, dist, dirs, use_a, vmax, rho, alpha, contact_distance, influence_eps, qmin, qmax)
     return qmin, qmax

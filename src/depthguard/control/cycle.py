@@ -1,33 +1,45 @@
-"""One 1 kHz control cycle of the avoidance controller (ICRA'12 §V), with a safe stop on stale data.
+"""One 1 kHz control cycle of the avoidance controller (ICRA'12 §V), with a safe stop on bad data.
 
-Per cycle (:func:`control_cycle`):
+Per cycle (:func:`control_cycle`), a sequence of small stages:
 
-1. check the inputs: joint state present, finite and fresh; distances present, NaN-free and fresh;
-   otherwise command a jerk-limited stop (target velocity 0 through Ruckig) and report why;
-2. forward kinematics and the control points (positions, Jacobians) at the measured ``q``;
-3. end effector (eqs. 7, 10): ``xdot_c = xdot_d + V_R(P_EE)``;
-4. body points (eqs. 12-14): joint-velocity bounds, intersected with the velocity limits and with the
-   bounds that let every joint brake before its position limits (:mod:`depthguard.control.otg`);
-5. eq. 11 under those bounds by SNS (:mod:`depthguard.control.sns`), with damped least squares near
-   singularities;
-6. Ruckig (velocity mode): the jerk-limited joint command for the next cycle.
+1. :func:`~depthguard.control.inputs.check_inputs`: every input field explicitly (shapes, NaN, -inf,
+   time stamps, freshness); anything wrong turns the cycle into a jerk-limited stop with the reason as
+   its status;
+2. the resume latch (:func:`_resume_latch`): after any stop, motion resumes only once the inputs have
+   been valid for ``resume_time`` in a row (``STOP_RESUME_WAIT`` until then), then smoothly from the
+   current motion state;
+3. :func:`joint_bounds`: the joint-velocity bounds that hold in every cycle, v_max and the bounds that
+   let every joint brake before its position limits (:mod:`depthguard.control.otg`);
+4. unless stopping, :func:`plan_motion`: forward kinematics and the control points at the measured
+   ``q``; end effector (eqs. 7, 10): ``xdot_c = xdot_d + V_R(P_EE)``; body points (eqs. 12-14): the
+   bounds tightened further; eq. 11 under those bounds by SNS (:mod:`depthguard.control.sns`), with
+   damped least squares near singularities. A speed-scaling stage (e.g. speed and separation
+   monitoring) fits between the body bounds and SNS;
+5. :func:`generate`: Ruckig (velocity mode) towards the target, the fallback braking step if Ruckig
+   fails (``ERROR_OTG``), and :func:`~depthguard.control.bounded.enforce_velocity_bounds`: the command
+   of every cycle lies within that cycle's bounds; when a bound shrinks faster than the jerk limit can
+   follow, the bound wins and the output reports ``bound_limited``.
 
-Nothing here raises in the real-time path: the outcome is a :class:`CycleStatus`. Bad *configuration*
+Nothing here raises in the real-time path: the outcome is a :class:`CycleStatus`; an unexpected
+exception is caught and turned into a jerk-limited stop (``STOP_INTERNAL_ERROR``). Bad *configuration*
 (wrong sizes at construction) raises ``ValueError`` once, at start-up.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
-from enum import IntEnum
 from typing import NamedTuple
 
 import numpy as np
 
-from depthguard.control.body import _body_bounds
+from depthguard.control.body import body_bounds_inplace
+from depthguard.control.bounded import braking_step, enforce_velocity_bounds
 from depthguard.control.endeffector import commanded_task_velocity, dls_damping, repulsive_velocity
+from depthguard.control.inputs import CheckedInput, check_inputs
 from depthguard.control.otg import JointOtg, OtgState, position_limited_velocity_bounds
 from depthguard.control.sns import sns_velocity_unchecked
+from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
 from depthguard.robot.control_points import ControlPointSet
 
 __all__ = [
@@ -35,130 +47,51 @@ __all__ = [
     "ControllerConfig",
     "CycleInput",
     "CycleOutput",
+    "ControllerState",
     "AvoidanceController",
     "control_cycle",
+    "Bounds",
+    "joint_bounds",
+    "plan_motion",
+    "generate",
 ]
 
-
-class CycleStatus(IntEnum):
-    """Outcome of one cycle (ruckig style: an explicit code instead of exceptions)."""
-
-    OK = 0  #: task executed at full scale
-    SCALED = 1  #: constraints active: the task was scaled down by SNS (scale < 1)
-    STOP_STALE_DISTANCES = 2  #: distances missing, NaN or older than the timeout: jerk-limited stop
-    STOP_STALE_JOINTS = 3  #: joint state older than the timeout: jerk-limited stop
-    STOP_INVALID_INPUT = 4  #: joint state or task velocity missing / non-finite / wrong size: stop
-    ERROR_OTG = 5  #: Ruckig failed; the previous command is held for this cycle
-
-    @property
-    def stopping(self) -> bool:
-        return self in (
-            CycleStatus.STOP_STALE_DISTANCES,
-            CycleStatus.STOP_STALE_JOINTS,
-            CycleStatus.STOP_INVALID_INPUT,
-        )
+M_TASK = 3  # task dimension: end-effector linear velocity (ICRA'12 experiments)
 
 
-@dataclass(frozen=True)
-class ControllerConfig:
-    """Controller parameters (SI units). Defaults follow ICRA'12 Exp. 1-3 where the paper gives them.
+class ControllerState(NamedTuple):
+    """What the controller carries from one cycle to the next.
 
     Attributes:
-        dt: control period, s (1 kHz).
-        rho_ee, alpha_ee, v_rep_max: end-effector repulsion (eq. 7): 0.4 m, 6, 2 m/s (Exp. 1).
-        rho_body, alpha_body: body constraints (eqs. 12-14).
-        contact_distance: distance at which motion towards an obstacle is denied, m.
-        velocity_scale: fraction of the model's joint velocity limits that the controller may use.
-        a_max, j_max: joint acceleration (rad/s^2) and jerk (rad/s^3) limits, scalar or (n,).
-        position_margin: stop this far inside the joint position limits, rad.
-        distance_timeout: distances older than this trigger the safe stop, s (3 frames at 30 Hz).
-        joint_timeout: joint states older than this trigger the safe stop, s.
-        dls_eps, dls_lambda_max: damped least squares below this singular value / largest damping.
-        synchronization: Ruckig synchronization, "none" (default), "time" or "phase". With "none" every
-            joint brakes and accelerates on its own time-optimal profile; "time"/"phase" stretch the faster
-            joints' profiles to finish together, which slows their braking below the acceleration limit
-            that the position-limit bounds assume (a test drove a joint past its limit that way).
+        otg: the motion state of the trajectory generator (None before the first valid joint state).
+        t_prev: the latest cycle time seen, s (-inf at start).
+        latched: a stop happened and the inputs have not yet been valid for ``resume_time``.
+        valid_since: time of the first valid cycle while latched, s (NaN if none).
+        valid_cycles: valid cycles in a row while latched.
     """
 
-    dt: float = 0.001
-    rho_ee: float = 0.4
-    alpha_ee: float = 6.0
-    v_rep_max: float = 2.0
-    rho_body: float = 0.4
-    alpha_body: float = 6.0
-    contact_distance: float = 0.0
-    velocity_scale: float = 1.0
-    a_max: float | tuple[float, ...] = 10.0
-    j_max: float | tuple[float, ...] = 500.0
-    position_margin: float = 0.02
-    distance_timeout: float = 0.1
-    joint_timeout: float = 0.005
-    dls_eps: float = 0.02
-    dls_lambda_max: float = 0.05
-    synchronization: str = "none"
+    otg: OtgState | None = None
+    t_prev: float = -math.inf
+    latched: bool = False
+    valid_since: float = math.nan
+    valid_cycles: int = 0
 
 
-class CycleInput(NamedTuple):
-    """Inputs of one cycle.
+class Plan(NamedTuple):
+    """The motion a cycle asks for: SNS target (n,) rad/s, task scale, commanded task velocity (3,) m/s."""
 
-    Attributes:
-        t: current time, s.
-        q: (n,) measured joint positions, rad (None = missing).
-        qdot: (n,) measured joint velocities, rad/s (used only to start the generator).
-        t_joints: time stamp of ``q``, s.
-        xdot_d: (3,) desired end-effector linear velocity, m/s (ICRA'12 Exp.: m = 3).
-        distances: (N,) per control point (the order of the :class:`ControlPointSet`, end effector
-            first), distance from the sphere surface, m; inf = nothing within rho; None = missing.
-        directions: (N, 3) unit repulsive directions, from the obstacle towards the point.
-        t_distances: time stamp of the distances, s.
-    """
-
-    t: float
-    q: np.ndarray | None
-    qdot: np.ndarray | None
-    t_joints: float
-    xdot_d: np.ndarray
-    distances: np.ndarray | None
-    directions: np.ndarray | None
-    t_distances: float
-
-
-class CycleOutput(NamedTuple):
-    """Result of one cycle.
-
-    Attributes:
-        qdot_cmd: (n,) joint velocity to command for the next period, rad/s (jerk-limited).
-        q_cmd: (n,) joint position reached by the command after one period, rad.
-        qddot_cmd: (n,) joint acceleration, rad/s^2.
-        status: :class:`CycleStatus`.
-        scale: SNS task scale in [0, 1] (0 while stopping).
-        qdot_target: (n,) SNS velocity given to Ruckig as target, rad/s.
-        qdot_min, qdot_max: (n,) the velocity bounds used, rad/s.
-        xdot_c: (3,) commanded end-effector velocity (eq. 10), m/s.
-    """
-
-    qdot_cmd: np.ndarray
-    q_cmd: np.ndarray
-    qddot_cmd: np.ndarray
-    status: CycleStatus
+    target: np.ndarray
     scale: float
-    qdot_target: np.ndarray
-    qdot_min: np.ndarray
-    qdot_max: np.ndarray
     xdot_c: np.ndarray
-
-
-def _finite(x: object, shape: tuple[int, ...]) -> bool:
-    return isinstance(x, np.ndarray) and x.shape == shape and bool(np.all(np.isfinite(x)))
 
 
 @dataclass
 class AvoidanceController:
     """The avoidance controller of ICRA'12 §V for one robot and one control-point set.
 
-    Holds the fixed parts (model, points, limits, the Ruckig instance) and the generator state
-    between cycles. Call :meth:`step` once per period; :func:`control_cycle` is the same as a function
-    of an explicit state.
+    Holds the fixed parts (model, points, limits, the Ruckig instance) and the state between cycles.
+    Call :meth:`step` once per period; :func:`control_cycle` is the same as a function of an explicit
+    state.
     """
 
     points: ControlPointSet
@@ -171,114 +104,196 @@ class AvoidanceController:
         cfg = self.config
         if not 0.0 < cfg.velocity_scale <= 1.0:
             raise ValueError(f"velocity_scale must be in (0, 1], got {cfg.velocity_scale}")
+        if not (math.isfinite(cfg.resume_time) and cfg.resume_time >= 0.0):
+            raise ValueError(f"resume_time must be a finite number of seconds >= 0, got {cfg.resume_time}")
         self.v_max = np.asarray(model.v_max, dtype=float) * cfg.velocity_scale
         self.q_min = np.asarray(model.q_min, dtype=float)
         self.q_max = np.asarray(model.q_max, dtype=float)
-        self.otg = JointOtg(n, cfg.dt, np.asarray(cfg.a_max), np.asarray(cfg.j_max), cfg.synchronization)
+        self.otg = JointOtg(
+            n, cfg.dt, np.asarray(cfg.a_max), np.asarray(cfg.j_max), cfg.synchronization, v_max=self.v_max
+        )
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
-        self.state: OtgState | None = None
+        self.state: ControllerState | None = None
 
     def reset(self) -> None:
-        """Forget the generator state (the next cycle starts from the measured velocity)."""
+        """Forget the state (the next cycle starts from the measured velocity, unlatched)."""
         self.state = None
 
     def step(self, inp: CycleInput) -> CycleOutput:
-        """Run one cycle and keep the generator state."""
+        """Run one cycle and keep the state. Never raises: problems come back as the output's status."""
         out, self.state = control_cycle(self, inp, self.state)
         return out
 
 
 def control_cycle(
-    ctrl: AvoidanceController, inp: CycleInput, state: OtgState | None
-) -> tuple[CycleOutput, OtgState | None]:
-    """One control cycle (module docstring) as a function of the controller, the inputs and the
-    generator state of the previous cycle (None at start). Returns the output and the new state."""
-    cfg, n, m = ctrl.config, ctrl.n, 3
-    status = CycleStatus.OK
-    q, qdot = inp.q, inp.qdot
-    xdot_d = np.asarray(inp.xdot_d, dtype=float) if inp.xdot_d is not None else None
-    if not (_finite(q, (n,)) and _finite(qdot, (n,)) and xdot_d is not None and _finite(xdot_d, (m,))):
-        status = CycleStatus.STOP_INVALID_INPUT
-    elif not inp.t - inp.t_joints <= cfg.joint_timeout:
-        status = CycleStatus.STOP_STALE_JOINTS
-    else:
-        N = ctrl.points.n_points
-        d, dirs = inp.distances, inp.directions
-        if (
-            d is None
-            or dirs is None
-            or np.shape(d) != (N,)
-            or np.shape(dirs) != (N, 3)
-            or np.any(np.isnan(d))
-            or not inp.t - inp.t_distances <= cfg.distance_timeout
-        ):
-            status = CycleStatus.STOP_STALE_DISTANCES
+    ctrl: AvoidanceController, inp: CycleInput, state: ControllerState | None
+) -> tuple[CycleOutput, ControllerState]:
+    """One control cycle (module docstring) as a function of the controller, the inputs and the state
+    of the previous cycle (None at start). Returns the output and the new state. Never raises."""
+    st = state if state is not None else ControllerState()
+    try:
+        return _cycle(ctrl, inp, st)
+    except Exception:  # noqa: BLE001 - the real-time path stops, it does not raise
+        return _emergency_stop(ctrl, st)
 
-    if state is None:  # start from the measured motion, or from rest if there is none
-        if _finite(q, (n,)):
-            v0 = qdot if _finite(qdot, (n,)) else np.zeros(n)
-            state = OtgState(np.array(q, dtype=float), np.array(v0, dtype=float), np.zeros(n))
-        else:
-            zero = np.zeros(n)
-            out = CycleOutput(zero, zero, zero, status, 0.0, zero, zero, zero, np.zeros(m))
-            return out, None
-    if _finite(q, (n,)):
-        state = OtgState(np.array(q, dtype=float), state.velocity, state.acceleration)
 
-    lo_p, hi_p = position_limited_velocity_bounds(
-        state.position,
-        ctrl.q_min,
-        ctrl.q_max,
-        ctrl.otg.a_max,
-        ctrl.otg.j_max,
-        2.0 * cfg.dt,
-        cfg.position_margin,
-    )
+def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
+    chk = check_inputs(inp, ctrl.n, ctrl.points.n_points, M_TASK, ctrl.config, st.t_prev)
+    t_prev = st.t_prev if math.isnan(chk.t) else max(st.t_prev, chk.t)
+    status, st = _resume_latch(ctrl.config, chk, st._replace(t_prev=t_prev))
+    otg = _sync_state(st.otg, chk, ctrl.v_max)
+    if otg is None:  # no joint state yet: nothing to command but rest
+        return _rest_output(ctrl, status), st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
+    b = joint_bounds(ctrl, otg)
     if status.stopping:
-        target = np.zeros(n)
-        scale, lo, hi, xdot_c = 0.0, np.zeros(n), np.zeros(n), np.zeros(m)
+        plan = Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
     else:
-        model = ctrl.points.model
-        model.update(q)
-        cps = ctrl.points.evaluate(q, updated=True)
-        dist = np.asarray(inp.distances, dtype=float)
-        dirs = np.asarray(inp.directions, dtype=float)
-        v_rep = repulsive_velocity(dist[0], dirs[0], cfg.v_rep_max, cfg.rho_ee, cfg.alpha_ee)
-        xdot_c = commanded_task_velocity(xdot_d, v_rep)
-        lo, hi = -ctrl.v_max, ctrl.v_max.copy()
-        _body_bounds(
-            cps.jacobians,
-            np.maximum(dist, 0.0),
-            np.ascontiguousarray(dirs),
-            ctrl.body_use,
-            ctrl.v_max,
-            cfg.rho_body,
-            cfg.alpha_body,
-            cfg.contact_distance,
-            1e-6,
-            lo,
-            hi,
-        )
-        lo = np.minimum(np.maximum(lo, lo_p), 0.0)
-        hi = np.maximum(np.minimum(hi, hi_p), 0.0)
-        J = np.ascontiguousarray(cps.jacobians[0])
-        lam = dls_damping(J, cfg.dls_eps, cfg.dls_lambda_max)
-        target, scale = sns_velocity_unchecked(J, xdot_c, lo, hi, lam)
-        if scale < 1.0 - 1e-9:
+        plan = plan_motion(ctrl, chk, b)
+        if not (np.isfinite(plan.target).all() and np.isfinite(plan.xdot_c).all()):
+            status, plan = CycleStatus.STOP_INVALID_INPUT, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
+        elif plan.scale < 1.0 - 1e-9:
             status = CycleStatus.SCALED
-    new_state, _, code = ctrl.otg.step(state, target)
-    if code < 0:
+    new, ok, limited = generate(ctrl, otg, plan.target, b.lo, b.hi)
+    if not ok:
         status = CycleStatus.ERROR_OTG
+    if status.stopping and status != CycleStatus.STOP_RESUME_WAIT:
+        st = st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
     out = CycleOutput(
-        new_state.velocity,
-        new_state.position,
-        new_state.acceleration,
-        status,
-        float(scale),
-        target,
-        lo,
-        hi,
-        xdot_c,
-    )
-    return out, new_state
+        new.velocity, new.position, new.acceleration, status, float(plan.scale), plan.target, b.lo, b.hi,
+        plan.xdot_c, limited,
+    )  # fmt: skip
+    return out, st._replace(otg=new)
+
+
+def _resume_latch(cfg: ControllerConfig, chk: CheckedInput, st: ControllerState) -> tuple[CycleStatus, ControllerState]:
+    """Apply the resume latch: a stop status latches; valid inputs release it after ``resume_time``."""
+    if chk.status != CycleStatus.OK:
+        return chk.status, st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
+    if not st.latched:
+        return CycleStatus.OK, st
+    since = chk.t if st.valid_cycles == 0 else st.valid_since
+    cycles = st.valid_cycles + 1
+    tol = 1e-9
+    if chk.t - since >= cfg.resume_time - tol and (cycles - 1) * cfg.dt >= cfg.resume_time - tol:
+        return CycleStatus.OK, st._replace(latched=False, valid_since=math.nan, valid_cycles=0)
+    return CycleStatus.STOP_RESUME_WAIT, st._replace(valid_since=since, valid_cycles=cycles)
+
+
+def _sync_state(otg: OtgState | None, chk: CheckedInput, v_max: np.ndarray) -> OtgState | None:
+    """The generator state for this cycle: the previous one at the measured ``q`` (if valid); at start,
+    the measured motion (from rest if the measured velocity is unusable; clipped to ``v_max``, which the
+    robot cannot exceed); None if there is no joint state yet."""
+    if otg is None:
+        if chk.q is None:
+            return None
+        v0 = np.clip(chk.qdot, -v_max, v_max) if chk.qdot is not None else np.zeros_like(chk.q)
+        return OtgState(chk.q.copy(), v0, np.zeros_like(chk.q))
+    if chk.q is not None:
+        return OtgState(chk.q.copy(), otg.velocity, otg.acceleration)
+    return otg
+
+
+class Bounds(NamedTuple):
+    """A cycle's joint-velocity bounds, rad/s, each (n,), ``lo <= 0 <= hi``.
+
+    ``lo``/``hi`` hold for the command of this cycle (enforced, reported). ``lo_s``/``hi_s`` (within
+    them) are the ones SNS plans with: the position-limit bounds there are evaluated ``a_max / j_max``
+    seconds ahead along the current velocity, so that braking towards a position limit starts while
+    the jerk limit can still follow the shrinking bound.
+    """
+
+    lo: np.ndarray
+    hi: np.ndarray
+    lo_s: np.ndarray
+    hi_s: np.ndarray
+
+
+def joint_bounds(ctrl: AvoidanceController, otg: OtgState) -> Bounds:
+    """The bounds that hold in every cycle: ``|qdot| <= v_max`` and the position-limit braking bounds at
+    the state's position (two periods of latency, ``position_margin`` inside the limits)."""
+    cfg, j = ctrl.config, ctrl.otg
+    q, v = otg.position, otg.velocity
+
+    def pos_bounds(qq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return position_limited_velocity_bounds(
+            qq, ctrl.q_min, ctrl.q_max, j.a_max, j.j_max, 2.0 * cfg.dt, cfg.position_margin
+        )
+
+    lo_p, hi_p = pos_bounds(q)
+    ahead = 2.0 * j.a_max / j.j_max
+    lo_a, _ = pos_bounds(q + np.minimum(v, 0.0) * ahead)
+    _, hi_a = pos_bounds(q + np.maximum(v, 0.0) * ahead)
+    lo = np.minimum(np.maximum(-ctrl.v_max, lo_p), 0.0)
+    hi = np.maximum(np.minimum(ctrl.v_max, hi_p), 0.0)
+    return Bounds(lo, hi, np.maximum(lo, lo_a), np.minimum(hi, hi_a))
+
+
+def plan_motion(ctrl: AvoidanceController, chk: CheckedInput, b: Bounds) -> Plan:
+    """Stage 4 of the module docstring for valid inputs: end-effector repulsion, body bounds (which
+    tighten all of ``b`` in place) and SNS within ``b.lo_s``/``b.hi_s``."""
+    cfg = ctrl.config
+    ctrl.points.model.update(chk.q)
+    cps = ctrl.points.evaluate(chk.q, updated=True)
+    dist, dirs = chk.distances, chk.directions
+    v_rep = repulsive_velocity(dist[0], dirs[0], cfg.v_rep_max, cfg.rho_ee, cfg.alpha_ee)
+    xdot_c = commanded_task_velocity(chk.xdot_d, v_rep)
+    lo_b, hi_b = -ctrl.v_max, ctrl.v_max.copy()
+    body_bounds_inplace(
+        cps.jacobians, np.maximum(dist, 0.0), dirs, ctrl.body_use, ctrl.v_max,
+        cfg.rho_body, cfg.alpha_body, cfg.contact_distance, 1e-6, lo_b, hi_b,
+    )  # fmt: skip
+    for a, c in ((b.lo, b.lo_s), (b.hi, b.hi_s)):
+        np.clip(a, lo_b, hi_b, out=a)
+        np.clip(c, lo_b, hi_b, out=c)
+    # (a speed-scaling stage, e.g. speed and separation monitoring, would scale xdot_c or b here)
+    J = np.ascontiguousarray(cps.jacobians[0])
+    lam = dls_damping(J, cfg.dls_eps, cfg.dls_lambda_max)
+    target, scale = sns_velocity_unchecked(J, xdot_c, b.lo_s, b.hi_s, lam)
+    return Plan(target, float(scale), xdot_c)
+
+
+def generate(
+    ctrl: AvoidanceController, otg: OtgState, target: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> tuple[OtgState, bool, bool]:
+    """Ruckig towards ``target`` (or the fallback braking step if it fails), kept within ``[lo, hi]``.
+
+    Returns the new state, whether Ruckig succeeded, and whether a bound won over the jerk limit.
+    """
+    j = ctrl.otg
+    planned, _, code = j.step(otg, target)
+    ok = code >= 0
+    if not ok:
+        planned = braking_step(otg, j.a_max, j.j_max, j.dt)
+    new, limited = enforce_velocity_bounds(otg, planned, lo, hi, j.a_max, j.j_max, j.dt)
+    return new, ok, limited
+
+
+def _rest_output(ctrl: AvoidanceController, status: CycleStatus) -> CycleOutput:
+    """Output before any valid joint state: zero velocity, ``q_cmd`` = 0 clipped into the joint limits
+    (there is no measured position to hold; a position-controlled robot must not use it)."""
+    z = np.zeros(ctrl.n)
+    q = np.minimum(np.maximum(z, ctrl.q_min), ctrl.q_max)
+    return CycleOutput(z, q, z.copy(), status, 0.0, z.copy(), z.copy(), z.copy(), np.zeros(M_TASK), False)
+
+
+def _emergency_stop(ctrl: AvoidanceController, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
+    """After an unexpected exception: the fallback braking step from the last state, within v_max."""
+    st = st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
+    status = CycleStatus.STOP_INTERNAL_ERROR
+    if st.otg is None:
+        return _rest_output(ctrl, status), st
+    try:
+        j = ctrl.otg
+        lo, hi = -ctrl.v_max, ctrl.v_max.copy()
+        new, limited = enforce_velocity_bounds(st.otg, braking_step(st.otg, j.a_max, j.j_max, j.dt), lo, hi,
+                                               j.a_max, j.j_max, j.dt)  # fmt: skip
+        if not (np.isfinite(new.position).all() and np.isfinite(new.velocity).all()):
+            raise FloatingPointError
+    except Exception:  # noqa: BLE001 - last resort: hold the last position
+        z = np.zeros(ctrl.n)
+        pos = np.nan_to_num(st.otg.position)
+        new, limited, lo, hi = OtgState(pos, z, z.copy()), True, z.copy(), z.copy()
+    z = np.zeros(ctrl.n)
+    out = CycleOutput(new.velocity, new.position, new.acceleration, status, 0.0, z, lo, hi, np.zeros(M_TASK), limited)
+    return out, st._replace(otg=new)

@@ -1,8 +1,8 @@
 """End-effector collision avoidance (ICRA'12 §V-A, eqs. 7, 10, 11) with damped least squares.
 
-* repulsive velocity (eq. 7, DESIGN.md §4 reading): ``V_R = v(D) n`` with
+* repulsive velocity (eq. 7, as read in docs/conventions.md): ``V_R = v(D) n`` with
   ``v(D) = V_max / (1 + exp((D 2/rho - 1) alpha))`` and ``n`` the unit direction from the obstacle to
-  the end effector (DESIGN.md §3); ``V_R = 0`` for ``D = inf``;
+  the end effector (docs/conventions.md); ``V_R = 0`` for ``D = inf``;
 * commanded task velocity (eq. 10): ``xdot_c = xdot_d + V_R(P_EE)``;
 * joint velocity (eq. 11): ``qdot = J^#(q) xdot_c``. Near singularities ``J^#`` is replaced by damped
   least squares ``J^T (J J^T + lambda^2 I)^-1`` with the damping of Maciejewski & Klein / Chiaverini:

@@ -7,10 +7,14 @@ acceleration and jerk limits. In velocity mode it does not enforce joint *positi
 to speeds from which the joint can still brake in time:
 
 ``v_b(d) = a (-(a/(2j) + T) + sqrt((a/(2j) + T)^2 + 2 d / a))``, the largest v with
-``v^2/(2a) + v a/(2j) + v T <= d``: braking distance under acceleration limit a and jerk limit j
-(an upper bound of the exact jerk-limited braking distance), plus T seconds of latency. ``d`` is the
-distance to the limit (less a margin) and a is a fraction ``brake_fraction`` of the acceleration limit,
-which leaves room for an acceleration that is still building up when braking starts.
+``v^2/(2a) + v a/(2j) + v T <= d``: the braking distance from zero acceleration under acceleration limit
+a and jerk limit j, plus T seconds of latency at speed v. The braking term is exact when the stop reaches
+the acceleration limit (``v >= a^2/j``) and an upper bound otherwise (``v sqrt(v/j)``, by AM-GM);
+tests/test_otg.py checks both against an independent integration of the jerk-limited profile. ``d`` is
+the distance to the limit (less a margin) and a is a fraction ``brake_fraction`` of the acceleration
+limit: the rest is a reserve. It does not cover an arbitrary acceleration towards the limit at the
+moment braking starts; the controller keeps the acceleration towards a limit at or below 0 whenever
+the velocity sits on this bound (:mod:`depthguard.control.bounded`) and plans a little ahead of it.
 """
 
 from __future__ import annotations
@@ -72,6 +76,10 @@ class JointOtg:
     """Ruckig in velocity mode for n joints with cycle time ``dt`` (s).
 
     ``synchronization``: "none" (each joint time-optimal, the default), "time" or "phase".
+    ``v_max``: (n,) joint velocity limits, rad/s, passed to Ruckig as ``max_velocity``. Ruckig's velocity
+    mode does not use it (nor any bound): its output can overshoot the target velocity when it starts
+    from a non-zero acceleration, so the controller keeps each cycle's command within that cycle's
+    bounds afterwards (:mod:`depthguard.control.bounded`).
 
     ``step`` is a function of its arguments (the Ruckig object only caches the last trajectory).
     """
@@ -81,6 +89,7 @@ class JointOtg:
     a_max: np.ndarray
     j_max: np.ndarray
     synchronization: str = "none"
+    v_max: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         import ruckig
@@ -104,7 +113,13 @@ class JointOtg:
         self._out = ruckig.OutputParameter(self.n)
         self._inp.control_interface = ruckig.ControlInterface.Velocity
         self._inp.synchronization = sync[self.synchronization]
-        self._inp.max_velocity = [1e9] * self.n  # unused in velocity mode; the targets carry the bounds
+        if self.v_max is None:
+            self._inp.max_velocity = [1e9] * self.n  # not used in velocity mode
+        else:
+            self.v_max = np.broadcast_to(np.asarray(self.v_max, dtype=float), (self.n,)).copy()
+            if not np.all(self.v_max > 0):
+                raise ValueError("v_max must be > 0")
+            self._inp.max_velocity = self.v_max.tolist()
         self._inp.max_acceleration = self.a_max.tolist()
         self._inp.max_jerk = self.j_max.tolist()
         self._inp.target_acceleration = [0.0] * self.n
@@ -114,15 +129,19 @@ class JointOtg:
 
         Returns:
             the new state, the jerk (n,) applied, and Ruckig's result code (``ruckig.Result``:
-            0 Working, 1 Finished, negative = error). On error the state is returned unchanged.
+            0 Working, 1 Finished, negative = error). On error the state is returned unchanged; an
+            exception inside Ruckig (``RuckigError`` for non-finite input) is reported as -1 (Error).
         """
         inp, out = self._inp, self._out
-        inp.current_position = state.position.tolist()
-        inp.current_velocity = state.velocity.tolist()
-        inp.current_acceleration = np.clip(state.acceleration, -self.a_max, self.a_max).tolist()
-        inp.target_velocity = np.asarray(target_velocity, dtype=float).tolist()
-        res = self._otg.update(inp, out)
-        code = int(res.value) if hasattr(res, "value") else int(res)
+        try:
+            inp.current_position = state.position.tolist()
+            inp.current_velocity = state.velocity.tolist()
+            inp.current_acceleration = np.clip(state.acceleration, -self.a_max, self.a_max).tolist()
+            inp.target_velocity = np.asarray(target_velocity, dtype=float).tolist()
+            res = self._otg.update(inp, out)
+            code = int(res.value) if hasattr(res, "value") else int(res)
+        except Exception:  # noqa: BLE001 - the real-time path reports, it does not raise
+            code = -1
         if code < 0:
             return state, np.zeros(self.n), code
         new = OtgState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration))

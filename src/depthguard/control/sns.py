@@ -15,9 +15,11 @@ scale ``s`` at 1 whenever it can and otherwise as large as its greedy search fin
 3. If the free joints can no longer realise the task (``rank(J W) < m``), fall back to the best scaled
    solution found.
 
-A final guard returns ``qdot = 0`` with ``s = 0`` if rounding ever left a bound violated, so the
-bounds always hold; for that, zero must be feasible (``qmin <= 0 <= qmax``), which
-:func:`sns_velocity` requires.
+The solver proper is :func:`sns_velocity_raw`; its output is tested against the bounds and against
+``scipy.optimize.linprog`` *before* any clipping. :func:`sns_velocity_unchecked` adds a final guard on
+top: it returns ``qdot = 0`` with ``s = 0`` if the solver ever left a bound violated by more than 1e-9
+(or produced NaN), and clips rounding below that tolerance, so the bounds always hold; for that, zero
+must be feasible (``qmin <= 0 <= qmax``), which :func:`sns_velocity` requires.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["sns_velocity", "sns_velocity_unchecked"]
+__all__ = ["sns_velocity", "sns_velocity_raw", "sns_velocity_unchecked"]
 
 
 @njit(cache=True)
@@ -80,8 +82,9 @@ def _task_scale(
 
 @njit(cache=True)
 def _violates(qdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, tol: float) -> bool:
+    """True if some ``qdot[i]`` is outside ``[qmin[i] - tol, qmax[i] + tol]`` or NaN."""
     for i in range(qdot.shape[0]):
-        if qdot[i] < qmin[i] - tol or qdot[i] > qmax[i] + tol:
+        if not (qmin[i] - tol <= qdot[i] <= qmax[i] + tol):
             return True
     return False
 
@@ -135,10 +138,6 @@ def _sns_greedy(
     JW = J * best_free.astype(np.float64)[None, :]
     P, _ = _damped_pinv(JW, damping, 1e-10)
     qdot = best_qN + P @ (best_s * xdot - J @ best_qN)
-    if _violates(qdot, qmin, qmax, 1e-9):
-        return np.zeros(n), 0.0
-    for i in range(n):  # remove rounding below the tolerance
-        qdot[i] = min(max(qdot[i], qmin[i]), qmax[i])
     return qdot, best_s
 
 
@@ -271,10 +270,10 @@ def _zonotope_point(J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: n
 
 
 @njit(cache=True)
-def sns_velocity_unchecked(
+def sns_velocity_raw(
     J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 0.0
 ) -> tuple[np.ndarray, float]:
-    """SNS without input validation, for the real-time path (arrays must be float64, C-contiguous).
+    """The SNS solver proper, without input validation and without the final guard and clip.
 
     Runs SNS Algorithm 1. Its greedy saturation may scale a task more than needed, so when it scales
     (s < 1) the exact largest feasible scale s* is computed from the facets of the zonotope
@@ -282,10 +281,14 @@ def sns_velocity_unchecked(
     ``s* xdot`` and, should it still scale, an exact point of the zonotope is constructed
     (:func:`_zonotope_point`). ``damping`` > 0 replaces the pseudo-inverse by damped least squares near
     singularities; then ``J qdot = s xdot`` holds only approximately, while the bounds still hold.
+
+    Arrays must be float64 and C-contiguous: J (m, n), xdot (m,), qmin/qmax (n,). Returns ``(qdot, s)``
+    with ``qdot`` within the bounds up to rounding (tests check 1e-9 on this output, before any clip).
     """
     m, n = J.shape
     qdot, s = _sns_greedy(J, xdot, qmin, qmax, damping)
-    qdot = np.minimum(np.maximum(qdot, qmin), qmax)  # rounding below the 1e-10 tolerance
+    if _violates(qdot, qmin, qmax, 1e-9):  # rounding in the greedy search: try the exact path
+        qdot, s = np.zeros(n), 0.0
     if s >= 1.0 or m > n:
         return qdot, s
     t, _ = _ray_exit(J, np.zeros(m), xdot, qmin, qmax)
@@ -294,17 +297,31 @@ def sns_velocity_unchecked(
         return qdot, s
     target = s_opt * xdot
     q2, s2 = _sns_greedy(J, target, qmin, qmax, damping)
-    if s2 >= 1.0:
-        return np.minimum(np.maximum(q2, qmin), qmax), s_opt
+    if s2 >= 1.0 and not _violates(q2, qmin, qmax, 1e-9):
+        return q2, s_opt
     lo = np.maximum(qmin, -1e9)
     hi = np.minimum(qmax, 1e9)
     q3 = _zonotope_point(J, target, lo, hi)
     err = np.sqrt(np.sum((J @ q3 - target) ** 2))
     if _violates(q3, qmin, qmax, 1e-9) or err > 1e-8 * (1.0 + np.sqrt(np.sum(xdot * xdot))):
         return qdot, s
-    for i in range(n):
-        q3[i] = min(max(q3[i], qmin[i]), qmax[i])
     return q3, s_opt
+
+
+@njit(cache=True)
+def sns_velocity_unchecked(
+    J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 0.0
+) -> tuple[np.ndarray, float]:
+    """SNS for the real-time path: :func:`sns_velocity_raw` plus the final guard (module docstring).
+
+    Arrays must be float64, C-contiguous. The result is within ``[qmin, qmax]`` exactly: a solver
+    output off by more than 1e-9 (or NaN) is replaced by ``qdot = 0, s = 0`` (feasible when
+    ``qmin <= 0 <= qmax``), smaller rounding is clipped.
+    """
+    qdot, s = sns_velocity_raw(J, xdot, qmin, qmax, damping)
+    if _violates(qdot, qmin, qmax, 1e-9) or not np.isfinite(s):
+        return np.zeros(J.shape[1]), 0.0
+    return np.minimum(np.maximum(qdot, qmin), qmax), s
 
 
 def sns_velocity(

@@ -1,0 +1,129 @@
+"""Explicit checks of one cycle's inputs (the first stage of every control cycle).
+
+Rules (docs/conventions.md, safety principles): whatever a cycle is given, it never raises; anything
+malformed stops the robot.
+
+* ``STOP_INVALID_INPUT``: a time stamp that is not a finite number, ``t`` earlier than the previous
+  cycle's ``t``, ``t_joints`` or ``t_distances`` more than one period ``dt`` after ``t``; ``q``, ``qdot``
+  or ``xdot_d`` missing, of the wrong shape or not finite; ``distances``/``directions`` of the wrong shape,
+  a NaN or -inf distance, a non-finite direction paired with a finite distance.
+* ``STOP_STALE_JOINTS``: ``t - t_joints > joint_timeout``.
+* ``STOP_STALE_DISTANCES``: distances or directions missing (None), or ``t - t_distances >
+  distance_timeout``.
+
+A +inf distance means "nothing within rho": it is valid and its direction is ignored (set to 0).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from depthguard.control.types import ControllerConfig, CycleInput, CycleStatus
+
+__all__ = ["CheckedInput", "check_inputs", "as_vector"]
+
+
+class CheckedInput(NamedTuple):
+    """The verdict on one cycle's inputs and whatever of them is usable.
+
+    Attributes:
+        status: ``OK`` or the stop status (module docstring).
+        t: the cycle time, s (NaN if not a finite number).
+        q: (n,) float64 joint positions, or None if missing or malformed.
+        qdot: (n,) float64 joint velocities, or None.
+        xdot_d: (m,) desired task velocity, or None.
+        distances: (N,) float64 (finite or +inf), or None.
+        directions: (N, 3) float64 C-contiguous, finite (0 where the distance is +inf), or None.
+    """
+
+    status: CycleStatus
+    t: float
+    q: np.ndarray | None
+    qdot: np.ndarray | None
+    xdot_d: np.ndarray | None
+    distances: np.ndarray | None
+    directions: np.ndarray | None
+
+
+def _time(x: object) -> float:
+    """A finite float time stamp, or NaN for anything else (None, str, bool, inf, arrays...)."""
+    if isinstance(x, bool):
+        return math.nan
+    try:
+        v = float(x)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        return math.nan
+    return v if math.isfinite(v) else math.nan
+
+
+def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndarray | None:
+    """``x`` as a float64 C-contiguous array of ``shape`` (all finite if ``finite``), else None."""
+    if x is None:
+        return None
+    try:
+        a = np.ascontiguousarray(x, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if a.shape != shape:
+        return None
+    if finite and not np.isfinite(a).all():
+        return None
+    return a
+
+
+def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.ndarray | None, np.ndarray | None]:
+    """``(valid, distances, directions)``; distances/directions None when missing or invalid."""
+    if d_in is None or dirs_in is None:
+        return True, None, None
+    d = as_vector(d_in, (N,), finite=False)
+    dirs = as_vector(dirs_in, (N, 3), finite=False)
+    if d is None or dirs is None:
+        return False, None, None
+    if np.isnan(d).any() or (d == -np.inf).any():
+        return False, None, None
+    far = d == np.inf
+    dir_ok = np.isfinite(dirs).all(axis=1)
+    if not (dir_ok | far).all():
+        return False, None, None
+    if far.any():
+        dirs = np.where(far[:, None], 0.0, dirs)
+    return True, d, dirs
+
+
+def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_prev: float) -> CheckedInput:
+    """Check one cycle's inputs (module docstring); never raises.
+
+    Args:
+        inp: the :class:`CycleInput` (anything else is invalid).
+        n: joints; N: control points; m: task dimension; cfg: the controller configuration.
+        t_prev: the previous cycle's time, s (-inf at start).
+    """
+    if not isinstance(inp, tuple) or len(inp) != len(CycleInput._fields):
+        return CheckedInput(CycleStatus.STOP_INVALID_INPUT, math.nan, None, None, None, None, None)
+    t_in, q_in, qd_in, tj_in, xd_in, d_in, dirs_in, td_in = inp
+    t, tj, td = _time(t_in), _time(tj_in), _time(td_in)
+    q = as_vector(q_in, (n,))
+    qdot = as_vector(qd_in, (n,))
+    xdot_d = as_vector(xd_in, (m,))
+    d_ok, dist, dirs = _check_distances(d_in, dirs_in, N)
+    status = CycleStatus.OK
+    times_ok = not (math.isnan(t) or math.isnan(tj) or math.isnan(td))
+    if (
+        not times_ok
+        or t < t_prev
+        or tj > t + cfg.dt
+        or td > t + cfg.dt
+        or q is None
+        or qdot is None
+        or xdot_d is None
+        or not d_ok
+    ):
+        status = CycleStatus.STOP_INVALID_INPUT
+    elif not t - tj <= cfg.joint_timeout:
+        status = CycleStatus.STOP_STALE_JOINTS
+    elif dist is None or not t - td <= cfg.distance_timeout:
+        status = CycleStatus.STOP_STALE_DISTANCES
+    return CheckedInput(status, t, q, qdot, xdot_d, dist, dirs)
