@@ -75,7 +75,7 @@ float64 ssm_scale                   # SSM speed scale in [0, 1] (1 when off)
 def typestore():
     """The ROS 2 Jazzy type store with :data:`DEPTHGUARD_MSGS` registered (built once)."""
     try:
-        from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError as exc:  # pragma: no cover - depends on the installation
         raise ImportError(f"ROS 2 messages need the 'cell' extra: pip install 'depthguard[cell]' ({exc})") from None
     ts = get_typestore(Stores.ROS2_JAZZY)
@@ -337,9 +337,7 @@ def markers_msg(
     return _t("visualization_msgs/msg/MarkerArray")(markers=markers)
 
 
-def joint_trajectory_msg(
-    t: float, names: list[str] | tuple[str, ...], q: np.ndarray, qdot: np.ndarray, dt: float
-):
+def joint_trajectory_msg(t: float, names: list[str] | tuple[str, ...], q: np.ndarray, qdot: np.ndarray, dt: float):
     """``trajectory_msgs/msg/JointTrajectory`` with one point ``dt`` s ahead (for a ros2_control
     ``joint_trajectory_controller``)."""
     ns = int(round(dt * 1e9))
