@@ -253,6 +253,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------------------- cell
+def _cmd_cell(args: argparse.Namespace) -> int:
+    from depthguard.io.cellfile import describe_cell, read_cell
+
+    cell = read_cell(args.cell)
+    if args.json:
+        print(json.dumps({"name": cell.name, "cameras": [c.name for c in cell.cameras], "ok": True}))
+    else:
+        print(describe_cell(cell))
+    return 0
+
+
 # ------------------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="depthguard", description="Depth-space human-robot collision avoidance")
@@ -355,6 +367,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer repetitions")
     p.add_argument("--json", action="store_true", help="compact JSON")
     p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
+    p.add_argument("action", choices=["check"])
+    p.add_argument("cell", metavar="CELL.toml")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_cell)
 
     p = sub.add_parser("demo", help="the main demo (the simulated cell; --static for the one-camera picture)")
     p.add_argument("--static", action="store_true", help="the static one-camera demo")
