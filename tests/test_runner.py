@@ -106,7 +106,7 @@ def _write_bag(
     model,
     encoding,
     *,
-    distortion=("plumb_bob", np.zeros(5)),
+    distortion=("plumb_bob", (0.0, 0.0, 0.0, 0.0, 0.0)),
     tf=True,
     info_size=None,
     topic_image="/cam/depth",

@@ -398,7 +398,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run the whole chain on a source: bag:PATH, sim:SCENARIO or realsense")
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
-    p.add_argument("--source", required=True, metavar="bag:PATH|sim:SCENARIO|realsense", help="where the data comes from")
+    p.add_argument(
+        "--source", required=True, metavar="bag:PATH|sim:SCENARIO|realsense", help="where the data comes from"
+    )
     pace = p.add_mutually_exclusive_group()
     pace.add_argument("--realtime", action="store_true", help="pace the run to the source's clock")
     pace.add_argument("--fast", action="store_true", help="as fast as possible on the source's clock (default)")
