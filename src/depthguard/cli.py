@@ -253,6 +253,46 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------------------- cell
+def _cmd_cell(args: argparse.Namespace) -> int:
+    from depthguard.io.cellfile import describe_cell, read_cell
+
+    cell = read_cell(args.cell)
+    if args.json:
+        print(json.dumps({"name": cell.name, "cameras": [c.name for c in cell.cameras], "ok": True}))
+    else:
+        print(describe_cell(cell))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------- run
+def _cmd_run(args: argparse.Namespace) -> int:
+    from depthguard.runner import run_cell
+
+    if args.out:
+        _check_out_dir(args.out)
+    out = run_cell(
+        args.cell,
+        args.source,
+        quick=args.quick,
+        realtime=args.realtime,
+        out_dir=args.out,
+        progress=not args.json,
+    )
+    print(json.dumps(out, indent=None if args.json else 2, default=float))
+    return 0
+
+
+def _check_out_dir(path: str) -> None:
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise _Exit(f"--out {path}: exists and is not a directory")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise _Exit(f"--out {path}: cannot create it ({exc.strerror})") from None
+
+
 # ------------------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="depthguard", description="Depth-space human-robot collision avoidance")
@@ -355,6 +395,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="fewer repetitions")
     p.add_argument("--json", action="store_true", help="compact JSON")
     p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("run", help="run the whole chain on a source: bag:PATH, sim:SCENARIO or realsense")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument(
+        "--source", required=True, metavar="bag:PATH|sim:SCENARIO|realsense", help="where the data comes from"
+    )
+    pace = p.add_mutually_exclusive_group()
+    pace.add_argument("--realtime", action="store_true", help="pace the run to the source's clock")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible on the source's clock (default)")
+    p.add_argument("--quick", action="store_true", help="the scenario's short form (sim sources)")
+    p.add_argument("--out", default=None, metavar="DIR", help="write DIR/recording.mcap (ROS 2 messages)")
+    p.add_argument("--json", action="store_true", help="print one JSON summary")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
+    p.add_argument("action", choices=["check"])
+    p.add_argument("cell", metavar="CELL.toml")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_cell)
 
     p = sub.add_parser("demo", help="the main demo (the simulated cell; --static for the one-camera picture)")
     p.add_argument("--static", action="store_true", help="the static one-camera demo")

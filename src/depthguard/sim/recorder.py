@@ -1,158 +1,95 @@
-"""Recording of a simulated run in MCAP (JSON-schema channels, openable in Foxglove).
+"""Recording of a simulated run as ROS 2 messages in MCAP (:mod:`depthguard.io.mcap_ros2`).
 
-Channels:
+Open it in Foxglove, replay it with ``ros2 bag play recording.mcap`` or read it with ``rosbags``. Topics:
 
-* ``/camera<k>/depth`` (``foxglove.RawImage``): depth images, 16-bit millimetres (``16UC1``, 0 = no
-  reading), every third frame (10 Hz); images wider than 320 pixels are subsampled to 320 and recorded
-  every sixth frame (5 Hz) to keep the file small;
-* ``/camera<k>/calibration`` (``foxglove.CameraCalibration``): intrinsics and pose, once;
-* ``/joint_states``: joint positions (rad), 100 Hz;
-* ``/control_points``: control sphere centres (m), radii, evaluated distances (m, null = none within ρ);
-* ``/repulsion``: the end effector's repulsive velocity (m/s);
-* ``/clearance``: evaluated minimum distance and true minimum clearance (m).
+* ``/camera<k>/depth/image_raw`` (``sensor_msgs/msg/Image``, ``16UC1`` mm, 0 = no reading): every third
+  frame (10 Hz); images wider than 320 pixels are subsampled to 320 and recorded every sixth frame (5 Hz);
+* ``/camera<k>/depth/camera_info`` (``sensor_msgs/msg/CameraInfo``, of the recorded image size), with each image;
+* ``/tf_static`` (``tf2_msgs/msg/TFMessage``): ``world`` -> ``camera<k>_optical`` once;
+* ``/joint_states`` (``sensor_msgs/msg/JointState``): measured joint positions, 100 Hz;
+* ``/depthguard/distances`` (``depthguard_msgs/msg/ControlPointDistances``): the evaluated distances;
+* ``/depthguard/markers`` (``visualization_msgs/msg/MarkerArray``): control spheres coloured by distance
+  and repulsive arrows, 20 Hz;
+* ``/depthguard/status`` (``depthguard_msgs/msg/ControllerStatus``);
+* ``/depthguard/repulsion`` (``geometry_msgs/msg/Vector3Stamped``): the end effector's repulsive velocity;
+* ``/depthguard/true_clearance`` and ``/depthguard/evaluated_min`` (``std_msgs/msg/Float64``): ground
+  truth from the simulator and the pipeline's minimum, m.
 """
 
 from __future__ import annotations
 
-import base64
-import json
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["record_run"]
+from depthguard.io import ros2
+from depthguard.io.mcap_ros2 import Ros2McapWriter
 
-_RAW_IMAGE = {
-    "title": "foxglove.RawImage",
-    "type": "object",
-    "properties": {
-        "timestamp": {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}},
-        "frame_id": {"type": "string"},
-        "width": {"type": "integer"},
-        "height": {"type": "integer"},
-        "encoding": {"type": "string"},
-        "step": {"type": "integer"},
-        "data": {"type": "string", "contentEncoding": "base64"},
-    },
-}
-_CALIB = {
-    "title": "foxglove.CameraCalibration",
-    "type": "object",
-    "properties": {
-        "timestamp": {"type": "object"},
-        "frame_id": {"type": "string"},
-        "width": {"type": "integer"},
-        "height": {"type": "integer"},
-        "distortion_model": {"type": "string"},
-        "D": {"type": "array", "items": {"type": "number"}},
-        "K": {"type": "array", "items": {"type": "number"}},
-        "R": {"type": "array", "items": {"type": "number"}},
-        "P": {"type": "array", "items": {"type": "number"}},
-    },
-}
+__all__ = ["record_run", "camera_tf"]
 
 
-def _plain(title: str, props: dict) -> dict:
-    return {"title": title, "type": "object", "properties": props}
+def camera_tf(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of a camera's optical frame in the world (R_wc (3, 3), p_wc (3,)) from ``P_C = R P_W + t``."""
+    R = np.asarray(R, dtype=float)
+    return R.T, -R.T @ np.asarray(t, dtype=float)
 
 
-def _ts(t: float) -> dict:
-    ns = int(round(t * 1e9))
-    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+def _f64(x: float):
+    return ros2.typestore().types["std_msgs/msg/Float64"](data=float(x))
 
 
-def _num(x):
-    x = np.asarray(x, float)
-    return [None if not np.isfinite(v) else float(v) for v in x.ravel()]
-
-
-def record_run(path: str | Path, cell, log) -> Path:
+def record_run(path: str | Path, cell, log, rho: float = 0.4) -> Path:
     """Write the run's recording to ``path`` (.mcap). Returns the path."""
-    from mcap.writer import CompressionType, Writer
-
     path = Path(path)
-    with open(path, "wb") as fh:
-        w = Writer(fh, compression=CompressionType.ZSTD)
-        w.start(profile="", library="depthguard")
-
-        def channel(topic: str, schema: dict) -> int:
-            sid = w.register_schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
-            return w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-
-        def put(ch: int, t: float, msg: dict) -> None:
-            ns = int(round(t * 1e9))
-            w.add_message(ch, log_time=ns, publish_time=ns, data=json.dumps(msg).encode())
-
+    types = ros2.typestore().types
+    with Ros2McapWriter(path) as w:
+        tfs = []
+        infos = []
         for k, cam in enumerate(cell.cameras):
-            ch = channel(f"/camera{k}/calibration", _CALIB)
+            tfs.append(("world", f"camera{k}_optical", *camera_tf(cam.R, cam.t)))
             st = max(1, cam.width // 320)  # the recorded images are subsampled by this step (loop._to_mm)
-            fx, fy, cx, cy = cam.fx / st, cam.fy / st, cam.cx / st, cam.cy / st
-            K = [fx, 0, cx, 0, fy, cy, 0, 0, 1]
-            put(
-                ch,
-                0.0,
-                {
-                    "timestamp": _ts(0.0),
-                    "frame_id": f"camera{k}",
-                    "width": -(-cam.width // st),
-                    "height": -(-cam.height // st),
-                    "distortion_model": "plumb_bob",
-                    "D": [0.0] * 5,
-                    "K": K,
-                    "R": cam.R.ravel().tolist(),
-                    "P": [fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0],
-                },
+            small = type(cam)(
+                width=-(-cam.width // st),
+                height=-(-cam.height // st),
+                fx=cam.fx / st,
+                fy=cam.fy / st,
+                cx=cam.cx / st,
+                cy=cam.cy / st,
+                R=cam.R,
+                t=cam.t,
+                min_depth=cam.min_depth,
+                max_depth=cam.max_depth,
             )
-        img_ch = [channel(f"/camera{k}/depth", _RAW_IMAGE) for k in range(len(cell.cameras))]
+            infos.append(small)
+        w.write("/tf_static", "tf2_msgs/msg/TFMessage", ros2.tf_msg(0.0, tfs), 0.0)
         for t, depths in log.frames:
             for k, d in enumerate(depths):
-                put(
-                    img_ch[k],
-                    t,
-                    {
-                        "timestamp": _ts(t),
-                        "frame_id": f"camera{k}",
-                        "width": int(d.shape[1]),
-                        "height": int(d.shape[0]),
-                        "encoding": "16UC1",
-                        "step": int(d.shape[1]) * 2,
-                        "data": base64.b64encode(d.tobytes()).decode(),
-                    },
-                )
-        js = channel(
-            "/joint_states",
-            _plain(
-                "depthguard.JointState",
-                {"t": {"type": "number"}, "name": {"type": "array"}, "position": {"type": "array"}},
-            ),
-        )
-        cp = channel(
-            "/control_points",
-            _plain(
-                "depthguard.ControlPoints",
-                {"names": {"type": "array"}, "centres": {"type": "array"}, "distance": {"type": "array"}},
-            ),
-        )
-        rep = channel("/repulsion", _plain("depthguard.Repulsion", {"v_ee": {"type": "array"}}))
-        clr = channel(
-            "/clearance",
-            _plain(
-                "depthguard.Clearance", {"evaluated_min": {"type": ["number", "null"]}, "true_min": {"type": "number"}}
-            ),
-        )
+                frame = f"camera{k}_optical"
+                w.write(f"/camera{k}/depth/image_raw", "sensor_msgs/msg/Image", ros2.image_msg(t, frame, d), t)
+                info = ros2.camera_info_msg(t, frame, infos[k])
+                w.write(f"/camera{k}/depth/camera_info", "sensor_msgs/msg/CameraInfo", info, t)
         names = list(cell.joint_names)
         for i, t in enumerate(log.t):
-            put(js, t, {"t": t, "name": names, "position": _num(log.q[i])})
-            put(
-                cp,
-                t,
-                {
-                    "names": list(log.point_names),
-                    "centres": np.asarray(log.centres[i]).round(5).tolist(),
-                    "distance": _num(log.eval_points[i]),
-                },
+            w.write("/joint_states", "sensor_msgs/msg/JointState", ros2.joint_state_msg(t, names, log.q[i]), t)
+            centres = np.asarray(log.centres[i], float)
+            dist = np.asarray(log.eval_points[i], float)
+            radii = np.asarray(log.radii, float) if len(getattr(log, "radii", ())) else np.full(len(dist), np.nan)
+            logged_dirs = getattr(log, "directions", ())
+            dirs = np.asarray(logged_dirs[i], float) if len(logged_dirs) > i else np.zeros((len(dist), 3))
+            msg = ros2.distances_msg(t, list(log.point_names), centres, radii, dist, dirs, rho=rho)
+            w.write("/depthguard/distances", "depthguard_msgs/msg/ControlPointDistances", msg, t)
+            if i % 5 == 0:
+                r = np.where(np.isfinite(radii), radii, 0.05)
+                mk = ros2.markers_msg(t, centres, r, dist, dirs, rho)
+                w.write("/depthguard/markers", "visualization_msgs/msg/MarkerArray", mk, t)
+            stt = log.status[i] if i < len(log.status) else {}
+            sm = ros2.status_msg(t, str(stt.get("status", "")), float(stt.get("scale", 0.0)))
+            w.write("/depthguard/status", "depthguard_msgs/msg/ControllerStatus", sm, t)
+            v = np.asarray(log.v_ee[i], float)
+            vec = types["geometry_msgs/msg/Vector3Stamped"](
+                header=ros2.header(t, "world"), vector=types["geometry_msgs/msg/Vector3"](x=v[0], y=v[1], z=v[2])
             )
-            put(rep, t, {"v_ee": _num(log.v_ee[i])})
-            put(clr, t, {"evaluated_min": _num([log.eval_min[i]])[0], "true_min": float(log.true_min[i])})
-        w.finish()
+            w.write("/depthguard/repulsion", "geometry_msgs/msg/Vector3Stamped", vec, t)
+            w.write("/depthguard/true_clearance", "std_msgs/msg/Float64", _f64(log.true_min[i]), t)
+            w.write("/depthguard/evaluated_min", "std_msgs/msg/Float64", _f64(log.eval_min[i]), t)
     return path

@@ -1,0 +1,472 @@
+"""The cell file: one TOML file that describes a work cell (robot, cameras, distance backend, controller,
+topics), validated with errors that name the key; unknown keys are rejected.
+
+See ``docs/cell-file.md`` for the reference and ``examples/cells/`` for complete files. Relative paths in a
+cell file are relative to the file's folder. Sections:
+
+* ``[cell]``: ``name``, ``description``;
+* ``[robot]``: ``model`` (a shipped model: ``"lwr4"``) or ``urdf`` (a path), ``ee_frame``, ``joint_names``
+  (the order of ``q``; a JointState is reordered into it), ``control_points`` (a preset name such as
+  ``"ral-9"`` or ``"auto"``), ``ee_radius`` (m), ``[[robot.spheres]]`` (explicit control spheres:
+  ``link``, ``position`` in the link frame, ``radius``) and ``[[robot.attachments]]`` (tools and payloads:
+  ``name``, ``link``, ``shape`` = box | cylinder | sphere | mesh, ``size`` (box: full sizes x y z;
+  cylinder: radius, length; sphere: radius), ``mesh`` (path), ``xyz``, ``rpy`` (pose in the link frame));
+* ``[[cameras]]``: ``name``, ``topic`` and ``info_topic`` (recorded or live sources), ``frame_id``,
+  intrinsics (``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy``; or ``intrinsics = "camera_info"`` to
+  take them from the CameraInfo topic, ``"device"`` from a live device), ``min_depth``, ``max_depth``,
+  ``depth_scale``, ``rate`` (Hz), extrinsics as ``R`` + ``t`` (``P_C = R P + t``) or ``matrix`` (4x4, the
+  same map), or ``eye`` + ``target`` (+ ``up``: the camera centre and a point on its optical axis, m), or
+  ``extrinsics = "tf"`` (from the bag's TF), in the frame ``parent`` (``"world"`` or a robot
+  link, for a camera carried by the robot);
+* ``[distance]``: ``backend`` (``depthspace`` | ``octree``), ``rho`` (m), ``mode`` (min | all | hybrid),
+  ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
+  ``octree_res`` (m), ``period`` (s between distance queries in ``--fast`` runs);
+* ``[controller]``: ``rate`` (Hz), ``distance_timeout``, ``joint_timeout``, ``resume_time`` (s),
+  ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool);
+* ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
+  (Float64MultiArray), ``distances``, ``status``, ``markers``.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from depthguard.camera import Camera
+
+__all__ = ["CellFile", "CellCamera", "CellRobot", "Attachment", "Sphere", "read_cell", "describe_cell"]
+
+_SHAPES = ("box", "cylinder", "sphere", "mesh")
+
+
+class CellError(ValueError):
+    """A cell file problem; the message names the file and the key."""
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """An explicit control sphere: centre ``position`` (3,) m in ``link``'s frame, ``radius`` m."""
+
+    link: str
+    position: tuple[float, float, float]
+    radius: float
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """A tool or payload fixed to ``link``: a primitive or a mesh, posed by ``xyz`` (m) and ``rpy`` (rad)."""
+
+    name: str
+    link: str
+    shape: str
+    size: tuple[float, ...] = ()
+    mesh: Path | None = None
+    xyz: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class CellRobot:
+    model: str | None
+    urdf: Path | None
+    ee_frame: str | None
+    joint_names: tuple[str, ...] | None
+    control_points: str
+    ee_radius: float
+    spheres: tuple[Sphere, ...]
+    attachments: tuple[Attachment, ...]
+
+
+@dataclass(frozen=True)
+class CellCamera:
+    """One camera. ``camera`` holds the intrinsics and extrinsics when the file gives both; ``intrinsics``
+    and ``extrinsics`` say where they come from otherwise (``"file"``, ``"camera_info"``, ``"device"``;
+    ``"file"``, ``"tf"``). ``parent`` is the frame the extrinsics are given in."""
+
+    name: str
+    topic: str
+    info_topic: str
+    frame_id: str
+    intrinsics: str
+    extrinsics: str
+    parent: str
+    rate: float
+    params: dict[str, Any]
+    R: np.ndarray | None
+    t: np.ndarray | None
+
+    def build(self, width: int | None = None, **intrinsics: float) -> Camera:
+        """The :class:`Camera` (extrinsics in ``parent``), with intrinsics from the file or the arguments."""
+        p = dict(self.params)
+        p.update({k: v for k, v in intrinsics.items() if v is not None})
+        if width is not None:
+            p["width"] = width
+        R = np.eye(3) if self.R is None else self.R
+        t = np.zeros(3) if self.t is None else self.t
+        return Camera(R=R, t=t, **p)
+
+
+@dataclass(frozen=True)
+class CellFile:
+    path: Path
+    name: str
+    description: str
+    robot: CellRobot
+    cameras: tuple[CellCamera, ...]
+    distance: dict[str, Any]
+    controller: dict[str, Any]
+    topics: dict[str, str]
+    raw: dict[str, Any] = field(repr=False, default_factory=dict)
+
+
+# ------------------------------------------------------------------------------------------- the schema
+# key -> (type(s), default); a default of ... means required.
+_NUM = (int, float)
+_SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
+    "cell": {"name": (str, "cell"), "description": (str, "")},
+    "robot": {
+        "model": (str, None),
+        "urdf": (str, None),
+        "ee_frame": (str, None),
+        "joint_names": (list, None),
+        "control_points": (str, "ral-9"),
+        "ee_radius": (_NUM, 0.06),
+        "spheres": (list, []),
+        "attachments": (list, []),
+    },
+    "sphere": {"link": (str, ...), "position": (list, ...), "radius": (_NUM, ...)},
+    "attachment": {
+        "name": (str, ...),
+        "link": (str, ...),
+        "shape": (str, ...),
+        "size": (list, []),
+        "mesh": (str, None),
+        "xyz": (list, [0.0, 0.0, 0.0]),
+        "rpy": (list, [0.0, 0.0, 0.0]),
+    },
+    "camera": {
+        "name": (str, ...),
+        "topic": (str, ""),
+        "info_topic": (str, ""),
+        "frame_id": (str, ""),
+        "intrinsics": (str, "file"),
+        "width": (int, None),
+        "height": (int, None),
+        "fx": (_NUM, None),
+        "fy": (_NUM, None),
+        "cx": (_NUM, None),
+        "cy": (_NUM, None),
+        "min_depth": (_NUM, 0.3),
+        "max_depth": (_NUM, 8.0),
+        "depth_scale": (_NUM, 0.001),
+        "rate": (_NUM, 30.0),
+        "extrinsics": (str, "file"),
+        "R": (list, None),
+        "t": (list, None),
+        "matrix": (list, None),
+        "eye": (list, None),
+        "target": (list, None),
+        "up": (list, [0.0, 0.0, 1.0]),
+        "parent": (str, "world"),
+    },
+    "distance": {
+        "backend": (str, "depthspace"),
+        "rho": (_NUM, 0.4),
+        "mode": (str, "hybrid"),
+        "invalid": (str, "conservative"),
+        "fill_radius": (int, 4),
+        "grid_dd": (_NUM, 0.01),
+        "workspace": (list, [-1.2, 1.2, -1.2, 1.2, -0.3, 1.5]),
+        "octree_res": (_NUM, 0.05),
+        "period": (_NUM, 0.003),
+    },
+    "controller": {
+        "rate": (_NUM, 1000.0),
+        "distance_timeout": (_NUM, 0.1),
+        "joint_timeout": (_NUM, 0.005),
+        "resume_time": (_NUM, 0.1),
+        "velocity_scale": (_NUM, 1.0),
+        "a_max": (_NUM, 10.0),
+        "j_max": (_NUM, 500.0),
+        "rho_ee": (_NUM, 0.4),
+        "rho_body": (_NUM, 0.4),
+        "alpha": (_NUM, 6.0),
+        "v_rep_max": (_NUM, 2.0),
+        "ssm": (bool, False),
+    },
+    "topics": {
+        "joint_states": (str, "/joint_states"),
+        "tf": (str, "/tf"),
+        "tf_static": (str, "/tf_static"),
+        "command": (str, "/depthguard/joint_trajectory"),
+        "command_array": (str, "/depthguard/joint_velocity_command"),
+        "distances": (str, "/depthguard/distances"),
+        "status": (str, "/depthguard/status"),
+        "markers": (str, "/depthguard/markers"),
+    },
+}
+_TOP = {"cell", "robot", "cameras", "distance", "controller", "topics"}
+_CHOICES = {
+    ("distance", "backend"): ("depthspace", "octree"),
+    ("distance", "mode"): ("min", "all", "hybrid"),
+    ("distance", "invalid"): ("conservative", "ignore"),
+    ("camera", "intrinsics"): ("file", "camera_info", "device"),
+    ("camera", "extrinsics"): ("file", "tf"),
+    ("attachment", "shape"): _SHAPES,
+}
+_POSITIVE = {"rho", "grid_dd", "octree_res", "period", "rate", "distance_timeout", "joint_timeout", "a_max", "j_max"}
+
+
+def _section(src: Path, where: str, kind: str, table: Any) -> dict[str, Any]:
+    """Validate one table against ``_SCHEMA[kind]``: unknown keys, types, choices, required keys."""
+    if not isinstance(table, dict):
+        raise CellError(f"{src}: [{where}] must be a table, got {type(table).__name__}")
+    schema = _SCHEMA[kind]
+    unknown = sorted(set(table) - set(schema))
+    if unknown:
+        raise CellError(f"{src}: unknown key(s) {unknown} in [{where}]; known keys: {sorted(schema)}")
+    out: dict[str, Any] = {}
+    for key, (typ, default) in schema.items():
+        if key not in table:
+            if default is ...:
+                raise CellError(f"{src}: [{where}] needs the key '{key}'")
+            out[key] = default
+            continue
+        val = table[key]
+        if isinstance(val, bool) and typ is not bool:
+            raise CellError(f"{src}: {where}.{key} must be {_type_name(typ)}, got {val!r}")
+        if not isinstance(val, typ):
+            raise CellError(f"{src}: {where}.{key} must be {_type_name(typ)}, got {val!r}")
+        if typ is _NUM and not np.isfinite(val):
+            raise CellError(f"{src}: {where}.{key} must be finite, got {val!r}")
+        if key in _POSITIVE and val <= 0:
+            raise CellError(f"{src}: {where}.{key} must be > 0, got {val!r}")
+        choices = _CHOICES.get((kind, key))
+        if choices and val not in choices:
+            raise CellError(f"{src}: {where}.{key} must be one of {list(choices)}, got {val!r}")
+        out[key] = val
+    return out
+
+
+def _type_name(typ: Any) -> str:
+    if typ is _NUM:
+        return "a number"
+    return {str: "a string", int: "an integer", list: "an array", bool: "true or false"}.get(typ, str(typ))
+
+
+def _vector(src: Path, where: str, value: Any, n: int) -> tuple[float, ...]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise CellError(f"{src}: {where} must be {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise CellError(f"{src}: {where} must be {n} finite numbers, got {value!r}")
+    return tuple(float(x) for x in arr)
+
+
+def _robot(src: Path, table: Any) -> CellRobot:
+    r = _section(src, "robot", "robot", table)
+    if (r["model"] is None) == (r["urdf"] is None):
+        raise CellError(f"{src}: [robot] needs exactly one of 'model' (a shipped model: lwr4) or 'urdf' (a path)")
+    if r["model"] is not None and r["model"] not in ("lwr4",):
+        raise CellError(f"{src}: robot.model must be one of ['lwr4'], got {r['model']!r} (or give 'urdf')")
+    urdf = None
+    if r["urdf"] is not None:
+        urdf = (src.parent / r["urdf"]).resolve()
+        if not urdf.is_file():
+            raise CellError(f"{src}: robot.urdf '{r['urdf']}' is not a file (looked at {urdf})")
+    names = r["joint_names"]
+    if names is not None and not all(isinstance(x, str) for x in names):
+        raise CellError(f"{src}: robot.joint_names must be an array of strings")
+    spheres = []
+    for i, s in enumerate(r["spheres"]):
+        s = _section(src, f"robot.spheres[{i}]", "sphere", s)
+        pos = _vector(src, f"robot.spheres[{i}].position", s["position"], 3)
+        if s["radius"] < 0:
+            raise CellError(f"{src}: robot.spheres[{i}].radius must be >= 0")
+        spheres.append(Sphere(s["link"], pos, float(s["radius"])))  # type: ignore[arg-type]
+    atts = []
+    for i, a in enumerate(r["attachments"]):
+        where = f"robot.attachments[{i}]"
+        a = _section(src, where, "attachment", a)
+        size = tuple(float(x) for x in a["size"]) if all(isinstance(x, _NUM) for x in a["size"]) else None
+        need = {"box": 3, "cylinder": 2, "sphere": 1, "mesh": 0}[a["shape"]]
+        if size is None or len(size) != need or any(x <= 0 for x in size):
+            raise CellError(f"{src}: {where}.size must be {need} positive numbers for a {a['shape']}, got {a['size']}")
+        mesh = None
+        if a["shape"] == "mesh":
+            if a["mesh"] is None:
+                raise CellError(f"{src}: {where} is a mesh: give 'mesh' (a path to an STL/OBJ/DAE file)")
+            mesh = (src.parent / a["mesh"]).resolve()
+            if not mesh.is_file():
+                raise CellError(f"{src}: {where}.mesh '{a['mesh']}' is not a file")
+        xyz = _vector(src, f"{where}.xyz", a["xyz"], 3)
+        rpy = _vector(src, f"{where}.rpy", a["rpy"], 3)
+        atts.append(Attachment(a["name"], a["link"], a["shape"], size, mesh, xyz, rpy))  # type: ignore[arg-type]
+    return CellRobot(
+        r["model"],
+        urdf,
+        r["ee_frame"],
+        tuple(names) if names is not None else None,
+        r["control_points"],
+        float(r["ee_radius"]),
+        tuple(spheres),
+        tuple(atts),
+    )
+
+
+def _camera(src: Path, i: int, table: Any) -> CellCamera:
+    where = f"cameras[{i}]"
+    c = _section(src, where, "camera", table)
+    intr = {k: c[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}
+    if c["intrinsics"] == "file":
+        missing = [k for k, v in intr.items() if v is None]
+        if missing:
+            raise CellError(f'{src}: {where} needs {missing} (or intrinsics = "camera_info" | "device")')
+    R = t = None
+    if c["extrinsics"] == "file":
+        if c["eye"] is not None or c["target"] is not None:
+            if c["matrix"] is not None or c["R"] is not None or c["t"] is not None:
+                raise CellError(f"{src}: {where}: give one form of extrinsics: 'eye' + 'target', 'R' + 't' or 'matrix'")
+            from depthguard.camera import look_at
+
+            eye = _vector(src, f"{where}.eye", c["eye"], 3)
+            target = _vector(src, f"{where}.target", c["target"], 3)
+            try:
+                R, t = look_at(np.array(eye), np.array(target), np.array(_vector(src, f"{where}.up", c["up"], 3)))
+            except ValueError as exc:
+                raise CellError(f"{src}: {where}: {exc}") from None
+        elif c["matrix"] is not None:
+            if c["R"] is not None or c["t"] is not None:
+                raise CellError(f"{src}: {where}: give either 'matrix' or 'R' and 't', not both")
+            M = np.asarray(c["matrix"], dtype=float) if _is_matrix(c["matrix"], 4, 4) else None
+            if M is None or not np.allclose(M[3], [0, 0, 0, 1]):
+                raise CellError(f"{src}: {where}.matrix must be a 4x4 homogeneous matrix (last row 0 0 0 1)")
+            R, t = M[:3, :3], M[:3, 3]
+        else:
+            if c["R"] is None or c["t"] is None or not _is_matrix(c["R"], 3, 3):
+                raise CellError(f"{src}: {where} needs extrinsics: 'R' (3x3) and 't' (3), or 'matrix' (4x4)")
+            R = np.asarray(c["R"], dtype=float)
+            t = np.asarray(_vector(src, f"{where}.t", c["t"], 3))
+        from depthguard.validation import check_rotation
+
+        try:
+            R = check_rotation(R, f"{where}.R")
+        except ValueError as exc:
+            raise CellError(f"{src}: {exc}") from None
+    params = {k: v for k, v in intr.items() if v is not None}
+    params.update(min_depth=float(c["min_depth"]), max_depth=float(c["max_depth"]), depth_scale=float(c["depth_scale"]))
+    if c["intrinsics"] == "file":
+        try:
+            Camera(R=np.eye(3) if R is None else R, t=np.zeros(3) if t is None else t, **params)
+        except ValueError as exc:
+            raise CellError(f"{src}: {where}: {exc}") from None
+    name = c["name"]
+    return CellCamera(
+        name=name,
+        topic=c["topic"] or f"/{name}/depth/image_raw",
+        info_topic=c["info_topic"] or f"/{name}/depth/camera_info",
+        frame_id=c["frame_id"] or f"{name}_optical",
+        intrinsics=c["intrinsics"],
+        extrinsics=c["extrinsics"],
+        parent=c["parent"],
+        rate=float(c["rate"]),
+        params=params,
+        R=R,
+        t=t,
+    )
+
+
+def _is_matrix(value: Any, rows: int, cols: int) -> bool:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return arr.shape == (rows, cols) and bool(np.all(np.isfinite(arr)))
+
+
+def read_cell(path: str | Path) -> CellFile:
+    """Read and validate a cell file. Raises ``ValueError`` (:class:`CellError`) naming the file and key."""
+    src = Path(path)
+    if src.is_dir():
+        raise CellError(f"{src}: is a directory, expected a cell file (.toml)")
+    if not src.is_file():
+        raise CellError(f"{src}: no such cell file")
+    try:
+        data = tomllib.loads(src.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise CellError(f"{src}: not UTF-8 text ({exc.reason})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise CellError(f"{src}: not valid TOML ({exc})") from None
+    unknown = sorted(set(data) - _TOP)
+    if unknown:
+        raise CellError(f"{src}: unknown section(s) {unknown}; known: {sorted(_TOP)}")
+    for req in ("robot", "cameras"):
+        if req not in data:
+            raise CellError(f"{src}: the cell file needs a [{req}] section" + (" ([[cameras]])" * (req == "cameras")))
+    cell = _section(src, "cell", "cell", data.get("cell", {}))
+    cams_raw = data["cameras"]
+    if not isinstance(cams_raw, list) or not cams_raw:
+        raise CellError(f"{src}: [[cameras]] must hold at least one camera table")
+    cams = tuple(_camera(src, i, c) for i, c in enumerate(cams_raw))
+    names = [c.name for c in cams]
+    if len(set(names)) != len(names):
+        raise CellError(f"{src}: camera names must be unique, got {names}")
+    dist = _section(src, "distance", "distance", data.get("distance", {}))
+    ws = _vector(src, "distance.workspace", dist["workspace"], 6)
+    if any(ws[2 * i] >= ws[2 * i + 1] for i in range(3)):
+        raise CellError(f"{src}: distance.workspace must be xmin, xmax, ymin, ymax, zmin, zmax with min < max")
+    dist["workspace"] = ws
+    ctrl = _section(src, "controller", "controller", data.get("controller", {}))
+    if not 0 < ctrl["velocity_scale"] <= 1:
+        raise CellError(f"{src}: controller.velocity_scale must be in (0, 1], got {ctrl['velocity_scale']}")
+    topics = _section(src, "topics", "topics", data.get("topics", {}))
+    return CellFile(src, cell["name"], cell["description"], _robot(src, data["robot"]), cams, dist, ctrl, topics, data)
+
+
+def describe_cell(cell: CellFile) -> str:
+    """A human-readable summary of what the cell file says (``depthguard cell check``)."""
+    r = cell.robot
+    lines = [f"cell '{cell.name}' ({cell.path})"]
+    if cell.description:
+        lines.append(f"  {cell.description}")
+    lines.append(
+        f"robot: {r.model or r.urdf}; ee frame {r.ee_frame or '(last link)'}; control points {r.control_points!r}"
+        f" (ee radius {r.ee_radius} m)" + (f" + {len(r.spheres)} explicit spheres" if r.spheres else "")
+    )
+    for a in r.attachments:
+        lines.append(f"  attachment '{a.name}' on {a.link}: {a.shape} {list(a.size) or a.mesh} at xyz {list(a.xyz)}")
+    for c in cell.cameras:
+        intr = c.params
+        what = (
+            f"{intr['width']}x{intr['height']} fx {intr['fx']} fy {intr['fy']} cx {intr['cx']} cy {intr['cy']}"
+            if c.intrinsics == "file"
+            else f"intrinsics from {c.intrinsics}"
+        )
+        pose = "extrinsics from TF"
+        if c.R is not None:
+            centre = -c.R.T @ c.t
+            pose = f"centre {np.round(centre, 3).tolist()} m in '{c.parent}'"
+        lines.append(
+            f"camera '{c.name}': {what}; depth {intr['min_depth']}-{intr['max_depth']} m; {pose};"
+            f" topic {c.topic} ({c.rate:g} Hz)"
+        )
+    d = cell.distance
+    lines.append(
+        f"distance: backend {d['backend']} ({'depth grid' if len(cell.cameras) > 1 else 'depth space'}"
+        f" for {len(cell.cameras)} camera(s)"
+        * (d["backend"] == "depthspace")
+        + ")" * (d["backend"] == "depthspace")
+        + f"; rho {d['rho']} m, mode {d['mode']}, missing depth {d['invalid']} (fill {d['fill_radius']} px)"
+    )
+    c = cell.controller
+    lines.append(
+        f"controller: {c['rate']:g} Hz; timeouts: distances {c['distance_timeout']} s, joints {c['joint_timeout']} s;"
+        f" resume after {c['resume_time']} s valid; SSM {'on' if c['ssm'] else 'off'}"
+    )
+    lines.append("topics: " + ", ".join(f"{k} {v}" for k, v in cell.topics.items()))
+    return "\n".join(lines)

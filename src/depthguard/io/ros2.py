@@ -1,0 +1,372 @@
+"""ROS 2 messages without a ROS installation: built, serialised (CDR) and described with ``rosbags``.
+
+The type store is ROS 2 Jazzy's (``rosbags.typesys.Stores.ROS2_JAZZY``) plus DepthGuard's own messages
+(:data:`DEPTHGUARD_MSGS`), so that bags, MCAP recordings and Zenoh payloads carry ordinary ROS 2 types:
+
+* ``sensor_msgs/msg/Image`` (depth as ``16UC1`` millimetres, 0 = no reading, or ``32FC1`` metres, NaN = no
+  reading), ``sensor_msgs/msg/CameraInfo``, ``sensor_msgs/msg/JointState``, ``tf2_msgs/msg/TFMessage``;
+* ``visualization_msgs/msg/MarkerArray`` for display, ``trajectory_msgs/msg/JointTrajectory`` and
+  ``std_msgs/msg/Float64MultiArray`` for ros2_control drivers;
+* ``depthguard_msgs/msg/ControlPointDistances`` and ``depthguard_msgs/msg/ControllerStatus`` (definitions
+  below: what DepthGuard computes per distance query and per control cycle).
+
+Frames follow ``docs/conventions.md``: the world frame is the robot base frame; a camera's optical frame
+has OpenCV axes; its pose is ``P_C = R P_W + t``, so the TF transform world -> camera optical frame has
+rotation ``R^T`` and translation ``-R^T t``.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "DEPTHGUARD_MSGS",
+    "typestore",
+    "stamp",
+    "to_seconds",
+    "header",
+    "image_msg",
+    "image_to_depth",
+    "camera_info_msg",
+    "joint_state_msg",
+    "tf_msg",
+    "distances_msg",
+    "status_msg",
+    "markers_msg",
+    "joint_trajectory_msg",
+    "float64_array_msg",
+    "serialize",
+    "deserialize",
+    "msgdef",
+]
+
+#: DepthGuard's own ROS 2 message definitions (package ``depthguard_msgs``).
+DEPTHGUARD_MSGS: dict[str, str] = {
+    "depthguard_msgs/msg/ControlPointDistance": """\
+# One control sphere and its distance to the nearest obstacle (people and unseen space included).
+string name
+geometry_msgs/Point centre          # sphere centre, world frame, m
+float64 radius                      # m
+float64 distance                    # from the sphere surface, m; +inf = nothing within rho; NaN = unknown
+geometry_msgs/Vector3 direction     # unit repulsive direction (from the obstacle towards the point)
+geometry_msgs/Point nearest         # nearest obstacle point, world frame, m (NaN if none)
+""",
+    "depthguard_msgs/msg/ControlPointDistances": """\
+# All control points of one distance query.
+std_msgs/Header header
+float64 rho                         # radius of surveillance, m
+depthguard_msgs/ControlPointDistance[] points
+""",
+    "depthguard_msgs/msg/ControllerStatus": """\
+# One control cycle's outcome.
+std_msgs/Header header
+string status                       # CycleStatus name (OK, SCALED, STOP_STALE_DISTANCES, ...)
+float64 scale                       # SNS task scale in [0, 1]
+string monitor_state                # SSM state, empty when SSM is off
+float64 ssm_scale                   # SSM speed scale in [0, 1] (1 when off)
+""",
+}
+
+
+@cache
+def typestore():
+    """The ROS 2 Jazzy type store with :data:`DEPTHGUARD_MSGS` registered (built once)."""
+    try:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise ImportError(f"ROS 2 messages need the 'cell' extra: pip install 'depthguard[cell]' ({exc})") from None
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    types: dict[str, Any] = {}
+    for name, text in DEPTHGUARD_MSGS.items():
+        types.update(get_types_from_msg(text, name))
+    ts.register(types)
+    return ts
+
+
+def _t(name: str):
+    return typestore().types[name]
+
+
+def stamp(t: float):
+    """``builtin_interfaces/msg/Time`` for ``t`` seconds (t >= 0)."""
+    ns = int(round(max(float(t), 0.0) * 1e9))
+    return _t("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def to_seconds(st) -> float:
+    """Seconds of a ``builtin_interfaces/msg/Time``."""
+    return float(st.sec) + 1e-9 * float(st.nanosec)
+
+
+def header(t: float, frame_id: str):
+    """``std_msgs/msg/Header``."""
+    return _t("std_msgs/msg/Header")(stamp=stamp(t), frame_id=str(frame_id))
+
+
+def image_msg(t: float, frame_id: str, depth: np.ndarray, encoding: str = "16UC1"):
+    """Depth image (H, W) as ``sensor_msgs/msg/Image``.
+
+    Args:
+        depth: metres (float; 0/NaN/inf = no reading) or, for ``16UC1``, already uint16 millimetres.
+        encoding: ``16UC1`` (uint16 mm, 0 = no reading) or ``32FC1`` (float32 m, NaN = no reading).
+    """
+    d = np.asarray(depth)
+    if d.ndim != 2:
+        raise ValueError(f"depth image must be (H, W), got shape {d.shape}")
+    if encoding == "16UC1":
+        if d.dtype != np.uint16:
+            m = np.nan_to_num(np.asarray(d, float), nan=0.0, posinf=0.0, neginf=0.0) * 1000.0
+            d = np.clip(np.round(m), 0, 65535).astype(np.uint16)
+        data = d.astype("<u2")
+    elif encoding == "32FC1":
+        f = np.asarray(d, dtype=np.float32)
+        data = np.where(np.isfinite(f) & (f > 0), f, np.float32(np.nan)).astype("<f4")
+    else:
+        raise ValueError(f"depth encoding must be '16UC1' or '32FC1', got {encoding!r}")
+    h, w = data.shape
+    return _t("sensor_msgs/msg/Image")(
+        header=header(t, frame_id),
+        height=h,
+        width=w,
+        encoding=encoding,
+        is_bigendian=0,
+        step=w * data.itemsize,
+        data=np.frombuffer(data.tobytes(), dtype=np.uint8),
+    )
+
+
+def image_to_depth(msg) -> np.ndarray:
+    """(H, W) float32 depth in metres from a ``sensor_msgs/msg/Image`` (NaN = no reading).
+
+    Raises ``ValueError`` for encodings other than 16UC1 / 32FC1 or a size that contradicts the data.
+    """
+    enc = str(msg.encoding).upper()
+    h, w = int(msg.height), int(msg.width)
+    dtype = {"16UC1": np.uint16, "MONO16": np.uint16, "32FC1": np.float32}.get(enc)
+    if dtype is None:
+        raise ValueError(f"Image encoding {msg.encoding!r} is not a depth encoding (expected 16UC1 or 32FC1)")
+    item = np.dtype(dtype).itemsize
+    raw = np.asarray(msg.data, dtype=np.uint8).tobytes()
+    step = int(msg.step) or w * item
+    if step < w * item or len(raw) < step * h:
+        raise ValueError(f"Image {w}x{h} {msg.encoding} holds {len(raw)} bytes with step {msg.step}: too few")
+    order = ">" if msg.is_bigendian else "<"
+    rows = np.frombuffer(raw[: step * h], dtype=np.uint8).reshape(h, step)[:, : w * item]
+    img = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order)).reshape(h, w)
+    if dtype == np.uint16:
+        out = img.astype(np.float32) / 1000.0
+        out[img == 0] = np.nan
+        return out
+    out = img.astype(np.float32)
+    out[~(np.isfinite(out) & (out > 0))] = np.nan
+    return out
+
+
+def camera_info_msg(t: float, frame_id: str, camera) -> Any:
+    """``sensor_msgs/msg/CameraInfo`` of a :class:`depthguard.camera.Camera` (no distortion)."""
+    K = [camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0]
+    P = [camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    roi = _t("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return _t("sensor_msgs/msg/CameraInfo")(
+        header=header(t, frame_id),
+        height=int(camera.height),
+        width=int(camera.width),
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=np.array(K, dtype=float),
+        r=np.eye(3).ravel(),
+        p=np.array(P, dtype=float),
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
+
+
+def joint_state_msg(
+    t: float, names: list[str] | tuple[str, ...], q: np.ndarray, qdot: np.ndarray | None = None, frame_id: str = ""
+):
+    """``sensor_msgs/msg/JointState`` (positions rad or m; velocities optional)."""
+    q = np.asarray(q, dtype=float).ravel()
+    v = np.zeros(0) if qdot is None else np.asarray(qdot, dtype=float).ravel()
+    return _t("sensor_msgs/msg/JointState")(
+        header=header(t, frame_id), name=list(names), position=q, velocity=v, effort=np.zeros(0)
+    )
+
+
+def _quat_xyzw(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of a rotation matrix (3, 3)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
+
+
+def tf_msg(t: float, transforms: list[tuple[str, str, np.ndarray, np.ndarray]]):
+    """``tf2_msgs/msg/TFMessage`` from ``(parent, child, R (3, 3), p (3,))``: child pose in the parent frame."""
+    T = _t("geometry_msgs/msg/TransformStamped")
+    out = []
+    for parent, child, R, p in transforms:
+        qx, qy, qz, qw = _quat_xyzw(R)
+        tr = _t("geometry_msgs/msg/Transform")(
+            translation=_t("geometry_msgs/msg/Vector3")(x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            rotation=_t("geometry_msgs/msg/Quaternion")(x=qx, y=qy, z=qz, w=qw),
+        )
+        out.append(T(header=header(t, parent), child_frame_id=child, transform=tr))
+    return _t("tf2_msgs/msg/TFMessage")(transforms=out)
+
+
+def _point(p) -> Any:
+    p = np.asarray(p, dtype=float)
+    return _t("geometry_msgs/msg/Point")(x=float(p[0]), y=float(p[1]), z=float(p[2]))
+
+
+def _vec(v) -> Any:
+    v = np.asarray(v, dtype=float)
+    return _t("geometry_msgs/msg/Vector3")(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def distances_msg(
+    t: float,
+    names: list[str] | tuple[str, ...],
+    centres: np.ndarray,
+    radii: np.ndarray,
+    distances: np.ndarray,
+    directions: np.ndarray,
+    nearest: np.ndarray | None = None,
+    rho: float = float("nan"),
+    frame_id: str = "world",
+):
+    """``depthguard_msgs/msg/ControlPointDistances`` for N points (arrays (N, 3) / (N,), SI units)."""
+    P = _t("depthguard_msgs/msg/ControlPointDistance")
+    N = len(names)
+    near = np.full((N, 3), np.nan) if nearest is None else np.asarray(nearest, dtype=float)
+    pts = [
+        P(
+            name=str(names[k]),
+            centre=_point(centres[k]),
+            radius=float(radii[k]),
+            distance=float(distances[k]),
+            direction=_vec(directions[k]),
+            nearest=_point(near[k]),
+        )
+        for k in range(N)
+    ]
+    return _t("depthguard_msgs/msg/ControlPointDistances")(header=header(t, frame_id), rho=float(rho), points=pts)
+
+
+def status_msg(t: float, status: str, scale: float, monitor_state: str = "", ssm_scale: float = 1.0):
+    """``depthguard_msgs/msg/ControllerStatus``."""
+    return _t("depthguard_msgs/msg/ControllerStatus")(
+        header=header(t, ""),
+        status=str(status),
+        scale=float(scale),
+        monitor_state=str(monitor_state),
+        ssm_scale=float(ssm_scale),
+    )
+
+
+def _color(r: float, g: float, b: float, a: float = 1.0):
+    return _t("std_msgs/msg/ColorRGBA")(r=float(r), g=float(g), b=float(b), a=float(a))
+
+
+def distance_color(d: float, rho: float) -> tuple[float, float, float]:
+    """Red at contact, yellow half way, green at rho and beyond (and for +inf)."""
+    f = 1.0 if not np.isfinite(d) else float(np.clip(d / max(rho, 1e-9), 0.0, 1.0))
+    return (min(1.0, 2.0 * (1.0 - f)), min(1.0, 2.0 * f), 0.0)
+
+
+def markers_msg(
+    t: float,
+    centres: np.ndarray,
+    radii: np.ndarray,
+    distances: np.ndarray,
+    directions: np.ndarray,
+    rho: float,
+    frame_id: str = "world",
+):
+    """``visualization_msgs/msg/MarkerArray``: one sphere per control point coloured by distance, and an
+    arrow along the repulsive direction (length proportional to ``1 - d/rho``) where ``d < rho``."""
+    M = _t("visualization_msgs/msg/Marker")
+    dur = _t("builtin_interfaces/msg/Duration")(sec=0, nanosec=200_000_000)
+    pose = _t("geometry_msgs/msg/Pose")
+    quat = _t("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0)
+    markers = []
+    for k in range(len(radii)):
+        c, d = np.asarray(centres[k], float), float(distances[k])
+        common = dict(
+            header=header(t, frame_id),
+            ns="control_points",
+            action=0,
+            lifetime=dur,
+            frame_locked=False,
+            points=[],
+            colors=[],
+            texture_resource="",
+            texture=_t("sensor_msgs/msg/CompressedImage")(header=header(t, ""), format="", data=np.zeros(0, np.uint8)),
+            uv_coordinates=[],
+            text="",
+            mesh_resource="",
+            mesh_file=_t("visualization_msgs/msg/MeshFile")(filename="", data=np.zeros(0, np.uint8)),
+            mesh_use_embedded_materials=False,
+        )
+        s = 2.0 * float(radii[k])
+        markers.append(
+            M(
+                **common,
+                id=2 * k,
+                type=2,  # SPHERE
+                pose=pose(position=_point(c), orientation=quat),
+                scale=_vec([s, s, s]),
+                color=_color(*distance_color(d, rho), 0.6),
+            )
+        )
+        u = np.asarray(directions[k], float)
+        if np.isfinite(d) and d < rho and np.all(np.isfinite(u)):
+            tip = c + u * 0.3 * (1.0 - max(d, 0.0) / rho)
+            m = M(
+                **{**common, "points": [_point(c), _point(tip)]},
+                id=2 * k + 1,
+                type=0,  # ARROW (from points[0] to points[1])
+                pose=pose(position=_point([0, 0, 0]), orientation=quat),
+                scale=_vec([0.01, 0.02, 0.03]),
+                color=_color(1.0, 0.3, 0.0),
+            )
+            markers.append(m)
+    return _t("visualization_msgs/msg/MarkerArray")(markers=markers)
+
+
+def joint_trajectory_msg(t: float, names: list[str] | tuple[str, ...], q: np.ndarray, qdot: np.ndarray, dt: float):
+    """``trajectory_msgs/msg/JointTrajectory`` with one point ``dt`` s ahead (for a ros2_control
+    ``joint_trajectory_controller``)."""
+    ns = int(round(dt * 1e9))
+    pt = _t("trajectory_msgs/msg/JointTrajectoryPoint")(
+        positions=np.asarray(q, float),
+        velocities=np.asarray(qdot, float),
+        accelerations=np.zeros(0),
+        effort=np.zeros(0),
+        time_from_start=_t("builtin_interfaces/msg/Duration")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
+    )
+    return _t("trajectory_msgs/msg/JointTrajectory")(header=header(t, ""), joint_names=list(names), points=[pt])
+
+
+def float64_array_msg(values: np.ndarray):
+    """``std_msgs/msg/Float64MultiArray`` (for a ros2_control ``forward_command_controller``)."""
+    layout = _t("std_msgs/msg/MultiArrayLayout")(dim=[], data_offset=0)
+    return _t("std_msgs/msg/Float64MultiArray")(layout=layout, data=np.asarray(values, dtype=float))
+
+
+def serialize(msg, typename: str) -> bytes:
+    """CDR bytes (with the 4-byte encapsulation header) of ``msg``."""
+    return bytes(typestore().serialize_cdr(msg, typename))
+
+
+def deserialize(data: bytes | memoryview, typename: str):
+    """Message from CDR bytes."""
+    return typestore().deserialize_cdr(data, typename)
+
+
+def msgdef(typename: str) -> str:
+    """The ROS 2 message definition text of ``typename`` with its dependencies (MCAP ``ros2msg`` schema)."""
+    return typestore().generate_msgdef(typename, ros_version=2)[0]

@@ -1,0 +1,74 @@
+"""``depthguard run``: the whole chain (self-filter, distances, controller) on the simulated cell, a ROS 2 bag
+or a live RealSense, from one cell file; see :mod:`depthguard.runner.run`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from depthguard.io.cellfile import CellFile, read_cell
+
+__all__ = ["open_source", "run_cell"]
+
+
+def _check_sim_cameras(cell: CellFile, cameras: list, scenario: str) -> None:
+    if len(cell.cameras) != len(cameras):
+        raise ValueError(f"{cell.path}: {len(cell.cameras)} camera(s) but scenario {scenario!r} has {len(cameras)}")
+    for cc, cam in zip(cell.cameras, cameras, strict=True):
+        if cc.R is None:
+            continue
+        mine = cc.build()
+        if np.abs(mine.position - cam.position).max() > 1e-3 or np.abs(mine.R - cam.R).max() > 1e-3:
+            raise ValueError(
+                f"{cell.path}: camera '{cc.name}' is at {np.round(mine.position, 3).tolist()} but scenario"
+                f" {scenario!r} puts it at {np.round(cam.position, 3).tolist()}"
+            )
+
+
+def open_source(spec: str, cell: CellFile, joint_names: tuple[str, ...], *, quick: bool = False):
+    """A source from ``bag:PATH``, ``sim:SCENARIO`` or ``realsense``."""
+    kind, _, arg = spec.partition(":")
+    if kind == "sim":
+        from depthguard.runner.sources import SimSource
+
+        src = SimSource(arg, quick=quick, control_dt=1.0 / float(cell.controller["rate"]))
+        _check_sim_cameras(cell, src.cameras, arg)
+        if tuple(src.joint_names) != tuple(joint_names):
+            raise ValueError(
+                f"{cell.path}: the robot's joints {joint_names} are not the simulated arm's {src.joint_names}"
+            )
+        return src
+    if kind == "bag":
+        from depthguard.runner.bag import BagSource
+
+        return BagSource(Path(arg), cell, joint_names)
+    if kind == "realsense":
+        from depthguard.runner.realsense import RealSenseSource
+
+        return RealSenseSource(cell, joint_names)
+    raise ValueError(f"--source must be bag:PATH, sim:SCENARIO or realsense, got {spec!r}")
+
+
+def run_cell(
+    cell_path: str | Path,
+    source: str,
+    *,
+    quick: bool = False,
+    realtime: bool = False,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+    log: Any = None,
+) -> dict[str, Any]:
+    """Run the chain of ``cell_path`` on ``source``; returns the summary (see :func:`run.run_chain`)."""
+    from depthguard.runner.chain import Chain, load_cell_robot
+    from depthguard.runner.run import run_chain
+
+    cell = read_cell(cell_path)
+    model = load_cell_robot(cell)
+    src = open_source(source, cell, model.joint_names, quick=quick)
+    chain = Chain(cell, src.cameras, model)
+    summary = run_chain(cell, src, chain, realtime=realtime, out_dir=out_dir, progress=progress, label=source, log=log)
+    summary = {"cell": cell.name, "source": source, **summary}
+    return summary

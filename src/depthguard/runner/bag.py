@@ -1,0 +1,247 @@
+"""A ROS 2 bag as a source (MCAP or sqlite3, read with ``rosbags``: no ROS installation needed).
+
+Topics come from the cell file: per camera its depth ``topic`` (``sensor_msgs/msg/Image``, 16UC1 mm or 32FC1 m)
+and ``info_topic`` (``sensor_msgs/msg/CameraInfo``), the ``joint_states`` topic (``sensor_msgs/msg/JointState``,
+reordered into the model's joint order by name), ``tf``/``tf_static`` (``tf2_msgs/msg/TFMessage``) for cameras
+whose ``extrinsics = "tf"``, and optionally ``/depthguard/task_velocity``
+(``geometry_msgs/msg/Vector3Stamped``, the desired end-effector velocity; zero when absent).
+
+Images at a reduced resolution of the cell file's sensor (same aspect ratio) get proportionally scaled
+intrinsics. Time synchronisation is by header stamps: one tick per joint-state message; the frames whose stamps are at
+or before the tick (one per camera, the newest) form a frame set when every camera has a new frame.
+Cameras with lens distortion (``plumb_bob``, ``rational_polynomial``) are undistorted through a remap
+computed once (nearest neighbour: depth is never interpolated across edges).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.camera import Camera
+from depthguard.io import ros2
+from depthguard.io.cellfile import CellCamera, CellFile
+from depthguard.io.mcap_ros2 import read_messages
+from depthguard.runner.sources import Tick
+
+__all__ = ["BagSource", "undistort_map", "TASK_TOPIC"]
+
+TASK_TOPIC = "/depthguard/task_velocity"
+
+
+def _distort(x: np.ndarray, y: np.ndarray, model: str, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised image coordinates -> distorted ones (OpenCV / ROS ``plumb_bob`` and ``rational_polynomial``)."""
+    d = np.zeros(8)
+    d[: min(len(D), 8)] = D[:8]
+    k1, k2, p1, p2, k3 = d[:5]
+    k4, k5, k6 = d[5:8] if model == "rational_polynomial" else (0.0, 0.0, 0.0)
+    r2 = x * x + y * y
+    radial = (1 + k1 * r2 + k2 * r2**2 + k3 * r2**3) / (1 + k4 * r2 + k5 * r2**2 + k6 * r2**3)
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return xd, yd
+
+
+def undistort_map(camera: Camera, model: str, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every pixel of the undistorted image (``camera``'s pinhole), the source pixel (row, col) in the
+    distorted image (-1 where it falls outside). Apply as ``out = img[rows, cols]`` (nearest neighbour)."""
+    if model not in ("plumb_bob", "rational_polynomial"):
+        raise ValueError(f"CameraInfo distortion_model {model!r} is not supported (plumb_bob, rational_polynomial)")
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(float)
+    x = (u + 0.5 - camera.cx) / camera.fx
+    y = (v + 0.5 - camera.cy) / camera.fy
+    xd, yd = _distort(x, y, model, np.asarray(D, float))
+    cols = np.floor(xd * camera.fx + camera.cx).astype(np.int64)
+    rows = np.floor(yd * camera.fy + camera.cy).astype(np.int64)
+    bad = (cols < 0) | (cols >= camera.width) | (rows < 0) | (rows >= camera.height)
+    rows[bad] = -1
+    cols[bad] = -1
+    return rows, cols
+
+
+def _apply_map(img: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    rows, cols = maps
+    out = img[np.maximum(rows, 0), np.maximum(cols, 0)].astype(np.float32)
+    out[rows < 0] = np.nan
+    return out
+
+
+def _pose_from_tf(tf_tree: dict[str, tuple[str, np.ndarray, np.ndarray]], frame: str, root: str = "world"):
+    """World pose (R_wc, p_wc) of ``frame`` by chaining parent links up to ``root``; None if not connected."""
+    R, p = np.eye(3), np.zeros(3)
+    seen = set()
+    while frame != root:
+        if frame not in tf_tree or frame in seen:
+            return None
+        seen.add(frame)
+        parent, Rl, pl = tf_tree[frame]
+        R, p = Rl @ R, Rl @ p + pl
+        frame = parent
+    return R, p
+
+
+class BagSource:
+    """Replay a ROS 2 bag through the chain (module docstring).
+
+    Args:
+        path: the bag (``.mcap`` file or rosbag2 folder).
+        cell: the cell file (topics, intrinsics/extrinsics sources).
+        joint_names: the model's joint order.
+    Raises:
+        ValueError: a named topic is missing, a CameraInfo contradicts the image size, an unsupported
+            encoding or distortion model, TF that never gives a camera's pose; the message names the bag
+            and the topic.
+    """
+
+    def __init__(self, path: str | Path, cell: CellFile, joint_names: tuple[str, ...]) -> None:
+        self.path = Path(path)
+        self.cell = cell
+        self.joint_names = tuple(joint_names)
+        self._scan()
+
+    # ------------------------------------------------------------------ set-up pass: topics, intrinsics, TF
+    def _scan(self) -> None:
+        cams: list[CellCamera] = list(self.cell.cameras)
+        topics = self.cell.topics
+        wanted = {c.topic for c in cams} | {c.info_topic for c in cams} | {topics["joint_states"], TASK_TOPIC}
+        wanted |= {topics["tf"], topics["tf_static"]}
+        seen: dict[str, int] = {}
+        infos: dict[str, object] = {}
+        sizes: dict[str, tuple[int, int]] = {}
+        tf_tree: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
+        t0 = None
+        for topic, _, t, msg in read_messages(self.path, topics=sorted(wanted)):
+            t0 = t if t0 is None else t0
+            seen[topic] = seen.get(topic, 0) + 1
+            if topic in (topics["tf"], topics["tf_static"]):
+                for tr in msg.transforms:
+                    q = tr.transform.rotation
+                    from scipy.spatial.transform import Rotation
+
+                    Rl = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+                    tl = tr.transform.translation
+                    tf_tree.setdefault(tr.child_frame_id, (tr.header.frame_id, Rl, np.array([tl.x, tl.y, tl.z])))
+            elif any(topic == c.info_topic for c in cams) and topic not in infos:
+                infos[topic] = msg
+            elif any(topic == c.topic for c in cams) and topic not in sizes:
+                sizes[topic] = (int(msg.width), int(msg.height))
+                ros2.image_to_depth(msg)  # encoding check now: a clear error rather than mid-run
+        name = self.path
+        if not seen.get(topics["joint_states"]):
+            raise ValueError(
+                f"{name}: no sensor_msgs/JointState on '{topics['joint_states']}' (cell topics.joint_states)"
+            )
+        self.cameras: list[Camera] = []
+        self._maps: list[tuple[np.ndarray, np.ndarray] | None] = []
+        for c in cams:
+            if not seen.get(c.topic):
+                raise ValueError(f"{name}: no depth images on '{c.topic}' (camera '{c.name}' topic)")
+            w, h = sizes[c.topic]
+            info = infos.get(c.info_topic)
+            params: dict = {}
+            if c.intrinsics == "camera_info" or (c.intrinsics == "device" and info is not None):
+                if info is None:
+                    raise ValueError(
+                        f"{name}: camera '{c.name}' takes its intrinsics from '{c.info_topic}', which is empty"
+                    )
+                if (int(info.width), int(info.height)) != (w, h):
+                    raise ValueError(
+                        f"{name}: CameraInfo on '{c.info_topic}' says {info.width}x{info.height} but the images on"
+                        f" '{c.topic}' are {w}x{h}"
+                    )
+                K = np.asarray(info.k, float)
+                params = dict(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
+            elif c.params.get("width") not in (None, w) or c.params.get("height") not in (None, h):
+                sx, sy = w / c.params["width"], h / c.params["height"]
+                if abs(sx - sy) > 1e-9:
+                    raise ValueError(
+                        f"{name}: camera '{c.name}' is {c.params['width']}x{c.params['height']} in the cell file but"
+                        f" the images on '{c.topic}' are {w}x{h} (not the same sensor at a reduced resolution)"
+                    )
+                p = c.params  # the same sensor at a reduced resolution: scale the intrinsics
+                params = dict(width=w, height=h, fx=p["fx"] * sx, fy=p["fy"] * sx, cx=p["cx"] * sx, cy=p["cy"] * sx)
+            if c.extrinsics == "tf":
+                pose = _pose_from_tf(tf_tree, c.frame_id)
+                if pose is None:
+                    raise ValueError(
+                        f"{name}: TF never connects 'world' to camera frame '{c.frame_id}' (topics"
+                        f" {topics['tf']}, {topics['tf_static']}); known frames: {sorted(tf_tree)}"
+                    )
+                Rw, pw = pose
+                cam = c.build(**params).with_pose(Rw.T, -Rw.T @ pw)
+            else:
+                cam = c.build(**params)
+            self.cameras.append(cam)
+            dm = str(getattr(info, "distortion_model", "")) if info is not None else ""
+            D = np.asarray(getattr(info, "d", np.zeros(0)), float) if info is not None else np.zeros(0)
+            if info is not None and np.any(D != 0):
+                self._maps.append(undistort_map(cam, dm, D))
+            else:
+                if info is not None and dm not in ("", "plumb_bob", "rational_polynomial", "equidistant"):
+                    raise ValueError(f"{name}: CameraInfo on '{c.info_topic}': unsupported distortion_model {dm!r}")
+                self._maps.append(None)
+        self.duration = 0.0 if t0 is None else float(t - t0)
+        self.has_task = bool(seen.get(TASK_TOPIC))
+
+    # ------------------------------------------------------------------ replay
+    def _reorder(self, msg) -> tuple[np.ndarray | None, np.ndarray | None]:
+        names = list(msg.name)
+        pos = np.asarray(msg.position, float)
+        vel = np.asarray(msg.velocity, float)
+        idx = []
+        for jn in self.joint_names:
+            if jn not in names:
+                return None, None  # a missing joint: invalid input for this tick (the controller stops)
+            idx.append(names.index(jn))
+        q = pos[idx] if len(pos) == len(names) else None
+        qd = vel[idx] if len(vel) == len(names) else np.zeros(len(idx))
+        return q, qd
+
+    def ticks(self) -> Iterator[Tick]:
+        cams = self.cell.cameras
+        topics = self.cell.topics
+        cam_of = {c.topic: i for i, c in enumerate(cams)}
+        self._pending: list[tuple[float, np.ndarray] | None] = [None] * len(cams)
+        self._xdot = np.zeros(3)
+        wanted = sorted(set(cam_of) | {topics["joint_states"], TASK_TOPIC})
+        group: list[tuple[str, object]] = []
+        t_group = None
+        for topic, _, t_log, msg in read_messages(self.path, topics=wanted):
+            if t_group is not None and t_log != t_group:
+                yield from self._flush(group, cam_of)
+                group = []
+            t_group = t_log
+            group.append((topic, msg))
+        yield from self._flush(group, cam_of)
+
+    def _flush(self, group: list, cam_of: dict[str, int]) -> Iterator[Tick]:
+        """Messages logged at one instant: images and the task first, then the joint states (ticks)."""
+        for topic, msg in group:
+            if topic in cam_of:
+                i = cam_of[topic]
+                depth = ros2.image_to_depth(msg)
+                if self._maps[i] is not None:
+                    depth = _apply_map(depth, self._maps[i])
+                self._pending[i] = (ros2.to_seconds(msg.header.stamp), depth)
+            elif topic == TASK_TOPIC:
+                self._xdot = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
+        for topic, msg in group:
+            if topic in cam_of or topic == TASK_TOPIC:
+                continue
+            t = ros2.to_seconds(msg.header.stamp)
+            q, qd = self._reorder(msg)
+            frames, tf = None, -np.inf
+            pend = self._pending
+            if all(p is not None and p[0] <= t + 1e-9 for p in pend):
+                frames = [p[1] for p in pend]
+                tf = max(p[0] for p in pend)
+                self._pending = [None] * len(pend)
+            yield Tick(t, q, qd, t, self._xdot.copy(), frames, tf, {})
+
+    def command(self, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None:  # a recording cannot move
+        pass
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,127 @@
+"""The processing chain of a cell, independent of where the data comes from: self-filter, distances,
+controller (the three stages of the papers), built from a cell file.
+
+:class:`Chain` is what ``depthguard run`` drives with the ticks of a source (simulated cell, ROS 2 bag, live
+camera): :meth:`Chain.on_frames` at camera rate, :meth:`Chain.query` at the distance rate, :meth:`Chain.control`
+at the control rate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.camera import Camera
+from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput, CycleOutput
+from depthguard.depthspace import PointDistances
+from depthguard.io.cellfile import CellFile
+from depthguard.robot.control_points import ControlPointSet
+from depthguard.robot.model import RobotModel, load_lwr4
+from depthguard.robot.selffilter import self_filter
+
+__all__ = ["Chain", "load_cell_robot"]
+
+
+def load_cell_robot(cell: CellFile) -> RobotModel:
+    """The robot model named by the cell file (a shipped model or a URDF path)."""
+    r = cell.robot
+    if r.model == "lwr4":
+        return load_lwr4()
+    return RobotModel.from_urdf(Path(r.urdf), ee_frame=r.ee_frame)
+
+
+def _controller_config(cell: CellFile) -> ControllerConfig:
+    c = cell.controller
+    values = dict(
+        dt=1.0 / float(c["rate"]),
+        rho_ee=float(c["rho_ee"]),
+        alpha_ee=float(c["alpha"]),
+        v_rep_max=float(c["v_rep_max"]),
+        rho_body=float(c["rho_body"]),
+        alpha_body=float(c["alpha"]),
+        velocity_scale=float(c["velocity_scale"]),
+        a_max=float(c["a_max"]),
+        j_max=float(c["j_max"]),
+        distance_timeout=float(c["distance_timeout"]),
+        joint_timeout=float(c["joint_timeout"]),
+        resume_time=float(c["resume_time"]),
+    )
+    known = {f.name for f in dataclasses.fields(ControllerConfig)}
+    return ControllerConfig(**{k: v for k, v in values.items() if k in known})
+
+
+class Chain:
+    """Self-filter -> distance stage -> controller for one cell.
+
+    Args:
+        cell: the cell file.
+        cameras: the cameras (principal first) with the intrinsics and poses in use (a source may resolve
+            them from CameraInfo / TF / the device).
+        model: the robot model; ``points``: its control points (default: the cell file's preset).
+    """
+
+    def __init__(
+        self, cell: CellFile, cameras: list[Camera], model: RobotModel, points: ControlPointSet | None = None
+    ) -> None:
+        from depthguard.sim.pipeline import DistanceStage
+
+        self.cell = cell
+        self.cameras = list(cameras)
+        self.model = model
+        if points is None:
+            preset = cell.robot.control_points
+            points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+        self.points = points
+        d = cell.distance
+        self.rho, self.alpha = float(d["rho"]), float(cell.controller["alpha"])
+        self.stage = DistanceStage(
+            self.cameras,
+            rho=self.rho,
+            mode=d["mode"],
+            alpha=self.alpha,
+            workspace=tuple(d["workspace"]),
+            dd=float(d["grid_dd"]),
+        )
+        self.config = _controller_config(cell)
+        self.controller = AvoidanceController(points, self.config)
+        self.latest: tuple[float, PointDistances] | None = None
+        self.masks: list[np.ndarray] | None = None
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.model.joint_names
+
+    def on_frames(self, depths: list[np.ndarray], q: np.ndarray) -> list[np.ndarray]:
+        """Frame stage: self-filter every camera's depth (H, W) m at the joint positions ``q``; returns the
+        robot masks (H, W) bool."""
+        masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
+        self.stage.update(depths, masks)
+        self.masks = masks
+        return masks
+
+    @property
+    def ready(self) -> bool:
+        return self.masks is not None
+
+    def query(self, t: float, q: np.ndarray) -> PointDistances:
+        """Distance stage at ``t``: control spheres at ``q`` against the latest frames."""
+        cps = self.points.evaluate(q)
+        res = self.stage.query(cps.centres, cps.radii)
+        self.latest = (t, res)
+        return res
+
+    def control(
+        self, t: float, q: np.ndarray | None, qdot: np.ndarray | None, t_joints: float, xdot_d: np.ndarray
+    ) -> CycleOutput:
+        """Control stage: one cycle of the avoidance controller with the latest distances."""
+        N = self.points.n_points
+        if self.latest is None:
+            d, dirs, td = None, None, -np.inf
+        else:
+            td, res = self.latest
+            d = np.asarray(res.distance, dtype=float)
+            dirs = np.asarray(res.direction, dtype=float)
+            dirs = np.where(np.isfinite(d)[:, None], dirs, 0.0) if dirs.shape == (N, 3) else dirs
+        return self.controller.step(CycleInput(t, q, qdot, t_joints, xdot_d, d, dirs, td))

@@ -1,0 +1,206 @@
+"""``depthguard run``: one runner for the whole chain on any source, recorded as ROS 2 messages.
+
+Per tick of the source (:mod:`depthguard.runner.sources`): a new frame set goes through the frame stage
+(self-filter, distance-stage update); a distance query runs every ``distance.period`` seconds of the source's
+clock (``--fast``: deterministic) or on every tick once that period has passed in wall-clock time
+(``--realtime``, paced to the source's clock); the controller runs once per tick and its joint command goes
+back to the source.
+
+The recording (``recording.mcap`` in ``--out``, profile ``ros2``) holds the **inputs** (depth images as
+``32FC1`` metres so that a replay is bit-exact, ``CameraInfo``, ``/tf_static``, ``/joint_states``, the task
+velocity) and the **outputs** (self-filter masks as ``mono8``, per-point distances, markers, the joint command
+as ``sensor_msgs/JointState``, ``trajectory_msgs/JointTrajectory`` and ``std_msgs/Float64MultiArray``, and the
+controller status). ``--source bag:DIR/recording.mcap`` replays it.
+
+A ros2_control driver that takes these commands must stop the arm by itself when they stop arriving (a
+watchdog on the robot side): DepthGuard is a process that can die.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from depthguard.io import ros2
+from depthguard.io.cellfile import CellFile
+from depthguard.runner.bag import TASK_TOPIC
+from depthguard.runner.chain import Chain
+
+__all__ = ["run_chain", "RunLog"]
+
+
+class RunLog:
+    """What a run produced, in memory (for tests and the summary): per tick ``t``, ``q_cmd``, ``qdot_cmd``,
+    ``status``; per query ``t_query`` and ``distances`` (N,)."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.q_cmd: list[np.ndarray] = []
+        self.qdot_cmd: list[np.ndarray] = []
+        self.status: list[str] = []
+        self.t_query: list[float] = []
+        self.distances: list[np.ndarray] = []
+        self.wall_query: list[float] = []
+        self.frames = 0
+
+
+class _Recorder:
+    def __init__(self, path: Path, chain: Chain, cell: CellFile) -> None:
+        from depthguard.io.mcap_ros2 import Ros2McapWriter
+        from depthguard.sim.recorder import camera_tf
+
+        self.w = Ros2McapWriter(path)
+        self.chain, self.cell = chain, cell
+        tfs = [
+            ("world", c.frame_id, *camera_tf(cam.R, cam.t)) for c, cam in zip(cell.cameras, chain.cameras, strict=True)
+        ]
+        self.w.write(cell.topics["tf_static"], "tf2_msgs/msg/TFMessage", ros2.tf_msg(0.0, tfs), 0.0)
+        self.types = ros2.typestore().types
+
+    def inputs(self, tick, frames) -> None:
+        w, cell = self.w, self.cell
+        if frames is not None:
+            for c, cam, d in zip(cell.cameras, self.chain.cameras, frames, strict=True):
+                w.write(c.topic, "sensor_msgs/msg/Image", ros2.image_msg(tick.t_frames, c.frame_id, d, "32FC1"), tick.t)
+                w.write(
+                    c.info_topic,
+                    "sensor_msgs/msg/CameraInfo",
+                    ros2.camera_info_msg(tick.t_frames, c.frame_id, cam),
+                    tick.t,
+                )
+        v = self.types["geometry_msgs/msg/Vector3"](
+            x=float(tick.xdot_d[0]), y=float(tick.xdot_d[1]), z=float(tick.xdot_d[2])
+        )
+        vs = self.types["geometry_msgs/msg/Vector3Stamped"](header=ros2.header(tick.t, "world"), vector=v)
+        w.write(TASK_TOPIC, "geometry_msgs/msg/Vector3Stamped", vs, tick.t)
+        if tick.q is not None:
+            js = ros2.joint_state_msg(tick.t_joints, self.chain.joint_names, tick.q, tick.qdot)
+            w.write(cell.topics["joint_states"], "sensor_msgs/msg/JointState", js, tick.t)
+
+    def masks(self, t: float, masks) -> None:
+        for c, m in zip(self.cell.cameras, masks, strict=True):
+            img = ros2.image_msg(t, c.frame_id, np.zeros(m.shape), "16UC1")
+            img.encoding, img.step = "mono8", m.shape[1]
+            img.data = (np.asarray(m, np.uint8) * 255).ravel()
+            self.w.write(f"/depthguard/{c.name}/robot_mask", "sensor_msgs/msg/Image", img, t)
+
+    def query(self, t: float, res, cps, markers: bool) -> None:
+        topics = self.cell.topics
+        d = np.asarray(res.distance, float)
+        dirs = np.asarray(res.direction, float)
+        near = np.asarray(getattr(res, "nearest", np.full((len(d), 3), np.nan)), float)
+        msg = ros2.distances_msg(t, cps.names, cps.centres, cps.radii, d, dirs, near, rho=self.chain.rho)
+        self.w.write(topics["distances"], "depthguard_msgs/msg/ControlPointDistances", msg, t)
+        if markers:
+            mk = ros2.markers_msg(t, cps.centres, cps.radii, d, dirs, self.chain.rho)
+            self.w.write(topics["markers"], "visualization_msgs/msg/MarkerArray", mk, t)
+
+    def command(self, t: float, out) -> None:
+        topics, names = self.cell.topics, self.chain.joint_names
+        js = ros2.joint_state_msg(t, names, out.q_cmd, out.qdot_cmd)
+        self.w.write("/depthguard/joint_command", "sensor_msgs/msg/JointState", js, t)
+        dt = self.chain.config.dt
+        jt = ros2.joint_trajectory_msg(t, names, out.q_cmd, out.qdot_cmd, dt)
+        self.w.write(topics["command"], "trajectory_msgs/msg/JointTrajectory", jt, t)
+        self.w.write(topics["command_array"], "std_msgs/msg/Float64MultiArray", ros2.float64_array_msg(out.qdot_cmd), t)
+        st = ros2.status_msg(t, out.status.name, out.scale)
+        self.w.write(topics["status"], "depthguard_msgs/msg/ControllerStatus", st, t)
+
+    def close(self) -> None:
+        self.w.close()
+
+
+def _progress(t: float, total: float, last: list[int], label: str) -> None:
+    pct = int(100 * min(t / total, 1.0)) if total > 0 else 100
+    if pct // 4 != last[0]:
+        last[0] = pct // 4
+        sys.stderr.write(f"\r{label:<24} [{'#' * (pct // 4)}{'.' * (25 - pct // 4)}] {pct:3d}%  t {t:6.2f} s")
+        sys.stderr.flush()
+
+
+def run_chain(
+    cell: CellFile,
+    source: Any,
+    chain: Chain,
+    *,
+    realtime: bool = False,
+    out_dir: str | Path | None = None,
+    progress: bool = False,
+    label: str = "run",
+    log: RunLog | None = None,
+) -> dict[str, Any]:
+    """Drive ``chain`` with every tick of ``source``; record to ``out_dir/recording.mcap`` if given.
+
+    Returns the summary: ``frames``, ``commands``, ``distance_hz_median``, ``statuses`` (count per status
+    name), ``duration_s`` (source time), ``wall_s``.
+    """
+    log = log if log is not None else RunLog()
+    rec = None
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        rec = _Recorder(out / "recording.mcap", chain, cell)
+    period = float(cell.distance["period"])
+    next_query = -np.inf
+    wall0 = time.perf_counter()
+    t_first = None
+    last_marker = -np.inf
+    bar = [-1]
+    try:
+        for tick in source.ticks():
+            t_first = tick.t if t_first is None else t_first
+            if realtime:
+                lag = (tick.t - t_first) - (time.perf_counter() - wall0)
+                if lag > 0:
+                    time.sleep(lag)
+            if rec is not None:
+                rec.inputs(tick, tick.frames)
+            if tick.frames is not None and tick.q is not None:
+                masks = chain.on_frames(tick.frames, tick.q)
+                log.frames += 1
+                if rec is not None:
+                    rec.masks(tick.t, masks)
+            if chain.ready and tick.q is not None and tick.t >= next_query - 1e-9:
+                next_query = tick.t + period if next_query == -np.inf else next_query + period
+                w0 = time.perf_counter()
+                res = chain.query(tick.t, tick.q)
+                log.wall_query.append(time.perf_counter() - w0)
+                log.t_query.append(tick.t)
+                log.distances.append(np.asarray(res.distance, float).copy())
+                if rec is not None:
+                    cps = chain.points.evaluate(tick.q)
+                    rec.query(tick.t, res, cps, markers=tick.t - last_marker >= 0.05)
+                    last_marker = tick.t if tick.t - last_marker >= 0.05 else last_marker
+            out = chain.control(tick.t, tick.q, tick.qdot, tick.t_joints, tick.xdot_d)
+            source.command(out.q_cmd, out.qdot_cmd)
+            log.t.append(tick.t)
+            log.q_cmd.append(np.asarray(out.q_cmd, float).copy())
+            log.qdot_cmd.append(np.asarray(out.qdot_cmd, float).copy())
+            log.status.append(out.status.name)
+            if rec is not None:
+                rec.command(tick.t, out)
+            if progress:
+                _progress(tick.t - t_first, getattr(source, "duration", 0.0), bar, label)
+    finally:
+        if rec is not None:
+            rec.close()
+        source.close()
+        if progress:
+            sys.stderr.write("\n")
+    wq = np.asarray(log.wall_query)
+    summary: dict[str, Any] = {
+        "frames": log.frames,
+        "commands": len(log.t),
+        "distance_hz_median": float(1.0 / np.median(wq)) if wq.size else None,
+        "statuses": dict(Counter(log.status)),
+        "duration_s": float(log.t[-1] - log.t[0]) if log.t else 0.0,
+        "wall_s": round(time.perf_counter() - wall0, 3),
+    }
+    if rec is not None:
+        summary["recording"] = str(Path(out_dir) / "recording.mcap")
+    return summary

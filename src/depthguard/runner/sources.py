@@ -1,0 +1,116 @@
+"""Where a run's data comes from: the simulated cell, a ROS 2 bag, a live RealSense.
+
+Every source yields :class:`Tick` objects in time order, one per control cycle of the robot (for a bag: one
+per recorded joint state): the joint state, the desired end-effector velocity of the task, and the depth
+frames that arrived since the previous tick. :meth:`command` hands the cycle's joint command back (the
+simulated cell moves the arm with it; recorded sources ignore it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import NamedTuple, Protocol
+
+import numpy as np
+
+from depthguard.camera import Camera
+
+__all__ = ["Tick", "Source", "SimSource"]
+
+
+class Tick(NamedTuple):
+    """One control tick.
+
+    Attributes:
+        t: time, s (the source's clock).
+        q, qdot: (n,) joint positions (rad) and velocities (rad/s) in the model's joint order; None = missing.
+        t_joints: time stamp of ``q``, s.
+        xdot_d: (3,) desired end-effector velocity, m/s.
+        frames: one depth image (H, W) float32 m (NaN = no reading) per camera when a new frame set
+            arrived at this tick, else None.
+        t_frames: time stamp of ``frames``, s.
+        faults: camera faults detected by the source (e.g. ``{"camera0": "disconnected"}``), empty if none.
+    """
+
+    t: float
+    q: np.ndarray | None
+    qdot: np.ndarray | None
+    t_joints: float
+    xdot_d: np.ndarray
+    frames: list[np.ndarray] | None
+    t_frames: float
+    faults: dict
+
+
+class Source(Protocol):
+    cameras: list[Camera]
+    joint_names: tuple[str, ...]
+    duration: float
+
+    def ticks(self) -> Iterator[Tick]: ...
+
+    def command(self, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class SimSource:
+    """The simulated cell of a scenario as a source (closed loop: the arm follows the commands).
+
+    Args:
+        scenario: a shipped scenario name or a scenario .toml path.
+        quick: the scenario's CI form (low resolution, short).
+        control_dt: control period, s (the cell file's controller rate).
+        frame_period: camera period, s.
+    """
+
+    def __init__(
+        self,
+        scenario: str,
+        *,
+        quick: bool = False,
+        control_dt: float = 0.001,
+        frame_period: float = 1.0 / 30.0,
+        seed: int = 0,
+    ) -> None:
+        from depthguard.sim.depthcam import KinectSim
+        from depthguard.sim.scenarios import _build, _task, load_scenario
+
+        self.sc = load_scenario(scenario)
+        self.cell, self.kin, ee0 = _build(self.sc, quick=quick, cameras=None)
+        self.task = _task(self.sc, ee0)
+        self.cams = [KinectSim(self.cell.model, c, i, seed=seed + i) for i, c in enumerate(self.cell.cameras)]
+        self.cameras = list(self.cell.cameras)
+        self.joint_names = tuple(self.cell.joint_names)
+        dur = self.sc.get("quick_duration", self.sc.get("duration", 10.0)) if quick else self.sc.get("duration", 10.0)
+        self.duration = float(dur)
+        self.control_dt = float(control_dt)
+        self.frame_period = float(frame_period)
+        self._cmd: tuple[np.ndarray, np.ndarray] | None = None
+
+    def ticks(self) -> Iterator[Tick]:
+        n_steps = int(round(self.duration / self.control_dt))
+        next_frame = 0.0
+        for k in range(n_steps):
+            t = k * self.control_dt
+            self.cell.update_people(t)
+            q = self.cell.q()
+            frames = None
+            if t >= next_frame - 1e-9:
+                next_frame += self.frame_period
+                self.cell.forward()
+                frames = [c.capture(self.cell.data) for c in self.cams]
+            xdot = self.task.velocity(self.kin.evaluate(q).centres[0])
+            self._cmd = None
+            yield Tick(t, q, self.cell.qd(), t, xdot, frames, t, {})
+            if self._cmd is None:  # nobody commanded: hold still
+                self.cell.step(q, np.zeros_like(q))
+            else:
+                self.cell.step(*self._cmd)
+
+    def command(self, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None:
+        self._cmd = (np.asarray(q_cmd, float), np.asarray(qdot_cmd, float))
+
+    def close(self) -> None:
+        for c in self.cams:
+            c.close()

@@ -1,0 +1,277 @@
+"""``depthguard run``: the same chain on the simulated cell and on ROS 2 bags, deterministic replay, bags written
+by ``rosbags`` itself, and bad bags that give clear errors."""
+
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rosbags")
+pytest.importorskip("mujoco")
+pytest.importorskip("pinocchio")
+
+from depthguard.cli import main  # noqa: E402
+from depthguard.io import ros2  # noqa: E402
+from depthguard.runner import run_cell  # noqa: E402
+from depthguard.runner.run import RunLog  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+HEX_CELL = ROOT / "examples" / "cells" / "sim-hexagon.toml"
+
+
+def _short_scenario(tmp_path, seconds=0.25):
+    from depthguard.sim.scenarios import load_scenario
+
+    sc = load_scenario("ral-hexagon")
+    sc.pop("variants", None)
+    sc["quick_duration"] = seconds
+    lines = []
+    for k, v in sc.items():  # a flat TOML writer is enough for this file's shape
+        if not isinstance(v, dict | list) or (isinstance(v, list) and not (v and isinstance(v[0], dict))):
+            lines.append(f"{k} = {json.dumps(v)}")
+    for k, v in sc.items():
+        if isinstance(v, dict):
+            lines.append(f"[{k}]")
+            lines += [f"{kk} = {json.dumps(vv)}" for kk, vv in v.items()]
+    for k, v in sc.items():
+        if isinstance(v, list) and v and isinstance(v[0], dict):
+            for item in v:
+                lines.append(f"[[{k}]]")
+                for kk, vv in item.items():
+                    if isinstance(vv, list) and vv and isinstance(vv[0], dict):
+                        rows = ", ".join(
+                            "{" + ", ".join(f"{a} = {json.dumps(b)}" for a, b in r.items()) + "}" for r in vv
+                        )
+                        lines.append(f"{kk} = [{rows}]")
+                    else:
+                        lines.append(f"{kk} = {json.dumps(vv)}")
+    p = tmp_path / "short.toml"
+    p.write_text("\n".join(lines) + "\n")
+    tomllib.loads(p.read_text())
+    return p
+
+
+@pytest.mark.slow
+def test_replay_of_a_recorded_sim_run_is_bit_exact(tmp_path):
+    """Record the simulated run (sensor inputs), replay the bag with --fast: same distances and commands."""
+    sc = _short_scenario(tmp_path)
+    live, replay = RunLog(), RunLog()
+    s1 = run_cell(HEX_CELL, f"sim:{sc}", quick=True, out_dir=tmp_path / "live", log=live)
+    s2 = run_cell(HEX_CELL, f"bag:{tmp_path / 'live' / 'recording.mcap'}", log=replay)
+    assert s1["frames"] == s2["frames"] >= 7 and s1["commands"] == s2["commands"] == 250
+    assert s1["statuses"] == s2["statuses"]
+    np.testing.assert_allclose(live.t_query, replay.t_query, rtol=0, atol=1e-9)  # stamps are whole ns
+    np.testing.assert_allclose(np.array(live.distances), np.array(replay.distances), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.array(live.q_cmd), np.array(replay.q_cmd), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.array(live.qdot_cmd), np.array(replay.qdot_cmd), rtol=0, atol=1e-12)
+    assert any(np.isfinite(d).any() for d in live.distances)  # the scene is not empty
+
+
+def _scene(encoding):
+    """A camera 1.6 m in front of the arm at its zero pose, looking at it, and a wall with a post."""
+    from depthguard.camera import Camera, look_at
+    from depthguard.robot.model import load_lwr4
+    from depthguard.robot.selffilter import self_filter
+    from depthguard.sim.depthcam import kinect_camera
+
+    R, t = look_at(np.array([1.6, 0.2, 0.8]), np.array([0.0, 0.0, 0.6]))
+    cam = kinect_camera((1.6, 0.2, 0.8), (0.0, 0.0, 0.6), width=160, height=120)
+    assert isinstance(cam, Camera)
+    np.testing.assert_allclose(cam.R, R, atol=1e-12)
+    pts = cam.unproject_image(np.full(cam.shape, 1.0))  # unit-depth rays
+    ray = pts - cam.position
+    # a wall at x = -0.5 and a post (half-space slab) at 0.25 < x < 0.35, -0.3 < y < -0.2
+    s_wall = (-0.5 - cam.position[0]) / ray[..., 0]
+    depth = s_wall * 1.0
+    s_post = (0.35 - cam.position[0]) / ray[..., 0]
+    hit = s_post[..., None] * ray + cam.position
+    post = (hit[..., 1] > -0.3) & (hit[..., 1] < -0.2) & (hit[..., 2] < 1.2)
+    depth = np.where(post, s_post, depth).astype(np.float32)
+    model = load_lwr4()
+    q = np.zeros(model.n_dof)
+    q[3] = 0.6
+    mask = np.asarray(self_filter(cam, depth, q, model)[0])
+    if encoding == "16UC1":
+        depth = (np.round(depth * 1000) / 1000).astype(np.float32)
+    return cam, depth, q, model, mask
+
+
+def _write_bag(
+    path,
+    cam,
+    depth,
+    q,
+    model,
+    encoding,
+    *,
+    distortion=("plumb_bob", (0.0, 0.0, 0.0, 0.0, 0.0)),
+    tf=True,
+    info_size=None,
+    topic_image="/cam/depth",
+):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from depthguard.sim.recorder import camera_tf
+
+    ts = ros2.typestore()
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c_img = w.add_connection(topic_image, "sensor_msgs/msg/Image", typestore=ts)
+        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        c_js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        if tf:  # the camera hangs on a link ("mount") that is fixed in the world
+            Rw, pw = camera_tf(cam.R, cam.t)
+            mount_R, mount_p = np.eye(3), np.array([1.0, 0.0, 0.0])
+            tfm = ros2.tf_msg(0.0, [("world", "mount", mount_R, mount_p), ("mount", "cam_optical", Rw, pw - mount_p)])
+            w.write(c_tf, 0, ts.serialize_cdr(tfm, "tf2_msgs/msg/TFMessage"))
+        names = list(model.joint_names)
+        for k in range(40):  # 40 ms of joint states at 1 kHz, one frame at 10 ms
+            t = 0.001 * k
+            ns = int(round(t * 1e9))
+            if k == 10:
+                img = ros2.image_msg(t, "cam_optical", depth, encoding)
+                w.write(c_img, ns, ts.serialize_cdr(img, "sensor_msgs/msg/Image"))
+                info = ros2.camera_info_msg(t, "cam_optical", cam)
+                info.distortion_model, info.d = distortion[0], np.asarray(distortion[1], float)
+                if info_size:
+                    info.width, info.height = info_size
+                w.write(c_info, ns, ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
+            js = ros2.joint_state_msg(t, names, q, np.zeros_like(q))
+            w.write(c_js, ns, ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+
+
+BAG_CELL = """
+[cell]
+name = "bag-test"
+[robot]
+model = "lwr4"
+control_points = "ral-9"
+ee_radius = 0.12
+[[cameras]]
+name = "cam"
+topic = "/cam/depth"
+info_topic = "/cam/info"
+frame_id = "cam_optical"
+intrinsics = "camera_info"
+extrinsics = "tf"
+min_depth = 0.5
+max_depth = 4.5
+[distance]
+rho = 0.5
+mode = "hybrid"
+[controller]
+joint_timeout = 0.005
+"""
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_bag_from_rosbags_gives_the_distance_command_results(tmp_path, encoding, capsys):
+    """A rosbag2 (MCAP) written by rosbags from a built scene runs through ``run`` and gives the same
+    distances as ``depthguard distance`` on the same frame (camera pose from TF through a link)."""
+    from depthguard.io import write_camera, write_mask, write_points
+    from depthguard.io.files import ControlPoint
+    from depthguard.robot.control_points import ControlPointSet
+
+    cam, depth, q, model, mask = _scene(encoding)
+    bag = tmp_path / "bag"
+    _write_bag(bag, cam, depth, q, model, encoding)
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    log = RunLog()
+    summary = run_cell(cell, f"bag:{bag}", out_dir=tmp_path / "out", log=log)
+    assert summary["frames"] == 1 and summary["commands"] == 40
+    assert set(summary["statuses"]) <= {"OK", "SCALED", "STOP_STALE_DISTANCES"}
+    # the same frame through the file-based command
+    cps = ControlPointSet.build(model, "ral-9", 0.12).evaluate(q)
+    write_camera(tmp_path / "cam.json", cam)
+    np.save(tmp_path / "depth.npy", depth)
+    write_mask(tmp_path / "mask.png", mask)
+    write_points(
+        tmp_path / "pts.json",
+        [ControlPoint(n, tuple(c), float(r)) for n, c, r in zip(cps.names, cps.centres, cps.radii, strict=True)],
+    )
+    argv = [
+        "distance",
+        "--camera",
+        str(tmp_path / "cam.json"),
+        "--depth",
+        str(tmp_path / "depth.npy"),
+        "--mask",
+        str(tmp_path / "mask.png"),
+        "--points",
+        str(tmp_path / "pts.json"),
+        "--rho",
+        "0.5",
+        "--mode",
+        "hybrid",
+        "--json",
+    ]
+    assert main(argv) == 0
+    ref = json.loads(capsys.readouterr().out)["points"]
+    ref_d = np.array([np.inf if p["distance"] is None else p["distance"] for p in ref])
+    got = log.distances[0]
+    assert np.isfinite(ref_d).sum() >= 2  # the post and the wall are within reach of some points
+    np.testing.assert_allclose(got, ref_d, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "kind, needle",
+    [
+        ("no_topic", "no depth images on '/cam/depth'"),
+        ("encoding", "rgb8"),
+        ("info_size", "CameraInfo on '/cam/info' says 100x100"),
+        ("no_tf", "TF never connects 'world' to camera frame 'cam_optical'"),
+        ("distortion", "unsupported distortion_model 'fisheye'"),
+    ],
+)
+def test_bad_bags_give_clear_errors(tmp_path, kind, needle, capsys):
+    cam, depth, q, model, _ = _scene("32FC1")
+    bag = tmp_path / "bag"
+    kw = {}
+    if kind == "no_topic":
+        kw["topic_image"] = "/other"
+    if kind == "info_size":
+        kw["info_size"] = (100, 100)
+    if kind == "no_tf":
+        kw["tf"] = False
+    if kind == "distortion":
+        kw["distortion"] = ("fisheye", np.zeros(4))
+    if kind == "encoding":
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        ts = ros2.typestore()
+        with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+            c = w.add_connection("/cam/depth", "sensor_msgs/msg/Image", typestore=ts)
+            img = ros2.image_msg(0.0, "cam_optical", depth, "16UC1")
+            img.encoding = "rgb8"
+            w.write(c, 0, ts.serialize_cdr(img, "sensor_msgs/msg/Image"))
+            cj = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+            w.write(
+                cj, 0, ts.serialize_cdr(ros2.joint_state_msg(0.0, model.joint_names, q), "sensor_msgs/msg/JointState")
+            )
+    else:
+        _write_bag(bag, cam, depth, q, model, "32FC1", **kw)
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    assert main(["run", "--cell", str(cell), "--source", f"bag:{bag}", "--json"]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1
+
+
+def test_plumb_bob_with_coefficients_is_undistorted(tmp_path):
+    """A distorted image is remapped: the optical centre stays, off-centre pixels move outwards (k1 > 0)."""
+    from depthguard.runner.bag import undistort_map
+    from depthguard.sim.depthcam import kinect_camera
+
+    cam = kinect_camera((1.0, 0.0, 0.5), (0.0, 0.0, 0.5), width=160, height=120)
+    rows, cols = undistort_map(cam, "plumb_bob", np.zeros(5))
+    v, u = np.mgrid[0:120, 0:160]
+    np.testing.assert_array_equal(rows, v)
+    np.testing.assert_array_equal(cols, u)
+    rows, cols = undistort_map(cam, "plumb_bob", np.array([0.2, 0.0, 0.0, 0.0, 0.0]))
+    assert rows[60, 80] == 60 and cols[60, 80] == 80
+    assert cols[60, 150] > 150 or cols[60, 150] == -1
+    with pytest.raises(ValueError, match="fisheye"):
+        undistort_map(cam, "fisheye", np.zeros(4))
