@@ -102,7 +102,22 @@ def _visible_model(camera: Camera, model, q: np.ndarray, spacing: float) -> np.n
     return p[facing]
 
 
-def _select_measured(camera: Camera, depth: np.ndarray, model_pts: np.ndarray, band: float) -> np.ndarray:
+def moving_pixels(depths: list[np.ndarray], min_change: float = 0.04, noise_coeff: float = 1.4e-3) -> list[np.ndarray]:
+    """Robot pixels of each frame found without any pose guess: the background is static across the poses
+    and the arm is not, so where a frame reads clearly nearer than the median over all frames (the
+    background, when the arm covers the pixel in fewer than half of the frames) it shows the robot.
+    "Clearly": by ``min_change`` m or 4 standard deviations of the depth noise ``noise_coeff z^2``, whichever
+    is larger. Returns (H, W) bool per frame."""
+    D = np.stack([np.where(np.isfinite(d) & (d > 0), d, np.nan) for d in depths]).astype(float)
+    with np.errstate(all="ignore"):
+        bg = np.nanmedian(D, axis=0) if np.isfinite(D).any() else np.full(D.shape[1:], np.nan)
+        thr = np.maximum(min_change, 4.0 * noise_coeff * bg * bg)
+        return [np.nan_to_num(bg - d, nan=0.0) > np.nan_to_num(thr, nan=np.inf) for d in D]
+
+
+def _select_measured(
+    camera: Camera, depth: np.ndarray, model_pts: np.ndarray, band: float, moving: np.ndarray | None = None
+) -> np.ndarray:
     """Camera-frame points of ``depth`` (H, W) within ``band`` of the predicted robot surface's depth, inside its
     silhouette grown by ``band`` (in pixels at the predicted depth)."""
     H, W = camera.shape
@@ -126,6 +141,8 @@ def _select_measured(camera: Camera, depth: np.ndarray, model_pts: np.ndarray, b
     # the min-filtered prediction is the nearest robot surface around the pixel: the measured robot lies from
     # there to one link diameter (<= 0.15 m) behind it
     sel = np.isfinite(d) & (d > 0) & np.isfinite(pred_g) & (d > pred_g - band) & (d < pred_g + band + 0.15)
+    if moving is not None:
+        sel &= moving
     vv, uu = np.nonzero(sel)
     z = d[vv, uu]
     x = (uu + 0.5 - camera.cx) * z / camera.fx
@@ -133,7 +150,9 @@ def _select_measured(camera: Camera, depth: np.ndarray, model_pts: np.ndarray, b
     return np.stack([x, y, z], axis=1)  # camera frame
 
 
-def _gicp_round(targets, sources, T0: np.ndarray, max_dist: float, iters: int, kind: str = "GICP") -> tuple[np.ndarray, int]:
+def _gicp_round(
+    targets, sources, T0: np.ndarray, max_dist: float, iters: int, kind: str = "GICP"
+) -> tuple[np.ndarray, int]:
     """Gauss-Newton over all poses' factors (small_gicp ``GICPFactor`` or point-to-point ``ICPFactor``);
     returns the correction and the iterations."""
     import small_gicp as sg
@@ -164,15 +183,21 @@ def _gicp_round(targets, sources, T0: np.ndarray, max_dist: float, iters: int, k
     return T, it
 
 
+def _moving_points(camera: Camera, depth: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    vv, uu = np.nonzero(moving & np.isfinite(depth))
+    z = np.asarray(depth, float)[vv, uu]
+    return np.stack([(uu + 0.5 - camera.cx) * z / camera.fx, (vv + 0.5 - camera.cy) * z / camera.fy, z], axis=1)
+
+
 def calibrate_extrinsics(
     camera: Camera,
     frames: list[tuple[np.ndarray, np.ndarray]],
     model,
     *,
-    bands: tuple[float, ...] = (0.25, 0.15, 0.1, 0.06, 0.03, 0.015),
-    coarse_rounds: int = 3,
+    coarse: tuple[float, ...] = (0.8, 0.4, 0.2, 0.1),
+    fine: tuple[float, ...] = (0.05, 0.025, 0.012),
     spacing: float = 0.008,
-    max_points_per_pose: int = 1500,
+    max_points_per_pose: int = 1200,
     inlier_distance: float = 0.01,
     max_rmse: float = 0.006,
     min_inlier_fraction: float = 0.6,
@@ -181,11 +206,15 @@ def calibrate_extrinsics(
 ) -> CalibrationResult:
     """Estimate the extrinsics of ``camera`` (its pose is the initial guess) from ``frames``.
 
+    Coarse rounds (point-to-point ICP, correspondence distances ``coarse``) use the pixels that the arm's
+    motion reveals (:func:`moving_pixels`), so no background enters them whatever the initial guess; fine
+    rounds (GICP, ``fine``) keep those of them within the distance of the predicted robot surface.
+
     Args:
         camera: intrinsics and the initial guess of the extrinsics.
-        frames: ``(depth (H, W) m, q (n,))`` per arm pose; at least 5 poses that break the arm's symmetries.
+        frames: ``(depth (H, W) m, q (n,))`` per arm pose; at least 5 poses that move the arm widely (so that
+            every pixel shows the background in some frame) and break its symmetries.
         model: the :class:`depthguard.robot.model.RobotModel` (its collision capsules are the surface model).
-        bands: selection band and correspondence distance of each coarse-to-fine round, m.
         spacing: surface sampling of the model, m. max_points_per_pose: measured points kept per pose.
         inlier_distance, max_rmse, min_inlier_fraction: the acceptance test.
     """
@@ -194,49 +223,58 @@ def calibrate_extrinsics(
     if len(frames) < 5:
         raise ValueError(f"calibration needs at least 5 arm poses, got {len(frames)}")
     rng = np.random.default_rng(seed)
+    moving = moving_pixels([d for d, _ in frames])
     R, t = np.asarray(camera.R, float), np.asarray(camera.t, float)
-    total_it = 0
-    n_pts = 0
-    for band in bands:
+    total_it, n_pts = 0, 0
+    for k, band in enumerate((*coarse, *fine)):
         cam = camera.with_pose(R, t)
         T_wc = _pose(R, t)
         targets, sources = [], []
-        for depth, q in frames:
+        for (depth, q), mv in zip(frames, moving, strict=True):
             m = _visible_model(cam, model, np.asarray(q, float), spacing)
-            s_c = _select_measured(cam, depth, m, band)
-            if len(s_c) > max_points_per_pose:
-                s_c = s_c[rng.choice(len(s_c), max_points_per_pose, replace=False)]
+            if k < len(coarse):
+                s_c = _moving_points(cam, depth, mv)
+            else:
+                s_c = _select_measured(cam, depth, m, band, mv)
+            keep = max_points_per_pose // 3 if k < len(coarse) else max_points_per_pose
+            if len(s_c) > keep:
+                s_c = s_c[rng.choice(len(s_c), keep, replace=False)]
             if len(s_c) < 20 or len(m) < 20:
                 continue
             tgt, tree = sg.preprocess_points(m, downsampling_resolution=spacing * 0.5, num_neighbors=10)
-            src, _ = sg.preprocess_points(s_c @ T_wc[:3, :3].T + T_wc[:3, 3], downsampling_resolution=1e-4, num_neighbors=10)
+            s_w = s_c @ T_wc[:3, :3].T + T_wc[:3, 3]
+            src, _ = sg.preprocess_points(s_w, downsampling_resolution=1e-4, num_neighbors=10)
             targets.append((tgt, tree))
             sources.append(src)
         if len(sources) < 3:
-            return CalibrationResult(R, t, np.inf, 0.0, 0, total_it, False, "too few poses show the robot")
-        kind = "ICP" if bands.index(band) < coarse_rounds else "GICP"
+            return CalibrationResult(R, t, np.inf, 0.0, 0, total_it, False, "refused: too few poses show the robot")
+        kind = "ICP" if k < len(coarse) else "GICP"
         C, it = _gicp_round(targets, sources, np.eye(4), max_dist=band, iters=iterations, kind=kind)
         total_it += it
         T_new = C @ T_wc
         R, t = T_new[:3, :3].T, -T_new[:3, :3].T @ T_new[:3, 3]
         n_pts = sum(s.size() for s in sources)
-    rmse, frac = _fitness(camera.with_pose(R, t), frames, model, spacing, bands[-1], inlier_distance)
+    rmse, frac = _fitness(camera.with_pose(R, t), frames, model, spacing, fine[-1], inlier_distance, moving)
     ok = rmse <= max_rmse and frac >= min_inlier_fraction
-    msg = "ok" if ok else (
-        f"refused: inlier RMSE {rmse * 1000:.1f} mm (max {max_rmse * 1000:.1f}) and inlier fraction {frac:.2f}"
-        f" (min {min_inlier_fraction:.2f}); start closer to the true pose or add poses"
+    msg = (
+        "ok"
+        if ok
+        else (
+            f"refused: inlier RMSE {rmse * 1000:.1f} mm (max {max_rmse * 1000:.1f}) and inlier fraction {frac:.2f}"
+            f" (min {min_inlier_fraction:.2f}); start closer to the true pose or add poses"
+        )
     )
     return CalibrationResult(R, t, float(rmse), float(frac), int(n_pts), total_it, bool(ok), msg)
 
 
-def _fitness(cam: Camera, frames, model, spacing: float, band: float, inlier: float) -> tuple[float, float]:
+def _fitness(cam: Camera, frames, model, spacing: float, band: float, inlier: float, moving) -> tuple[float, float]:
     from scipy.spatial import cKDTree
 
     d_all = []
     T_wc = _pose(cam.R, cam.t)
-    for depth, q in frames:
+    for (depth, q), mv in zip(frames, moving, strict=True):
         m = _visible_model(cam, model, np.asarray(q, float), spacing * 0.5)
-        s_c = _select_measured(cam, depth, m, band)
+        s_c = _moving_points(cam, depth, mv)
         if len(s_c) == 0:
             continue
         s_w = s_c @ T_wc[:3, :3].T + T_wc[:3, 3]
