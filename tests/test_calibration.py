@@ -136,3 +136,30 @@ def test_self_filter_margin_covers_the_residual(scene):
         )
     assert left["guess"] > 10 * max(left["true"], 50)
     assert left["calibrated"] <= left["true"] + 0.002 * sum(int(m.sum()) for m in masks)
+
+
+@pytest.mark.slow
+def test_cli_calibrate_writes_a_file_the_cell_file_uses(tmp_path, capsys):
+    """`depthguard calibrate` on the simulated hexagon cell (quick resolution) from a guess 3 deg / 3 cm off:
+    the written calibration, referenced from the cell file, moves the cameras back to the truth."""
+    import json
+    from pathlib import Path
+
+    from depthguard.cli import main
+    from depthguard.io.cellfile import read_cell
+    from depthguard.sim.depthcam import placement
+
+    src = (Path(__file__).resolve().parents[1] / "examples" / "cells" / "sim-hexagon.toml").read_text()
+    off = src.replace("eye = [1.75, -0.95, 1.5]", "eye = [1.77, -0.97, 1.52]").replace(
+        "target = [0.0, 0.0, 0.35]", "target = [0.05, 0.0, 0.40]", 1
+    )
+    cell = tmp_path / "cell.toml"
+    cell.write_text(off)
+    assert main(["calibrate", "--cell", str(cell), "--source", "sim:ral-hexagon", "--quick", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert all(c["accepted"] for c in out["cameras"])
+    cell.write_text('calibration = "cell.calibration.toml"\n' + off)
+    truth = placement("ral", 160, 120)
+    for cc, cam in zip(read_cell(cell).cameras, truth, strict=True):
+        assert np.linalg.norm(cc.build().position - cam.position) < 0.01
+        assert np.rad2deg(Rotation.from_matrix(cc.R @ cam.R.T).magnitude()) < 0.5
