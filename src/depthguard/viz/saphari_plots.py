@@ -17,7 +17,7 @@ import numpy as np
 
 from depthguard.sensors.graycode import simulate_lines
 
-__all__ = ["plot_skin", "plot_nsb"]
+__all__ = ["plot_skin", "plot_nsb", "plot_chattering"]
 
 
 def _mpl():
@@ -217,3 +217,33 @@ def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None
         plt.close(fig)
         files["fig14"] = str(p)
     return files
+
+
+def plot_chattering(out: Path, runs: dict, measures: dict) -> str:
+    """``chattering.png``: lambda(d) and the commanded joint accelerations of case 3 for each weighting
+    function (5.10-5.12), with the chattering measure of each."""
+    plt = _mpl()
+    kinds = [k for k in ("switch", "arctan", "linear") if k in runs]
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(11, 2.6 * len(kinds)), sharex=True, squeeze=False)
+    for ax, k in zip(axes[:, 0], kinds, strict=True):
+        L = runs[k]
+        t = L["t"]
+        qdd = np.diff(L["qdot"], axis=0) / (t[1] - t[0])
+        ax.plot(t[1:], np.abs(qdd).sum(axis=1), lw=0.7, color="tab:purple", label="sum |qddot| (all joints)")
+        ax.set_ylabel("[units/s^2]")
+        b = ax.twinx()
+        b.plot(t, L["lam"], lw=0.8, color="tab:orange", label="lambda(d)")
+        b.set_ylim(-0.05, 1.05)
+        b.set_ylabel("lambda")
+        ax.set_title(f"{k}: chattering {measures[k]:.0f} units/s^3", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
+        b.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle(
+        "saphari-nsb case 3: commanded joint accelerations with eqs. 5.10 (switch), 5.11 (arctan), 5.12 (linear)"
+    )
+    fig.tight_layout()
+    p = out / "chattering.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return str(p)
