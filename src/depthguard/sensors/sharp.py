@@ -18,9 +18,10 @@ The near branch (closer than the peak) is not specified by the data sheets: it i
 voltage reaches that of the rated minimum range, the object may be closer than the peak: the tracker
 switches to the near branch and reports the *smaller* of the two candidate distances until the voltage
 falls below ``v_contact``, the lowest voltage the near branch can produce, which only an object on the
-far branch beyond ``d_far(v_contact)`` can give. Limit: an object that crosses from beyond the minimum
-range to well inside it between two sensor updates (faster than about ``(d_min - d_peak) / 38 ms``, 1 m/s
-for the GP2Y0A21) is not caught.
+far branch beyond ``d_far(v_contact)`` can give. Limit: an object that crosses, between two updates
+(up to 48 ms), from beyond the minimum range to where the near branch's voltage is below that of the
+minimum range, is not caught: 7 cm in one update for the GP2Y0A21 (safe up to about 1.4 m/s), 1.5 cm for
+the GP2D120 (safe up to about 0.3 m/s; property-tested at the hand's 0.25 m/s).
 
 **Timing** (:class:`IRRanger`): a new measurement about every 38.3 +- 9.6 ms (data sheet), the output held
 in between, sampled by the microcontroller's 10-bit ADC (5 V reference) at about 300 Hz (§5.3).
