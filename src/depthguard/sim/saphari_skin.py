@@ -67,6 +67,17 @@ def _circle(params: SkinParams, s: float) -> tuple[np.ndarray, np.ndarray]:
     return c + r * np.array([np.cos(a), np.sin(a), 0.0]), np.array([-np.sin(a), np.cos(a), 0.0])
 
 
+def _robot_step(robot, params: SkinParams, q: np.ndarray, s: float, s_dot: float, v_cmd: float):
+    """The robot controller's 1 ms: path speed ramped to ``v_cmd`` at ``a_max``, path parameter, CLIK."""
+    s_dot += float(np.clip(v_cmd - s_dot, -params.a_max * params.dt, params.a_max * params.dt))
+    s += s_dot * params.dt
+    x_d, tang = _circle(params, s)
+    _, p = robot.frame_pose(q)
+    J = robot.frame_jacobian(q)[:3]
+    qdot = J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(3), tang * s_dot + params.clik_gain * (x_d - p))
+    return q + params.dt * qdot, s, s_dot
+
+
 def run_skin(params: SkinParams, progress: bool = False) -> dict:
     """Simulate the experiment; returns the time series (dict of arrays) and the line writes."""
     from depthguard.robot.model import RobotModel
@@ -122,14 +133,7 @@ def run_skin(params: SkinParams, progress: bool = False) -> dict:
             online_glitches += level_read not in (writes_l[k], writes_l[max(k - 1, 0)])
             next_io += params.io_period
         v_cmd = params.speeds[level_read] if params.avoidance else params.speeds[0]
-        s_dot += float(np.clip(v_cmd - s_dot, -params.a_max * params.dt, params.a_max * params.dt))
-        s += s_dot * params.dt
-        x_d, tang = _circle(params, s)
-        _, p = robot.frame_pose(q)
-        J = robot.frame_jacobian(q)[:3]
-        q = q + params.dt * (
-            J.T @ np.linalg.solve(J @ J.T + 1e-8 * np.eye(3), tang * s_dot + params.clik_gain * (x_d - p))
-        )
+        q, s, s_dot = _robot_step(robot, params, q, s, s_dot, v_cmd)
         tcp = cell.tcp()
         rad = np.linalg.norm((tcp - np.asarray(params.centre))[:2])
         for k, v in (
