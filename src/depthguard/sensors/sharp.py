@@ -9,7 +9,10 @@ distances.
 reflector (reflectance 90 %), read off the data sheets' "analog output voltage vs distance to reflective
 object" figures (Sharp, *GP2Y0A21YK0F Distance Measuring Sensor Unit*, data sheet E4-A00201EN, 2006,
 Fig. 2; Sharp, *GP2D120XJ00F Distance Measuring Sensor*, data sheet, 2006, Fig. "Analog output
-voltage vs. distance to reflective object"), to about +-0.05 V. Unit-to-unit spread is about +-10 %.
+voltage vs. distance to reflective object"), to about +-0.05 V; they agree within 0.06 V with the
+common fit ``V = 20.99 / d[cm] + 0.19`` of the GP2Y0A21YK over 10-80 cm and within 0.15 V with published
+GP2D120 readings over 4-32 cm. The data sheet's specified output at 80 cm is 0.25-0.55 V (typ. 0.4 V).
+Unit-to-unit spread is about +-10 %.
 The near branch (closer than the peak) is not specified by the data sheets: it is modelled as linear from
 ``v_contact`` at 0 m up to the peak. It is used only to bound the distance from below.
 
