@@ -16,7 +16,8 @@ Metrics: ``collision_steps`` (300 Hz steps with a true robot-obstacle clearance 
 (m), ``task_completion`` (share of the planned path length followed within 3 cm), ``path_error`` (RMS
 end-effector error, m), ``place_error`` (m), ``peak_energy`` (max sigma, m^2), ``chattering`` (total
 variation of the commanded joint accelerations, sum over joints of |delta qddot| per second of run,
-units/s^3), ``distance_hz_median`` = null (the sensors run at a fixed 300 Hz, ``sensor_rate_hz``).
+units/s^3), ``max_normalised_output`` (per sensor, 1 = peak output), ``distance_hz_median`` = null (the
+sensors run at a fixed 300 Hz, ``sensor_rate_hz``).
 With ``--out`` and case 3 the other two weighting functions are run too: ``chattering_by_lambda`` and
 ``chattering.png``.
 """
@@ -145,6 +146,7 @@ def nsb_metrics(L: dict, dt: float = 1 / 300, tol: float = 0.03) -> dict:
         "peak_energy": float(L["sigma"].max()),
         "chattering": chattering(L["qdot"], dt),
         "max_lambda": float(L["lam"].max()),
+        "max_normalised_output": [round(float(x), 3) for x in L["vnorm"].max(axis=0)],
         "self_detections": int(L["self_hits"]),
         "duration_s": float(L["t"][-1] + dt),
     }
