@@ -143,7 +143,8 @@ class ContactCell:
             ("table", G.mjGEOM_BOX, [0, 0, -0.4], [0.3, 0.3, 0.4], [0.6, 0.6, 0.65, 1]),
             ("wall", G.mjGEOM_BOX, [1.6, 0, 0.7], [0.05, 2.5, 1.5], [0.85, 0.85, 0.8, 1]),
         ):
-            wb.add_geom(name=name, type=typ, pos=pos, size=size, rgba=rgba, group=GROUP_ENV, contype=0, conaffinity=0)
+            # contype 4 touches nothing here but keeps MuJoCo's URDF compiler from discarding it as visual
+            wb.add_geom(name=name, type=typ, pos=pos, size=size, rgba=rgba, group=GROUP_ENV, contype=4, conaffinity=0)
         q0 = self.q0
         self._touch = []
         for h in self.hands:
@@ -172,7 +173,7 @@ class ContactCell:
                 mass=0.01,
                 fromto=np.concatenate([f * (h.radius + 0.04), f * 0.34]),
                 group=GROUP_PEOPLE,
-                contype=0,
+                contype=4,
                 conaffinity=0,
                 rgba=[0.3, 0.5, 0.9, 1],
             )

@@ -23,6 +23,7 @@ Also ``observable_fraction`` (``‖P F‖/‖F‖`` in the steady part: the push
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -33,17 +34,22 @@ __all__ = ["run", "compute_metrics"]
 
 
 def _match(p_hat: np.ndarray, p_true: np.ndarray, touching: np.ndarray) -> list[int | None]:
-    """For each estimated contact, the index of the touching hand nearest to it (or None)."""
-    out: list[int | None] = []
-    free = set(np.flatnonzero(touching).tolist())
-    for p in p_hat:
-        if not free:
-            out.append(None)
+    """For each estimated contact, the touching hand assigned to it (or None): the assignment with the
+    smallest total distance (few contacts: all permutations)."""
+    hands = [int(j) for j in np.flatnonzero(touching)]
+    k = len(p_hat)
+    cands = hands + [None] * k
+    best, best_cost = [None] * k, np.inf
+    for perm in set(itertools.permutations(cands, k)):
+        if all(j is None for j in perm) and hands:
             continue
-        h = min(free, key=lambda j: float(np.linalg.norm(p_true[j] - p)))
-        out.append(h)
-        free.discard(h)
-    return out
+        n_none = sum(j is None for j in perm)
+        if n_none > max(k - len(hands), 0):
+            continue
+        cost = sum(float(np.linalg.norm(p_true[j] - p_hat[a])) for a, j in enumerate(perm) if j is not None)
+        if cost < best_cost:
+            best, best_cost = list(perm), cost
+    return best
 
 
 def _errors(log: ContactLog, i: int) -> tuple[float, float, list[float], float]:
