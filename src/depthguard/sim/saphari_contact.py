@@ -70,6 +70,13 @@ def _errors(log: ContactLog, i: int) -> tuple[float, float, list[float], float]:
     return err, total, cp, obs
 
 
+def _null_basis(log: ContactLog, t: np.ndarray, tm: float) -> list[list[float]]:
+    """Unit force directions (3k each, stacked) the residual cannot see, at the cycle nearest ``tm``."""
+    i = int(np.argmin(np.abs(t - tm)))
+    w, V = np.linalg.eigh(np.eye(len(log.projector[i])) - log.projector[i])
+    return [np.round(V[:, j], 4).tolist() for j in np.flatnonzero(w > 0.5)]
+
+
 def _ee_drift(log: ContactLog, active: np.ndarray) -> float:
     """Largest end-effector displacement during detected contacts from its position at their onset, m."""
     ee, worst, ref = np.array(log.ee), 0.0, None
@@ -122,6 +129,7 @@ def compute_metrics(setup: ExperimentSetup, log: ContactLog) -> dict:
         "observable_fraction": float(np.mean(obs_f)) if obs_f else None,
         "unobservable_directions": int(max(log.n_unobservable)) if log.n_unobservable else 0,
         "most_loaded_joint": int(np.argmax(np.mean(loads, axis=0))) + 1 if loads else None,
+        "unobservable_basis_mid_push": _null_basis(log, t, 0.5 * (t_on + t_off)),
         "classification": labels,
         "r_th_nm": setup.r_th,
         "observer_gain": setup.gain,
