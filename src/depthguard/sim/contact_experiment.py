@@ -302,6 +302,7 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
             qd_cmd = adm.step(q, f_hat, ee_t, dt, ee_v)
             if not state.active and adm.contacts and adm.settled():
                 adm.clear()
+                f_hat, P = np.zeros((0, 3)), np.eye(3)
         t_ctrl.append(time.perf_counter() - c0)
         _log_cycle(log, cell, adm, q, r, state, f_hat, (f_true, p_true, l_true), P, n_un)
         if progress and _k % int(setup.rate) == 0:

@@ -74,7 +74,7 @@ def _observable_true(log: ContactLog) -> list[np.ndarray]:
     out = []
     for i in range(len(log.t)):
         F, k = log.f_true[i], len(log.f_hat[i])
-        if k == 0:
+        if k == 0 or len(log.p_hat[i]) != k:
             out.append(np.zeros((0, 3)))
             continue
         match = _match(log.p_hat[i], log.p_true[i], np.linalg.norm(F, axis=1) > 1.0)
