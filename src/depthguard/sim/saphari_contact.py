@@ -95,7 +95,7 @@ def compute_metrics(setup: ExperimentSetup, log: ContactLog) -> dict:
     onsets = [o for o in log.onset_true if o is not None]
     onset = min(onsets) if onsets else None
     det_idx = np.flatnonzero(active & (t >= (onset or np.inf) - 1e-9))
-    delay = round(1e3 * (t[det_idx[0]] - onset), 3) if onset is not None and len(det_idx) else None
+    delay = round(float(1e3 * (t[det_idx[0]] - onset)), 3) if onset is not None and len(det_idx) else None
     rising = np.flatnonzero(active[1:] & ~active[:-1]) + 1
     rising = np.concatenate([[0], rising]) if active[0] else rising
     false_det = int(sum(ftot[i] < 0.5 for i in rising))
