@@ -107,7 +107,7 @@ def _plot(path: Path, setup: ExperimentSetup, log: ContactLog, t0: float) -> Non
         dp = _series(log, "disp", k)
         for c in range(3):
             ax[2].plot(t, dp[:, c], colors[c], ls="-" if k == 0 else "-.", label=f"e{'xyz'[c]} #{k + 1}")
-    ax[1].set_ylabel("force [N] (dashed: observable part of the true force)")
+    ax[1].set_ylabel("force [N] (dashed: true, observable part)")
     ax[1].legend(ncol=3, fontsize=7)
     ax[2].set_ylabel("contact point displacement [m]")
     ax[2].set_xlabel("time from contact onset [s]")
