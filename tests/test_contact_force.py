@@ -114,6 +114,10 @@ def test_bad_shapes_raise():
         estimate_contact_forces([np.zeros((3, 7)), np.zeros((3, 6))], np.zeros(7))
     with pytest.raises(ValueError, match="r must"):
         estimate_contact_forces(np.zeros((3, 7)), np.zeros(6))
+    with pytest.raises(ValueError, match="finite"):
+        estimate_contact_forces(np.full((3, 7), np.nan), np.zeros(7))
+    with pytest.raises(ValueError, match="finite"):
+        estimate_contact_forces([np.eye(3, 7), np.eye(3, 7)], np.array([np.inf] + [0.0] * 6))
 
 
 @pytest.mark.parametrize(
