@@ -139,6 +139,7 @@ def control_cycle(
 
 
 def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
+    """The stages of the module docstring, in order."""
     chk = check_inputs(inp, ctrl.n, ctrl.points.n_points, M_TASK, ctrl.config, st.t_prev)
     t_prev = st.t_prev if math.isnan(chk.t) else max(st.t_prev, chk.t)
     status, st = _resume_latch(ctrl.config, chk, st._replace(t_prev=t_prev))
