@@ -253,6 +253,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------------- calibrate
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from depthguard.runner.calibrate import calibrate_cell
+
+    out = calibrate_cell(args.cell, args.source, write=args.write, quick=args.quick)
+    print(json.dumps(out, indent=None if args.json else 2, default=float))
+    return 0
+
+
 # --------------------------------------------------------------------------------------------------- cell
 def _cmd_cell(args: argparse.Namespace) -> int:
     from depthguard.io.cellfile import describe_cell, read_cell
@@ -408,6 +417,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, metavar="DIR", help="write DIR/recording.mcap (ROS 2 messages)")
     p.add_argument("--json", action="store_true", help="print one JSON summary")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("calibrate", help="camera extrinsics from the arm itself (SAPHARI §3.3)")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file (its extrinsics: the guess)")
+    p.add_argument("--source", required=True, metavar="bag:PATH|sim:SCENARIO", help="frames at several arm poses")
+    p.add_argument(
+        "--write", default=None, metavar="FILE.toml", help="calibration file (default CELL.calibration.toml)"
+    )
+    p.add_argument("--quick", action="store_true", help="the scenario's low-resolution form (sim sources)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
     p.add_argument("action", choices=["check"])

@@ -23,6 +23,7 @@ cell file are relative to the file's folder. Sections:
   ``octree_res`` (m), ``period`` (s between distance queries in ``--fast`` runs);
 * ``[controller]``: ``rate`` (Hz), ``distance_timeout``, ``joint_timeout``, ``resume_time`` (s),
   ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool);
+* ``calibration = "FILE"`` (top level): extrinsics from ``depthguard calibrate`` override the cameras' own;
 * ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
   (Float64MultiArray), ``distances``, ``status``, ``markers``.
 """
@@ -209,7 +210,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "markers": (str, "/depthguard/markers"),
     },
 }
-_TOP = {"cell", "robot", "cameras", "distance", "controller", "topics"}
+_TOP = {"cell", "robot", "cameras", "distance", "controller", "topics", "calibration"}
 _CHOICES = {
     ("distance", "backend"): ("depthspace", "octree"),
     ("distance", "mode"): ("min", "all", "hybrid"),
@@ -389,6 +390,38 @@ def _is_matrix(value: Any, rows: int, cols: int) -> bool:
     return arr.shape == (rows, cols) and bool(np.all(np.isfinite(arr)))
 
 
+def _apply_calibration(src: Path, ref: Any, cams: tuple[CellCamera, ...]) -> tuple[CellCamera, ...]:
+    """Replace the extrinsics of the cameras named in the calibration file ``ref`` (``depthguard calibrate``)."""
+    import dataclasses
+
+    from depthguard.validation import check_rotation
+
+    if not isinstance(ref, str):
+        raise CellError(f"{src}: calibration must be a path (string) to a calibration file")
+    path = (src.parent / ref).resolve()
+    if not path.is_file():
+        raise CellError(f"{src}: calibration file '{ref}' is not a file (looked at {path})")
+    try:
+        cal = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise CellError(f"{path}: not a valid calibration file ({exc})") from None
+    by_name = {c.name: c for c in cams}
+    for i, entry in enumerate(cal.get("cameras", [])):
+        unknown = sorted(set(entry) - {"name", "R", "t", "date", "rmse", "inlier_fraction"})
+        if unknown:
+            raise CellError(f"{path}: unknown key(s) {unknown} in cameras[{i}]")
+        name = entry.get("name")
+        if name not in by_name:
+            raise CellError(f"{path}: cameras[{i}] names camera {name!r}, which the cell file does not have")
+        try:
+            R = check_rotation(entry.get("R"), f"{path.name} cameras[{i}].R")
+        except ValueError as exc:
+            raise CellError(f"{path}: {exc}") from None
+        t = np.asarray(_vector(path, f"cameras[{i}].t", entry.get("t"), 3))
+        by_name[name] = dataclasses.replace(by_name[name], R=R, t=t, extrinsics="file")
+    return tuple(by_name[c.name] for c in cams)
+
+
 def read_cell(path: str | Path) -> CellFile:
     """Read and validate a cell file. Raises ``ValueError`` (:class:`CellError`) naming the file and key."""
     src = Path(path)
@@ -416,6 +449,8 @@ def read_cell(path: str | Path) -> CellFile:
     names = [c.name for c in cams]
     if len(set(names)) != len(names):
         raise CellError(f"{src}: camera names must be unique, got {names}")
+    if "calibration" in data:
+        cams = _apply_calibration(src, data["calibration"], cams)
     dist = _section(src, "distance", "distance", data.get("distance", {}))
     ws = _vector(src, "distance.workspace", dist["workspace"], 6)
     if any(ws[2 * i] >= ws[2 * i + 1] for i in range(3)):
