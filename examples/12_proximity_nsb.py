@@ -1,10 +1,11 @@
 """NSB control with robot-mounted proximity sensors, without a simulator (SAPHARI D4.1.1 §5).
 
 The youBot-like robot holds its end effector still while a low obstacle (a kerb, the plane x = 0.36 m,
-lower than the arm) stands just in front of its base. The front base sensor (sensor 2, a Sharp GP2Y0A21YK) measures the range to the wall
-along its optical axis analytically; the NSB controller (eqs. 5.4-5.12) backs the base off until the
-spring of that sensor is relaxed, while the arm stretches to keep the end effector where it was. Then the
-skin's safety levels: a hand approaching at 0.25 m/s, one Gray-coded level per update.
+lower than the arm) stands just in front of its base. The front base sensor (sensor 2, a Sharp
+GP2Y0A21YK) measures the range to it along its optical axis analytically; the NSB controller
+(eqs. 5.4-5.12) backs the base off to relax that sensor's spring while the arm stretches to keep the end
+effector near where it was. Then the skin's safety levels: a hand approaching at 0.25 m/s, one
+Gray-coded level per update.
 
 Run: ``python examples/12_proximity_nsb.py``
 """

@@ -258,3 +258,15 @@ def test_joint_position_limits_hold_when_the_task_pulls_beyond_reach(points) -> 
         assert np.all(qs >= model.q_min) and np.all(qs <= model.q_max)
         v = np.array([e[4].qdot_cmd for e in log])
         assert np.all(np.abs(v) <= model.v_max + 1e-9)
+
+
+def test_body_bounds_reject_a_non_finite_direction_with_a_finite_distance(points) -> None:
+    st = points.evaluate(Q0)
+    N = st.centres.shape[0]
+    dist, dirs = np.full(N, np.inf), np.zeros((N, 3))
+    dist[3], dirs[3] = 0.1, np.nan  # used to impose no bound at all, silently
+    with pytest.raises(ValueError, match="directions must be finite"):
+        body_velocity_bounds(st.jacobians, dist, dirs, points.model.v_max, RHO, ALPHA)
+    dist[3] = np.inf  # nothing within rho: the direction does not matter
+    lo, hi = body_velocity_bounds(st.jacobians, dist, dirs, points.model.v_max, RHO, ALPHA)
+    np.testing.assert_array_equal(hi, points.model.v_max)

@@ -164,3 +164,21 @@ def test_bad_inputs_name_the_field(youbot):
         energy_gradient(np.ones(3), 0.3, np.ones((3, 3)), np.ones((2, 3, 8)))
     with pytest.raises(ValueError, match="lambda_kind"):
         NSBConfig(lambda_kind="sigmoid")
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    special=st.lists(st.sampled_from([np.nan, np.inf, -0.1, 0.0, 1e-9, 5.0]), min_size=10, max_size=10),
+)
+def test_cycle_output_is_finite_and_within_limits(youbot, seed, special):
+    """Whatever the readings (NaN, inf, negative, zero) and the configuration (stretched arm included),
+    the command is finite and within the joint velocity limits."""
+    rng = np.random.default_rng(seed)
+    ctrl = NSBController(youbot, YOUBOT_SENSORS, NSBConfig(lambda_kind=["switch", "arctan", "linear"][seed % 3]))
+    q = YOUBOT_Q0 + rng.uniform(-1.5, 1.5, 8)
+    if seed % 4 == 0:
+        q[4:7] = 0.0  # arm straight up: singular for horizontal end-effector motion
+    out = ctrl.step(q, rng.normal(size=3) * 2, rng.normal(size=3), np.array(special, float))
+    assert np.all(np.isfinite(out.qdot)) and np.isfinite(out.sigma)
+    assert np.all(np.abs(out.qdot) <= np.asarray(ctrl.cfg.qdot_max) * (1 + 1e-12))

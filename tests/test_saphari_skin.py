@@ -17,6 +17,7 @@ def quick(tmp_path_factory):
     return run(name="saphari-skin", quick=True, avoidance=True, out_dir=str(out), progress=False, options={}), out
 
 
+@pytest.mark.slow
 def test_quick_run_contract(quick):
     res, out = quick
     assert res["max_speed_at_contact_mm_s"] is not None and res["max_speed_at_contact_mm_s"] <= 10.0
@@ -35,6 +36,7 @@ def test_quick_run_contract(quick):
         assert (out / f).stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_without_levels_the_touch_is_at_full_speed():
     res = run(name="saphari-skin", quick=True, avoidance=False, out_dir=None, progress=False, options={})
     assert res["max_speed_at_contact_mm_s"] > 300

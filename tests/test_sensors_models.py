@@ -84,3 +84,21 @@ def test_ranger_timing_38ms_sampled_at_300hz():
     assert 0.030 < np.mean(gaps) < 0.048 and gaps.min() >= 0.038 - 0.0096 - 1e-9
     assert last == pytest.approx(0.92, abs=0.05)
     assert SKIN_REFLECTIVITY > 0
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    model=st.sampled_from([GP2Y0A21YK, GP2D120XJ00F]),
+    speeds=st.lists(st.floats(-0.25, 0.25), min_size=5, max_size=80),
+    start=st.floats(0.0, 1.0),
+)
+def test_tracker_never_over_reports_at_hand_speed(model, speeds, start):
+    """Any trajectory at up to 0.25 m/s (the hand's speed), read every 38.3 + 9.6 ms from a start beyond the
+    minimum range: once in the rated range or closer, the reported distance never exceeds the true one."""
+    tr = AmbiguityTracker(model)
+    d = model.d_min + start * (model.d_max - model.d_min)
+    for v in speeds:
+        d = min(max(d + v * 0.0479, 0.0), 1.2 * model.d_max)
+        rep = tr.update(float(model.voltage(np.array([d]))[0]))
+        if d <= model.d_max:
+            assert rep <= d + 1e-9

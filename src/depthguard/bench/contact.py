@@ -60,6 +60,7 @@ def run_contact_benchmark(quick: bool = False) -> dict:
         RobotSurface,
         contact_from_hand,
         foreground_mask,
+        image_box,
         locate_hands,
         nearest_vertex,
         nearest_vertex_loop,
@@ -92,8 +93,8 @@ def run_contact_benchmark(quick: bool = False) -> dict:
     margin = 0.03 + 4 * 1.4e-3 * np.nan_to_num(bg, nan=cam.max_depth) ** 2
 
     def search():
-        fg = foreground_mask(depth, bg, mask, margin)
         V, S = surf.pose(q)
+        fg = foreground_mask(depth, bg, mask, margin, box=image_box(cam, S, surf.axis_radii + 0.2))
         hands = locate_hands(cam, depth, fg, S, surf.axis_radii, 1)
         return contact_from_hand(surf, q, V, hands[0].position) if hands else None
 

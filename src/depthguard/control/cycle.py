@@ -139,6 +139,7 @@ def control_cycle(
 
 
 def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
+    """The stages of the module docstring, in order."""
     chk = check_inputs(inp, ctrl.n, ctrl.points.n_points, M_TASK, ctrl.config, st.t_prev)
     t_prev = st.t_prev if math.isnan(chk.t) else max(st.t_prev, chk.t)
     status, st = _resume_latch(ctrl.config, chk, st._replace(t_prev=t_prev))
@@ -198,7 +199,7 @@ class Bounds(NamedTuple):
     """A cycle's joint-velocity bounds, rad/s, each (n,), ``lo <= 0 <= hi``.
 
     ``lo``/``hi`` hold for the command of this cycle (enforced, reported). ``lo_s``/``hi_s`` (within
-    them) are the ones SNS plans with: the position-limit bounds there are evaluated ``a_max / j_max``
+    them) are the ones SNS plans with: the position-limit bounds there are evaluated ``2 a_max / j_max``
     seconds ahead along the current velocity, so that braking towards a position limit starts while
     the jerk limit can still follow the shrinking bound.
     """
@@ -214,19 +215,15 @@ def joint_bounds(ctrl: AvoidanceController, otg: OtgState) -> Bounds:
     the state's position (two periods of latency, ``position_margin`` inside the limits)."""
     cfg, j = ctrl.config, ctrl.otg
     q, v = otg.position, otg.velocity
-
-    def pos_bounds(qq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return position_limited_velocity_bounds(
-            qq, ctrl.q_min, ctrl.q_max, j.a_max, j.j_max, 2.0 * cfg.dt, cfg.position_margin
-        )
-
-    lo_p, hi_p = pos_bounds(q)
     ahead = 2.0 * j.a_max / j.j_max
-    lo_a, _ = pos_bounds(q + np.minimum(v, 0.0) * ahead)
-    _, hi_a = pos_bounds(q + np.maximum(v, 0.0) * ahead)
-    lo = np.minimum(np.maximum(-ctrl.v_max, lo_p), 0.0)
-    hi = np.maximum(np.minimum(ctrl.v_max, hi_p), 0.0)
-    return Bounds(lo, hi, np.maximum(lo, lo_a), np.minimum(hi, hi_a))
+    # one call for the three positions: now, ahead while moving down, ahead while moving up
+    qs = np.stack((q, q + np.minimum(v, 0.0) * ahead, q + np.maximum(v, 0.0) * ahead))
+    lo3, hi3 = position_limited_velocity_bounds(
+        qs, ctrl.q_min, ctrl.q_max, j.a_max, j.j_max, 2.0 * cfg.dt, cfg.position_margin
+    )
+    lo = np.minimum(np.maximum(-ctrl.v_max, lo3[0]), 0.0)
+    hi = np.maximum(np.minimum(ctrl.v_max, hi3[0]), 0.0)
+    return Bounds(lo, hi, np.maximum(lo, lo3[1]), np.minimum(hi, hi3[2]))
 
 
 def plan_motion(ctrl: AvoidanceController, chk: CheckedInput, b: Bounds) -> Plan:

@@ -112,25 +112,27 @@ def nsb_velocity(
 
 
 @numba.njit(cache=True)
-def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, damping, qdot_max):  # pragma: no cover
-    """Compiled eqs. 5.1-5.2, 5.6-5.7, 5.4, 5.5, 5.8 and the uniform velocity scaling (one cycle).
-
-    Returns (qdot (n,), sigma, J_o (n,), scale). Same maths as :func:`nsb_velocity` (tested equal)."""
+def _energy_kernel(d, rest, axes, Js):  # pragma: no cover
+    """eqs. 5.1-5.2 and 5.6-5.7: sigma and J_o (n,) (NaN distances count as 0, negative as 0)."""
     N, n = Js.shape[0], Js.shape[2]
     sigma = 0.0
     Jo = np.zeros(n)
     for k in range(N):
         dk = d[k]
-        if np.isnan(dk):
-            dk = 0.0
-        if dk < 0.0:
+        if np.isnan(dk) or dk < 0.0:
             dk = 0.0
         if dk <= rest[k]:
             sigma += 0.5 * (dk - rest[k]) ** 2
             c = -(dk - rest[k])
             for i in range(n):
                 Jo[i] += c * (axes[k, 0] * Js[k, 0, i] + axes[k, 1] * Js[k, 1, i] + axes[k, 2] * Js[k, 2, i])
-    r = Jg.shape[0]
+    return sigma, Jo
+
+
+@numba.njit(cache=True)
+def _wpinv_apply(Jg, w, damping, rhs):  # pragma: no cover
+    """Footnote 1 applied to ``rhs``: ``W J^T (J W J^T + damping I)^-1 rhs`` by Gaussian elimination."""
+    r, n = Jg.shape
     A = np.empty((r, r))
     for a in range(r):
         for b in range(r):
@@ -138,8 +140,8 @@ def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, dampin
             for i in range(n):
                 acc += Jg[a, i] * w[i] * Jg[b, i]
             A[a, b] = acc + (damping if a == b else 0.0)
-    y = xd + gamma_g * err  # solve A y = rhs by Gaussian elimination with partial pivoting (r is 3)
-    for c in range(r):
+    y = rhs.copy()
+    for c in range(r):  # elimination with partial pivoting
         p = c
         for a in range(c + 1, r):
             if abs(A[a, c]) > abs(A[p, c]):
@@ -164,25 +166,31 @@ def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, dampin
         for a in range(r):
             acc += Jg[a, i] * y[a]
         qg[i] = w[i] * acc
+    return qg
+
+
+@numba.njit(cache=True)
+def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, damping, qdot_max):  # pragma: no cover
+    """Compiled cycle: energy and gradient, eqs. 5.4, 5.5, 5.8 and the uniform velocity scaling.
+
+    Returns (qdot (n,), sigma, J_o (n,), scale). Same maths as :func:`nsb_velocity` (tested equal)."""
+    sigma, Jo = _energy_kernel(d, rest, axes, Js)
+    qg = _wpinv_apply(Jg, w, damping, xd + gamma_g * err)
+    n = qg.shape[0]
     n2 = 0.0
     jq = 0.0
     for i in range(n):
         n2 += Jo[i] * Jo[i]
         jq += Jo[i] * qg[i]
     qdot = np.empty(n)
+    ratio = 0.0
     for i in range(n):
+        qo, proj = 0.0, qg[i]
         if n2 > 1e-12:
             qo = Jo[i] / n2 * (gamma_o * (0.0 - sigma))
             proj = qg[i] - Jo[i] / n2 * jq
-        else:
-            qo = 0.0
-            proj = qg[i]
         qdot[i] = (1.0 - lam) * qg[i] + lam * (qo + proj)
-    ratio = 0.0
-    for i in range(n):
-        rr = abs(qdot[i]) / qdot_max[i]
-        if rr > ratio:
-            ratio = rr
+        ratio = max(ratio, abs(qdot[i]) / qdot_max[i])
     scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
     for i in range(n):
         qdot[i] *= scale

@@ -13,12 +13,13 @@
    :func:`nearest_vertex_loop` is the literal per-vertex loop, kept as the benchmark's baseline), with its
    link. Run every frame, it follows a hand that slides along the link.
 
-What the hand tracker assumes: the background (the cell without people) is static and known as one
-depth image; the object nearest to the robot is the touching hand; the hand is a blob about
+What the hand tracker assumes: the background (the cell without robot and people) is static and known as
+one depth image; the object nearest to the robot is the touching hand; the hand is a blob about
 ``hand_radius`` in size. The nearest visible hand point lies ``margin`` of the self-filter (3 cm by default)
-or more from the robot surface, because the self-filter removes everything closer; the hand's centroid is
-biased towards the camera by about half the hand's radius. Both errors are a few centimetres (measured
-in the tests and the experiments' ``contact_point_error_m``).
+or more from the robot surface, because the self-filter removes everything closer; the centroid of the
+hand's pixels is biased towards the camera by about 2/3 of the hand's radius, which ``depth_offset``
+corrects. The remaining error is one to three centimetres (measured in the tests and in the experiments'
+``contact_point_error_m``).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ __all__ = [
     "nearest_vertex",
     "nearest_vertex_loop",
     "foreground_mask",
+    "image_box",
 ]
 
 
@@ -157,19 +159,30 @@ def nearest_vertex_loop(vertices_per_link: list[np.ndarray], p_h: np.ndarray) ->
 
 
 def foreground_mask(
-    depth: np.ndarray, background: np.ndarray, robot_mask: np.ndarray, bg_margin: float | np.ndarray, erode: bool = True
+    depth: np.ndarray,
+    background: np.ndarray,
+    robot_mask: np.ndarray,
+    bg_margin: float | np.ndarray,
+    erode: bool = True,
+    box: tuple[int, int, int, int] | None = None,
 ) -> np.ndarray:
     """(H, W) bool: readings nearer than the background by more than ``bg_margin`` m (scalar or (H, W)),
     robot excluded; with ``erode`` a 4-neighbour erosion removes isolated pixels (depth noise that
     escaped the self-filter), which a hand, a blob of many pixels, survives.
 
-    A background pixel without reading (NaN/0) admits any reading in front of it."""
-    d = np.asarray(depth, np.float32)
-    bg = np.asarray(background, np.float32)
+    A background pixel without reading (NaN/0) admits any reading in front of it. With ``box``
+    ``(u0, u1, v0, v1)`` (e.g. :func:`image_box`) only that part is computed; the rest is False.
+    """
+    H, W = np.shape(depth)
+    u0, u1, v0, v1 = box if box is not None else (0, W, 0, H)
+    win = (slice(v0, v1), slice(u0, u1))
+    d = np.asarray(depth[win], np.float32)
+    bg = np.asarray(background[win], np.float32)
+    margin = bg_margin[win] if np.ndim(bg_margin) == 2 else bg_margin
     ok = np.isfinite(d) & (d > 0)
     bg_f = np.where(np.isfinite(bg) & (bg > 0), bg, np.inf)
     with np.errstate(invalid="ignore"):
-        fg = ok & (d < bg_f - bg_margin) & ~np.asarray(robot_mask, bool)
+        fg = ok & (d < bg_f - margin) & ~np.asarray(robot_mask[win], bool)
     if erode:
         e = fg.copy()
         e[1:] &= fg[:-1]
@@ -177,7 +190,11 @@ def foreground_mask(
         e[:, 1:] &= fg[:, :-1]
         e[:, :-1] &= fg[:, 1:]
         fg = e
-    return fg
+    if box is None:
+        return fg
+    out = np.zeros((H, W), bool)
+    out[win] = fg
+    return out
 
 
 class HandObservation(NamedTuple):
@@ -198,9 +215,11 @@ def _backproject(camera: Camera, depth: np.ndarray, us: np.ndarray, vs: np.ndarr
     return camera.camera_to_world(np.stack([x, y, z], axis=1))
 
 
-def _roi(camera: Camera, centres: np.ndarray, reach: np.ndarray) -> tuple[int, int, int, int] | None:
-    """Pixel box (u0, u1, v0, v1) covering every sphere grown by ``reach`` (m); None if behind the camera."""
+def image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray | float) -> tuple[int, int, int, int] | None:
+    """Pixel box (u0, u1, v0, v1) covering every sphere (S, 3) grown by ``reach`` (m); the whole image if one
+    reaches behind the camera; None if the box is empty."""
     pc = camera.world_to_camera(centres)
+    reach = np.broadcast_to(np.asarray(reach, float), (len(pc),))
     z = pc[:, 2] - reach
     if np.any(z <= 1e-3):
         return 0, camera.width, 0, camera.height
@@ -261,7 +280,7 @@ def locate_hands(
     rho: float = 0.2,
     hand_radius: float = 0.06,
     separation: float = 0.15,
-    depth_offset: float = 0.02,
+    depth_offset: float = 0.03,
 ) -> list[HandObservation]:
     """Up to ``n`` hands near the robot, nearest first (module docstring), from one depth-space query.
 
@@ -274,8 +293,9 @@ def locate_hands(
         rho: search radius from the sphere surfaces, m.
         hand_radius: radius of the blob taken as the hand around its seed point, m.
         separation: two hands are further apart than this (m); nearer candidates are the same hand.
-        depth_offset: the centroid of the visible cap of a ball of radius ρ_h lies ρ_h/2 in front of its
-            centre: the hand position is pushed this far (m) away from the camera along the viewing ray.
+        depth_offset: points sampled per pixel on the visible half of a ball of radius ρ_h have their
+            centroid (2/3) ρ_h in front of its centre: the hand position is pushed this far (m) away from
+            the camera along the viewing ray (0.03 m for a 4.5 cm hand).
     Returns:
         A list of :class:`HandObservation` (possibly empty).
 
@@ -284,7 +304,7 @@ def locate_hands(
     """
     centres = np.asarray(centres, float)
     radii = np.asarray(radii, float)
-    box = _roi(camera, centres, radii + rho)
+    box = image_box(camera, centres, radii + rho)
     if box is None:
         return []
     u0, u1, v0, v1 = box

@@ -66,6 +66,7 @@ class SensorArray:
         self.max_range = np.array([m.max_range for m in self.mounts])
         self._joint_list = [int(j) for j in self._joint]
         self._joints_used = sorted(set(self._joint_list))
+        self._use_idx = np.array([self._joints_used.index(j) for j in self._joint_list])
 
     @property
     def n_sensors(self) -> int:
@@ -74,16 +75,20 @@ class SensorArray:
     def evaluate(self, q: np.ndarray) -> SensorState:
         """Positions, axes and Jacobians of the sensors and of the end effector at ``q`` (n,)."""
         m = self.model
-        m.update(m.check_q(q))
+        qa = np.asarray(q, dtype=float)
+        if qa.shape != (m.n_dof,) or not np.isfinite(qa).all():
+            qa = m.check_q(q)  # raises with the field named
+        m.update(qa)
         oMi = m.data.oMi
-        Rj, oj = {}, {}
-        for j in self._joints_used:
+        Ru = np.empty((len(self._joints_used), 3, 3))
+        ou = np.empty((len(self._joints_used), 3))
+        for u, j in enumerate(self._joints_used):
             M = oMi[j]
-            Rj[j], oj[j] = M.rotation, M.translation
-        R = np.array([Rj[j] for j in self._joint_list])  # (N+1, 3, 3)
-        o = np.array([oj[j] for j in self._joint_list])
-        pos = np.einsum("kij,kj->ki", R, self._p) + o
-        ax = np.einsum("kij,kj->ki", R, self._a)
+            Ru[u] = M.rotation
+            ou[u] = M.translation
+        R, o = Ru[self._use_idx], ou[self._use_idx]  # (N+1, 3, 3), (N+1, 3)
+        pos = np.matmul(R, self._p[:, :, None])[:, :, 0] + o
+        ax = np.matmul(R, self._a[:, :, None])[:, :, 0]
         J = np.asarray(m.data.J)  # (6, n) WORLD
         Jl, Ja = J[:3], J[3:]
         # J_p[k] = Jl + Ja x p_k  (column-wise cross product), masked by the link's support

@@ -9,7 +9,10 @@ distances.
 reflector (reflectance 90 %), read off the data sheets' "analog output voltage vs distance to reflective
 object" figures (Sharp, *GP2Y0A21YK0F Distance Measuring Sensor Unit*, data sheet E4-A00201EN, 2006,
 Fig. 2; Sharp, *GP2D120XJ00F Distance Measuring Sensor*, data sheet, 2006, Fig. "Analog output
-voltage vs. distance to reflective object"), to about +-0.05 V. Unit-to-unit spread is about +-10 %.
+voltage vs. distance to reflective object"), to about +-0.05 V; they agree within 0.06 V with the
+common fit ``V = 20.99 / d[cm] + 0.19`` of the GP2Y0A21YK over 10-80 cm and within 0.15 V with published
+GP2D120 readings over 4-32 cm. The data sheet's specified output at 80 cm is 0.25-0.55 V (typ. 0.4 V).
+Unit-to-unit spread is about +-10 %.
 The near branch (closer than the peak) is not specified by the data sheets: it is modelled as linear from
 ``v_contact`` at 0 m up to the peak. It is used only to bound the distance from below.
 
@@ -18,9 +21,10 @@ The near branch (closer than the peak) is not specified by the data sheets: it i
 voltage reaches that of the rated minimum range, the object may be closer than the peak: the tracker
 switches to the near branch and reports the *smaller* of the two candidate distances until the voltage
 falls below ``v_contact``, the lowest voltage the near branch can produce, which only an object on the
-far branch beyond ``d_far(v_contact)`` can give. Limit: an object that crosses from beyond the minimum
-range to well inside it between two sensor updates (faster than about ``(d_min - d_peak) / 38 ms``, 1 m/s
-for the GP2Y0A21) is not caught.
+far branch beyond ``d_far(v_contact)`` can give. Limit: an object that crosses, between two updates
+(up to 48 ms), from beyond the minimum range to where the near branch's voltage is below that of the
+minimum range, is not caught: 7 cm in one update for the GP2Y0A21 (safe up to about 1.4 m/s), 1.5 cm for
+the GP2D120 (safe up to about 0.3 m/s; property-tested at the hand's 0.25 m/s).
 
 **Timing** (:class:`IRRanger`): a new measurement about every 38.3 +- 9.6 ms (data sheet), the output held
 in between, sampled by the microcontroller's 10-bit ADC (5 V reference) at about 300 Hz (§5.3).

@@ -94,6 +94,44 @@ def hand_touch_point(model, q: np.ndarray, h: HandScript) -> tuple[np.ndarray, n
     return c - (r[k] + h.radius) * n, c - r[k] * n
 
 
+def _add_hand(spec, robot, q0: np.ndarray, h: HandScript) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Add hand ``h`` to the MjSpec (sphere palm that touches the robot, forearm that only the camera sees,
+    three slide joints). Returns (touch centre, surface point, start centre), each (3,) m."""
+    import mujoco
+
+    G = mujoco.mjtGeom
+    centre, surf = hand_touch_point(robot, q0, h)
+    start = centre - h.approach * h.unit()
+    body = spec.worldbody.add_body(name=h.name, pos=[0, 0, 0], gravcomp=1.0)
+    for ax, nm in zip(np.eye(3), "xyz", strict=True):
+        body.add_joint(name=f"{h.name}_{nm}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=ax)
+    blue = [0.3, 0.5, 0.9, 1]
+    body.add_geom(
+        name=f"{h.name}_palm",
+        type=G.mjGEOM_SPHERE,
+        size=[h.radius, 0, 0],
+        mass=1.0,
+        group=GROUP_PEOPLE,
+        contype=1,
+        conaffinity=2,
+        rgba=blue,
+    )
+    f = -h.unit() + np.array([0.0, 0.0, 0.4])
+    f /= np.linalg.norm(f)
+    body.add_geom(
+        name=f"{h.name}_forearm",
+        type=G.mjGEOM_CAPSULE,
+        size=[0.035, 0, 0],
+        mass=0.01,
+        fromto=np.concatenate([f * (h.radius + 0.04), f * 0.34]),
+        group=GROUP_PEOPLE,
+        contype=4,
+        conaffinity=0,
+        rgba=blue,
+    )
+    return centre, surf, start
+
+
 class ContactCell:
     """The compiled cell. See the module docstring.
 
@@ -143,39 +181,9 @@ class ContactCell:
             ("table", G.mjGEOM_BOX, [0, 0, -0.4], [0.3, 0.3, 0.4], [0.6, 0.6, 0.65, 1]),
             ("wall", G.mjGEOM_BOX, [1.6, 0, 0.7], [0.05, 2.5, 1.5], [0.85, 0.85, 0.8, 1]),
         ):
-            wb.add_geom(name=name, type=typ, pos=pos, size=size, rgba=rgba, group=GROUP_ENV, contype=0, conaffinity=0)
-        q0 = self.q0
-        self._touch = []
-        for h in self.hands:
-            centre, surf = hand_touch_point(self.robot, q0, h)
-            start = centre - h.approach * h.unit()
-            self._touch.append((centre, surf, start))
-            body = wb.add_body(name=h.name, pos=[0, 0, 0], gravcomp=1.0)
-            for ax, nm in zip(np.eye(3), "xyz", strict=True):
-                body.add_joint(name=f"{h.name}_{nm}", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=ax)
-            body.add_geom(
-                name=f"{h.name}_palm",
-                type=G.mjGEOM_SPHERE,
-                size=[h.radius, 0, 0],
-                mass=1.0,
-                group=GROUP_PEOPLE,
-                contype=1,
-                conaffinity=2,
-                rgba=[0.3, 0.5, 0.9, 1],
-            )
-            f = -h.unit() + np.array([0.0, 0.0, 0.4])
-            f /= np.linalg.norm(f)
-            body.add_geom(
-                name=f"{h.name}_forearm",
-                type=G.mjGEOM_CAPSULE,
-                size=[0.035, 0, 0],
-                mass=0.01,
-                fromto=np.concatenate([f * (h.radius + 0.04), f * 0.34]),
-                group=GROUP_PEOPLE,
-                contype=0,
-                conaffinity=0,
-                rgba=[0.3, 0.5, 0.9, 1],
-            )
+            # contype 4 touches nothing here but keeps MuJoCo's URDF compiler from discarding it as visual
+            wb.add_geom(name=name, type=typ, pos=pos, size=size, rgba=rgba, group=GROUP_ENV, contype=4, conaffinity=0)
+        self._touch = [_add_hand(spec, self.robot, self.q0, h) for h in self.hands]
         for jn in arm_joints:
             spec.add_actuator(name=f"{jn}_motor", target=jn, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         for h in self.hands:

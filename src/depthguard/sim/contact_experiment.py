@@ -30,7 +30,7 @@ import numpy as np
 
 from depthguard.control.admittance import SOFT, STIFF, AdmittanceParams, ContactAdmittance
 from depthguard.robot.contact_force import estimate_contact_forces, point_jacobian
-from depthguard.robot.contact_point import RobotSurface, contact_from_hand, foreground_mask, locate_hands
+from depthguard.robot.contact_point import RobotSurface, contact_from_hand, foreground_mask, image_box, locate_hands
 from depthguard.robot.residual import ContactDetector, MomentumObserver, RigidBodyDynamics
 from depthguard.robot.selffilter import self_filter
 from depthguard.sim.contact_cell import ContactCell, HandScript
@@ -150,11 +150,11 @@ class _Camera:
         a fixed noisy background frame outside it."""
         import mujoco
 
-        from depthguard.robot.contact_point import _roi
+        from depthguard.robot.contact_point import image_box
 
         cam = self.cam
         out = self.bg_frame.copy()
-        u0, u1, v0, v1 = _roi(cam, spheres, radii + 0.3) or (0, 0, 0, 0)
+        u0, u1, v0, v1 = image_box(cam, spheres, radii + 0.3) or (0, 0, 0, 0)
         if u1 > u0 and v1 > v0:
             idx = (np.arange(v0, v1)[:, None] * cam.width + np.arange(u0, u1)[None, :]).ravel()
             n = len(idx)
@@ -210,7 +210,8 @@ def _frame(camera: _Camera, surf: RobotSurface, q: np.ndarray, n_hands: int, log
     V, S = surf.pose(q)
     depth = camera.capture(S, surf.axis_radii)
     sf = self_filter(camera.cam, depth, q, surf.model)
-    fg = foreground_mask(depth, camera.bg, sf.mask, camera.bg_margin)
+    box = image_box(camera.cam, S, surf.axis_radii + 0.2)
+    fg = foreground_mask(depth, camera.bg, sf.mask, camera.bg_margin, box=box)
     hands = [h for h in locate_hands(camera.cam, depth, fg, S, surf.axis_radii, n_hands) if h.distance < 0.1]
     log.frames.append((t, depth, [h.position for h in hands]))
     return V, hands
@@ -302,6 +303,7 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
             qd_cmd = adm.step(q, f_hat, ee_t, dt, ee_v)
             if not state.active and adm.contacts and adm.settled():
                 adm.clear()
+                f_hat, P = np.zeros((0, 3)), np.eye(3)
         t_ctrl.append(time.perf_counter() - c0)
         _log_cycle(log, cell, adm, q, r, state, f_hat, (f_true, p_true, l_true), P, n_un)
         if progress and _k % int(setup.rate) == 0:

@@ -74,7 +74,7 @@ def _observable_true(log: ContactLog) -> list[np.ndarray]:
     out = []
     for i in range(len(log.t)):
         F, k = log.f_true[i], len(log.f_hat[i])
-        if k == 0:
+        if k == 0 or len(log.p_hat[i]) != k:
             out.append(np.zeros((0, 3)))
             continue
         match = _match(log.p_hat[i], log.p_true[i], np.linalg.norm(F, axis=1) > 1.0)
@@ -107,7 +107,7 @@ def _plot(path: Path, setup: ExperimentSetup, log: ContactLog, t0: float) -> Non
         dp = _series(log, "disp", k)
         for c in range(3):
             ax[2].plot(t, dp[:, c], colors[c], ls="-" if k == 0 else "-.", label=f"e{'xyz'[c]} #{k + 1}")
-    ax[1].set_ylabel("force [N] (dashed: observable part of the true force)")
+    ax[1].set_ylabel("force [N] (dashed: true, observable part)")
     ax[1].legend(ncol=3, fontsize=7)
     ax[2].set_ylabel("contact point displacement [m]")
     ax[2].set_xlabel("time from contact onset [s]")
@@ -125,6 +125,63 @@ def _mid_frame(setup: ExperimentSetup, log: ContactLog) -> int:
 
 def _cycle_at(log: ContactLog, t: float) -> int:
     return int(np.argmin(np.abs(np.array(log.t) - t)))
+
+
+def _record_images(channel, put, stamp, log: ContactLog, cam) -> None:
+    """Calibration, depth (16UC1) and force-overlay (rgb8) images at 10 Hz, 320 pixels wide."""
+    st = max(1, cam.width // 320)
+    K = [cam.fx / st, 0, cam.cx / st, 0, cam.fy / st, cam.cy / st, 0, 0, 1]
+    put(
+        channel("/camera0/calibration", "foxglove.CameraCalibration"),
+        0.0,
+        {
+            "timestamp": stamp(0.0),
+            "frame_id": "camera0",
+            "width": cam.width // st,
+            "height": cam.height // st,
+            "distortion_model": "plumb_bob",
+            "D": [0.0] * 5,
+            "K": K,
+            "R": cam.R.ravel().tolist(),
+            "P": [K[0], 0, K[2], 0, 0, K[4], K[5], 0, 0, 0, 1, 0],
+        },
+    )
+    ch_d, ch_o = (
+        channel("/camera0/depth", "foxglove.RawImage"),
+        channel("/camera0/contact_overlay", "foxglove.RawImage"),
+    )
+    for n, (t, depth, _) in enumerate(log.frames):
+        if n % 3:
+            continue
+        mm = np.nan_to_num(depth[::st, ::st] * 1000.0, nan=0.0).clip(0, 65535).astype("<u2")
+        put(
+            ch_d,
+            t,
+            {
+                "timestamp": stamp(t),
+                "frame_id": "camera0",
+                "width": mm.shape[1],
+                "height": mm.shape[0],
+                "encoding": "16UC1",
+                "step": mm.shape[1] * 2,
+                "data": base64.b64encode(mm.tobytes()).decode(),
+            },
+        )
+        i = _cycle_at(log, t)
+        ov = overlay_image(cam, depth, log.p_hat[i], log.f_hat[i], st)
+        put(
+            ch_o,
+            t,
+            {
+                "timestamp": stamp(t),
+                "frame_id": "camera0",
+                "width": ov.shape[1],
+                "height": ov.shape[0],
+                "encoding": "rgb8",
+                "step": ov.shape[1] * 3,
+                "data": base64.b64encode(ov.tobytes()).decode(),
+            },
+        )
 
 
 def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None:
@@ -149,59 +206,7 @@ def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None
             ns = int(round(t * 1e9))
             return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
 
-        st = max(1, cam.width // 320)
-        K = [cam.fx / st, 0, cam.cx / st, 0, cam.fy / st, cam.cy / st, 0, 0, 1]
-        put(
-            channel("/camera0/calibration", "foxglove.CameraCalibration"),
-            0.0,
-            {
-                "timestamp": stamp(0.0),
-                "frame_id": "camera0",
-                "width": cam.width // st,
-                "height": cam.height // st,
-                "distortion_model": "plumb_bob",
-                "D": [0.0] * 5,
-                "K": K,
-                "R": cam.R.ravel().tolist(),
-                "P": [K[0], 0, K[2], 0, 0, K[4], K[5], 0, 0, 0, 1, 0],
-            },
-        )
-        ch_d, ch_o = (
-            channel("/camera0/depth", "foxglove.RawImage"),
-            channel("/camera0/contact_overlay", "foxglove.RawImage"),
-        )
-        for n, (t, depth, _) in enumerate(log.frames):
-            if n % 3:
-                continue
-            mm = np.nan_to_num(depth[::st, ::st] * 1000.0, nan=0.0).clip(0, 65535).astype("<u2")
-            put(
-                ch_d,
-                t,
-                {
-                    "timestamp": stamp(t),
-                    "frame_id": "camera0",
-                    "width": mm.shape[1],
-                    "height": mm.shape[0],
-                    "encoding": "16UC1",
-                    "step": mm.shape[1] * 2,
-                    "data": base64.b64encode(mm.tobytes()).decode(),
-                },
-            )
-            i = _cycle_at(log, t)
-            ov = overlay_image(cam, depth, log.p_hat[i], log.f_hat[i], st)
-            put(
-                ch_o,
-                t,
-                {
-                    "timestamp": stamp(t),
-                    "frame_id": "camera0",
-                    "width": ov.shape[1],
-                    "height": ov.shape[0],
-                    "encoding": "rgb8",
-                    "step": ov.shape[1] * 3,
-                    "data": base64.b64encode(ov.tobytes()).decode(),
-                },
-            )
+        _record_images(channel, put, stamp, log, cam)
         ch_j, ch_r, ch_c = (
             channel("/joint_states", "depthguard.JointState"),
             channel("/residual", "depthguard.Residual"),

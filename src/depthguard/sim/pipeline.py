@@ -122,7 +122,7 @@ class Controller:
         directions: np.ndarray | None,
         t_distances: float,
         avoid: bool = True,
-    ) -> tuple[np.ndarray, dict]:
+    ) -> tuple[np.ndarray, np.ndarray, dict]:
         """One cycle. ``distances`` (N,) / ``directions`` (N, 3) from the distance stage (None = none yet);
         with ``avoid=False`` the robot ignores them (no repulsion, no body constraints, no stale stop).
         Returns the joint position command (n,), velocity command (n,) and a status dict."""

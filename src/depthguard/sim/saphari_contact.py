@@ -23,6 +23,7 @@ Also ``observable_fraction`` (``‖P F‖/‖F‖`` in the steady part: the push
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -33,17 +34,22 @@ __all__ = ["run", "compute_metrics"]
 
 
 def _match(p_hat: np.ndarray, p_true: np.ndarray, touching: np.ndarray) -> list[int | None]:
-    """For each estimated contact, the index of the touching hand nearest to it (or None)."""
-    out: list[int | None] = []
-    free = set(np.flatnonzero(touching).tolist())
-    for p in p_hat:
-        if not free:
-            out.append(None)
+    """For each estimated contact, the touching hand assigned to it (or None): the assignment with the
+    smallest total distance (few contacts: all permutations)."""
+    hands = [int(j) for j in np.flatnonzero(touching)]
+    k = len(p_hat)
+    cands = hands + [None] * k
+    best, best_cost = [None] * k, np.inf
+    for perm in set(itertools.permutations(cands, k)):
+        if all(j is None for j in perm) and hands:
             continue
-        h = min(free, key=lambda j: float(np.linalg.norm(p_true[j] - p)))
-        out.append(h)
-        free.discard(h)
-    return out
+        n_none = sum(j is None for j in perm)
+        if n_none > max(k - len(hands), 0):
+            continue
+        cost = sum(float(np.linalg.norm(p_true[j] - p_hat[a])) for a, j in enumerate(perm) if j is not None)
+        if cost < best_cost:
+            best, best_cost = list(perm), cost
+    return best
 
 
 def _errors(log: ContactLog, i: int) -> tuple[float, float, list[float], float]:
@@ -64,6 +70,13 @@ def _errors(log: ContactLog, i: int) -> tuple[float, float, list[float], float]:
     return err, total, cp, obs
 
 
+def _null_basis(log: ContactLog, t: np.ndarray, tm: float) -> list[list[float]]:
+    """Unit force directions (3k each, stacked) the residual cannot see, at the cycle nearest ``tm``."""
+    i = int(np.argmin(np.abs(t - tm)))
+    w, V = np.linalg.eigh(np.eye(len(log.projector[i])) - log.projector[i])
+    return [np.round(V[:, j], 4).tolist() for j in np.flatnonzero(w > 0.5)]
+
+
 def _ee_drift(log: ContactLog, active: np.ndarray) -> float:
     """Largest end-effector displacement during detected contacts from its position at their onset, m."""
     ee, worst, ref = np.array(log.ee), 0.0, None
@@ -82,7 +95,7 @@ def compute_metrics(setup: ExperimentSetup, log: ContactLog) -> dict:
     onsets = [o for o in log.onset_true if o is not None]
     onset = min(onsets) if onsets else None
     det_idx = np.flatnonzero(active & (t >= (onset or np.inf) - 1e-9))
-    delay = round(1e3 * (t[det_idx[0]] - onset), 3) if onset is not None and len(det_idx) else None
+    delay = round(float(1e3 * (t[det_idx[0]] - onset)), 3) if onset is not None and len(det_idx) else None
     rising = np.flatnonzero(active[1:] & ~active[:-1]) + 1
     rising = np.concatenate([[0], rising]) if active[0] else rising
     false_det = int(sum(ftot[i] < 0.5 for i in rising))
@@ -116,6 +129,7 @@ def compute_metrics(setup: ExperimentSetup, log: ContactLog) -> dict:
         "observable_fraction": float(np.mean(obs_f)) if obs_f else None,
         "unobservable_directions": int(max(log.n_unobservable)) if log.n_unobservable else 0,
         "most_loaded_joint": int(np.argmax(np.mean(loads, axis=0))) + 1 if loads else None,
+        "unobservable_basis_mid_push": _null_basis(log, t, 0.5 * (t_on + t_off)),
         "classification": labels,
         "r_th_nm": setup.r_th,
         "observer_gain": setup.gain,

@@ -16,7 +16,10 @@ Metrics: ``collision_steps`` (300 Hz steps with a true robot-obstacle clearance 
 (m), ``task_completion`` (share of the planned path length followed within 3 cm), ``path_error`` (RMS
 end-effector error, m), ``place_error`` (m), ``peak_energy`` (max sigma, m^2), ``chattering`` (total
 variation of the commanded joint accelerations, sum over joints of |delta qddot| per second of run,
-units/s^3), ``distance_hz_median`` = null (the sensors run at a fixed 300 Hz, ``sensor_rate_hz``).
+units/s^3), ``max_normalised_output`` (per sensor, 1 = peak output), ``distance_hz_median`` = null (the
+sensors run at a fixed 300 Hz, ``sensor_rate_hz``).
+With ``--out`` and case 3 the other two weighting functions are run too: ``chattering_by_lambda`` and
+``chattering.png``.
 """
 
 from __future__ import annotations
@@ -143,6 +146,7 @@ def nsb_metrics(L: dict, dt: float = 1 / 300, tol: float = 0.03) -> dict:
         "peak_energy": float(L["sigma"].max()),
         "chattering": chattering(L["qdot"], dt),
         "max_lambda": float(L["lam"].max()),
+        "max_normalised_output": [round(float(x), 3) for x in L["vnorm"].max(axis=0)],
         "self_detections": int(L["self_hits"]),
         "duration_s": float(L["t"][-1] + dt),
     }
@@ -160,6 +164,8 @@ def run(name: str, quick: bool, avoidance: bool, out_dir: str | None, progress: 
     if case == 2:
         avoidance = False
     runs["main"] = run_case(case_obstacles(case), avoidance, lam, slow, progress=progress)
+    if progress and out_dir and case == 3 and avoidance:
+        print("  (with --out, case 3 also runs the other two weighting functions for chattering.png)", flush=True)
     out = {"scenario": name, "case": case, "lambda": lam, "quick": quick, "avoidance": avoidance}
     out.update(nsb_metrics(runs["main"]))
     if "no box" in runs:
@@ -178,6 +184,15 @@ def run(name: str, quick: bool, avoidance: bool, out_dir: str | None, progress: 
             obst = case_obstacles(1, with_box=False) if key == "no box" else case_obstacles(case)
             outlines[key] = (L["t"][idx], robot_outlines(obst, L["q"][idx]))
         out["files"] = plot_nsb(d, runs, case_obstacles(case), f"saphari-nsb case {case} ({lam})", outlines)
+        if case == 3 and avoidance:  # the chattering comparison of the three weighting functions
+            from depthguard.viz.saphari_plots import plot_chattering
+
+            by = {lam: runs["main"]}
+            for other in ("switch", "arctan", "linear"):
+                if other not in by:
+                    by[other] = run_case(case_obstacles(3), True, other, slow)
+            out["chattering_by_lambda"] = {k: chattering(v["qdot"], 1 / 300) for k, v in by.items()}
+            out["files"]["chattering"] = plot_chattering(d, by, out["chattering_by_lambda"])
         out["files"]["recording"] = str(_record(d / "recording.mcap", runs["main"]))
         (d / "metrics.json").write_text(json.dumps(out, indent=2, default=float))
     return out

@@ -17,7 +17,7 @@ import numpy as np
 
 from depthguard.sensors.graycode import simulate_lines
 
-__all__ = ["plot_skin", "plot_nsb"]
+__all__ = ["plot_skin", "plot_nsb", "plot_chattering"]
 
 
 def _mpl():
@@ -31,9 +31,12 @@ def _mpl():
 
 def plot_skin(out: Path, log: dict, params) -> dict[str, str]:
     """Write ``fig11.png`` and ``graycode.png`` for a skin run; returns {name: path}."""
+    return {"fig11": _fig11(out, log), "graycode": _graycode(out, log, params)}
+
+
+def _fig11(out: Path, log: dict) -> str:
     plt = _mpl()
     t = log["t"]
-    files = {}
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(13, 4.5))
     a1.plot(t, log["signal"], color="tab:blue", lw=1.2, label="proximity signal (max of elements)")
     for k, th in enumerate(log["thresholds"]):
@@ -66,8 +69,12 @@ def plot_skin(out: Path, log: dict, params) -> dict[str, str]:
     p = out / "fig11.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    files["fig11"] = str(p)
+    return str(p)
 
+
+def _graycode(out: Path, log: dict, params) -> str:
+    plt = _mpl()
+    t = log["t"]
     args = (log["writes_t"], log["writes_l"], float(t[-1]), params.line_delays, params.io_period, params.io_phase)
     g = simulate_lines(*args, code="gray")
     b = simulate_lines(*args, code="binary")
@@ -105,8 +112,7 @@ def plot_skin(out: Path, log: dict, params) -> dict[str, str]:
     p = out / "graycode.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    files["graycode"] = str(p)
-    return files
+    return str(p)
 
 
 def _hull(ax, pts2: np.ndarray, **kw) -> None:
@@ -128,9 +134,17 @@ def _box_corners(o) -> np.ndarray:
 def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None = None) -> dict[str, str]:
     """Write ``sensors_energy.png``, ``joint_velocities.png`` and ``snapshots.png`` for NSB runs
     (``runs`` = {name: log}, "main" first; ``outlines`` = {name: (times, robot corner lists)})."""
+    files = {"sensors_energy": _sensors_energy(out, runs["main"], title)}
+    files["joint_velocities"] = _joint_velocities(out, runs["main"], title)
+    if outlines:
+        files["snapshots"] = _snapshots(out, runs["main"], obstacles, title, outlines["main"])
+    if outlines and "no box" in outlines:
+        files["fig14"] = _fig14(out, obstacles, title, outlines)
+    return files
+
+
+def _sensors_energy(out: Path, L: dict, title: str) -> str:
     plt = _mpl()
-    files = {}
-    L = runs["main"]
     t = L["t"]
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
     seen = np.isfinite(L["dist"]).any(axis=0)
@@ -154,8 +168,12 @@ def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None
     p = out / "sensors_energy.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    files["sensors_energy"] = str(p)
+    return str(p)
 
+
+def _joint_velocities(out: Path, L: dict, title: str) -> str:
+    plt = _mpl()
+    t = L["t"]
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for j, lab in enumerate(("x", "y", "theta")):
         a1.plot(t, L["qdot"][:, j], lw=1, label=lab)
@@ -172,48 +190,82 @@ def plot_nsb(out: Path, runs: dict, obstacles, title: str, outlines: dict | None
     p = out / "joint_velocities.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
-    files["joint_velocities"] = str(p)
+    return str(p)
 
-    if outlines:
-        times, shots = outlines["main"]
-        ncol = len(shots)
-        fig, axes = plt.subplots(2, ncol, figsize=(3.2 * ncol, 4.6), squeeze=False)
-        xd, ee = L["xd"], L["ee"]
-        for c, (tc, corners) in enumerate(zip(times, shots, strict=True)):
-            upto = L["t"] <= tc + 1e-9
-            for r, (i, j, lab) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z)"))):
-                ax = axes[r, c]
-                for o in obstacles:
-                    _hull(ax, _box_corners(o)[:, [i, j]], color="tab:brown", alpha=0.45, lw=0)
-                for cc in corners:
-                    _hull(ax, cc[:, [i, j]], color="tab:blue", alpha=0.35, lw=0)
-                ax.plot(xd[:, i], xd[:, j], "k--", lw=0.7)
-                ax.plot(ee[upto, i], ee[upto, j], color="tab:red", lw=1.2)
-                ax.set_xlim(-0.4, 1.9)
-                ax.set_ylim(*((-0.6, 0.6) if r == 0 else (0.0, 0.8)))
-                ax.set_aspect("equal")
-                ax.tick_params(labelsize=6)
-                ax.set_title(f"t = {tc:.1f} s, {lab}", fontsize=8)
-        fig.suptitle(f"{title}: snapshots (blue robot, brown obstacles, red end-effector trace, dashed plan)")
-        fig.tight_layout()
-        p = out / "snapshots.png"
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        files["snapshots"] = str(p)
-    if outlines and "no box" in outlines:
-        fig, ax = plt.subplots(figsize=(9, 4))
-        for o in obstacles:
-            _hull(ax, _box_corners(o)[:, [0, 2]], color="tab:brown", alpha=0.45, lw=0)
-        for name, col in (("no box", "tab:green"), ("main", "tab:blue")):
-            for cc in outlines[name][1][-1]:
-                _hull(ax, cc[:, [0, 2]], color=col, alpha=0.3, lw=0)
-            ax.plot([], [], color=col, lw=6, alpha=0.5, label="without the box" if name == "no box" else "with the box")
-        ax.set_aspect("equal")
-        ax.legend(fontsize=8)
-        ax.set_title(f"{title}: final configurations without and with the box (Fig. 14), side view")
-        fig.tight_layout()
-        p = out / "fig14.png"
-        fig.savefig(p, dpi=110)
-        plt.close(fig)
-        files["fig14"] = str(p)
-    return files
+
+def _snapshots(out: Path, L: dict, obstacles, title: str, main_outlines) -> str:
+    plt = _mpl()
+    times, shots = main_outlines
+    ncol = len(shots)
+    fig, axes = plt.subplots(2, ncol, figsize=(3.2 * ncol, 4.6), squeeze=False)
+    xd, ee = L["xd"], L["ee"]
+    for c, (tc, corners) in enumerate(zip(times, shots, strict=True)):
+        upto = L["t"] <= tc + 1e-9
+        for r, (i, j, lab) in enumerate(((0, 1, "top (x-y)"), (0, 2, "side (x-z)"))):
+            ax = axes[r, c]
+            for o in obstacles:
+                _hull(ax, _box_corners(o)[:, [i, j]], color="tab:brown", alpha=0.45, lw=0)
+            for cc in corners:
+                _hull(ax, cc[:, [i, j]], color="tab:blue", alpha=0.35, lw=0)
+            ax.plot(xd[:, i], xd[:, j], "k--", lw=0.7)
+            ax.plot(ee[upto, i], ee[upto, j], color="tab:red", lw=1.2)
+            ax.set_xlim(-0.4, 1.9)
+            ax.set_ylim(*((-0.6, 0.6) if r == 0 else (0.0, 0.8)))
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=6)
+            ax.set_title(f"t = {tc:.1f} s, {lab}", fontsize=8)
+    fig.suptitle(f"{title}: snapshots (blue robot, brown obstacles, red end-effector trace, dashed plan)")
+    fig.tight_layout()
+    p = out / "snapshots.png"
+    fig.savefig(p, dpi=100)
+    plt.close(fig)
+    return str(p)
+
+
+def _fig14(out: Path, obstacles, title: str, outlines: dict) -> str:
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for o in obstacles:
+        _hull(ax, _box_corners(o)[:, [0, 2]], color="tab:brown", alpha=0.45, lw=0)
+    for name, col in (("no box", "tab:green"), ("main", "tab:blue")):
+        for cc in outlines[name][1][-1]:
+            _hull(ax, cc[:, [0, 2]], color=col, alpha=0.3, lw=0)
+        ax.plot([], [], color=col, lw=6, alpha=0.5, label="without the box" if name == "no box" else "with the box")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8)
+    ax.set_title(f"{title}: final configurations without and with the box (Fig. 14), side view")
+    fig.tight_layout()
+    p = out / "fig14.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return str(p)
+
+
+def plot_chattering(out: Path, runs: dict, measures: dict) -> str:
+    """``chattering.png``: lambda(d) and the commanded joint accelerations of case 3 for each weighting
+    function (5.10-5.12), with the chattering measure of each."""
+    plt = _mpl()
+    kinds = [k for k in ("switch", "arctan", "linear") if k in runs]
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(11, 2.6 * len(kinds)), sharex=True, squeeze=False)
+    for ax, k in zip(axes[:, 0], kinds, strict=True):
+        L = runs[k]
+        t = L["t"]
+        qdd = np.diff(L["qdot"], axis=0) / (t[1] - t[0])
+        ax.plot(t[1:], np.abs(qdd).sum(axis=1), lw=0.7, color="tab:purple", label="sum |qddot| (all joints)")
+        ax.set_ylabel("[units/s^2]")
+        b = ax.twinx()
+        b.plot(t, L["lam"], lw=0.8, color="tab:orange", label="lambda(d)")
+        b.set_ylim(-0.05, 1.05)
+        b.set_ylabel("lambda")
+        ax.set_title(f"{k}: chattering {measures[k]:.0f} units/s^3", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
+        b.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle(
+        "saphari-nsb case 3: commanded joint accelerations with eqs. 5.10 (switch), 5.11 (arctan), 5.12 (linear)"
+    )
+    fig.tight_layout()
+    p = out / "chattering.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return str(p)
