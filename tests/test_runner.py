@@ -182,7 +182,7 @@ def test_bag_from_rosbags_gives_the_distance_command_results(tmp_path, encoding,
     log = RunLog()
     summary = run_cell(cell, f"bag:{bag}", out_dir=tmp_path / "out", log=log)
     assert summary["frames"] == 1 and summary["commands"] == 40
-    assert set(summary["statuses"]) <= {"OK", "SCALED", "STOP_STALE_DISTANCES"}
+    assert set(summary["statuses"]) <= {"OK", "SCALED", "STOP_STALE_DISTANCES", "STOP_RESUME_WAIT"}
     # the same frame through the file-based command
     cps = ControlPointSet.build(model, "ral-9", 0.12).evaluate(q)
     write_camera(tmp_path / "cam.json", cam)
@@ -275,3 +275,52 @@ def test_plumb_bob_with_coefficients_is_undistorted(tmp_path):
     assert cols[60, 150] > 150 or cols[60, 150] == -1
     with pytest.raises(ValueError, match="fisheye"):
         undistort_map(cam, "fisheye", np.zeros(4))
+
+
+def test_frozen_camera_stops_the_controller_with_its_name(tmp_path):
+    """A bag whose camera repeats one frame with fresh stamps: STOP_SENSOR_FAULT, the camera named."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    cam, depth, q, model, _ = _scene("32FC1")
+    bag = tmp_path / "bag"
+    ts = ros2.typestore()
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c_img = w.add_connection("/cam/depth", "sensor_msgs/msg/Image", typestore=ts)
+        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        c_js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        from depthguard.sim.recorder import camera_tf
+
+        w.write(
+            c_tf,
+            0,
+            ts.serialize_cdr(
+                ros2.tf_msg(0.0, [("world", "cam_optical", *camera_tf(cam.R, cam.t))]), "tf2_msgs/msg/TFMessage"
+            ),
+        )
+        for k in range(200):
+            t = 0.001 * k
+            ns = int(round(t * 1e9))
+            if k % 33 == 0:  # 30 Hz, the very same image every time
+                w.write(
+                    c_img,
+                    ns,
+                    ts.serialize_cdr(ros2.image_msg(t, "cam_optical", depth, "32FC1"), "sensor_msgs/msg/Image"),
+                )
+                w.write(
+                    c_info,
+                    ns,
+                    ts.serialize_cdr(ros2.camera_info_msg(t, "cam_optical", cam), "sensor_msgs/msg/CameraInfo"),
+                )
+            w.write(
+                c_js, ns, ts.serialize_cdr(ros2.joint_state_msg(t, model.joint_names, q), "sensor_msgs/msg/JointState")
+            )
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    log = RunLog()
+    summary = run_cell(cell, f"bag:{bag}", log=log)
+    assert summary["sensor_faults"].get("cam: frozen", 0) >= 3
+    assert log.status[-1] == "STOP_SENSOR_FAULT"
+    i = log.status.index("STOP_SENSOR_FAULT")
+    assert log.t[i] == pytest.approx(0.066, abs=0.002)  # the third identical frame
+    assert np.all(np.abs(log.qdot_cmd[-1]) < np.abs(log.qdot_cmd[i]).max() + 1e-12)

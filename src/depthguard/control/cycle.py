@@ -115,6 +115,12 @@ class AvoidanceController:
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
+        self.sensor_fault: str | None = None
+
+    def set_sensor_fault(self, fault: str | None) -> None:
+        """Report a sensor fault (e.g. ``"camera0: frozen"``) or its end (None). While set, every cycle
+        reports ``STOP_SENSOR_FAULT`` and stops; afterwards the resume latch applies."""
+        self.sensor_fault = fault
 
     def reset(self) -> None:
         """Forget the state (the next cycle starts from the measured velocity, unlatched)."""
@@ -141,6 +147,8 @@ def control_cycle(
 def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
     """The stages of the module docstring, in order."""
     chk = check_inputs(inp, ctrl.n, ctrl.points.n_points, M_TASK, ctrl.config, st.t_prev)
+    if ctrl.sensor_fault is not None and chk.status == CycleStatus.OK:
+        chk = chk._replace(status=CycleStatus.STOP_SENSOR_FAULT)
     t_prev = st.t_prev if math.isnan(chk.t) else max(st.t_prev, chk.t)
     status, st = _resume_latch(ctrl.config, chk, st._replace(t_prev=t_prev))
     otg = _sync_state(st.otg, chk, ctrl.v_max)

@@ -29,6 +29,9 @@ class CycleStatus(IntEnum):
     #: inputs valid again after a stop, but for less than ``resume_time`` in a row: still stopping
     STOP_RESUME_WAIT = 6
     STOP_INTERNAL_ERROR = 7  #: an unexpected exception inside the cycle: jerk-limited stop
+    #: a camera reported a fault (frozen, covered, moved: :mod:`depthguard.robot.health`); the faulty camera
+    #: is named in :attr:`AvoidanceController.sensor_fault`: jerk-limited stop, resume latch afterwards
+    STOP_SENSOR_FAULT = 8
 
     @property
     def stopping(self) -> bool:

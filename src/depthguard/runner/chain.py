@@ -18,6 +18,7 @@ from depthguard.control.cycle import AvoidanceController, ControllerConfig, Cycl
 from depthguard.depthspace import PointDistances
 from depthguard.io.cellfile import CellFile
 from depthguard.robot.control_points import ControlPointSet
+from depthguard.robot.health import CameraHealth
 from depthguard.robot.model import RobotModel, load_lwr4
 from depthguard.robot.selffilter import self_filter
 
@@ -88,14 +89,25 @@ class Chain:
         self.controller = AvoidanceController(points, self.config)
         self.latest: tuple[float, PointDistances] | None = None
         self.masks: list[np.ndarray] | None = None
+        self.health = [CameraHealth(c, cc.name, model) for c, cc in zip(self.cameras, cell.cameras, strict=True)]
+        self.faults: dict[str, str] = {}
 
     @property
     def joint_names(self) -> tuple[str, ...]:
         return self.model.joint_names
 
     def on_frames(self, depths: list[np.ndarray], q: np.ndarray) -> list[np.ndarray]:
-        """Frame stage: self-filter every camera's depth (H, W) m at the joint positions ``q``; returns the
-        robot masks (H, W) bool."""
+        """Frame stage: health check and self-filter of every camera's depth (H, W) m at the joint positions
+        ``q``; returns the robot masks (H, W) bool. A faulty camera stops the controller
+        (``STOP_SENSOR_FAULT``, :attr:`faults` names it)."""
+        self.faults = {}
+        for h, d in zip(self.health, depths, strict=True):
+            fault = h.check(d, q)
+            if fault is not None:
+                self.faults[h.name] = fault
+        self.controller.set_sensor_fault(
+            "; ".join(f"{k}: {v}" for k, v in self.faults.items()) if self.faults else None
+        )
         masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
         self.stage.update(depths, masks)
         self.masks = masks
@@ -118,7 +130,7 @@ class Chain:
         """Control stage: one cycle of the avoidance controller with the latest distances."""
         N = self.points.n_points
         if self.latest is None:
-            d, dirs, td = None, None, -np.inf
+            d, dirs, td = None, None, t  # no distances yet: STOP_STALE_DISTANCES (a finite stamp)
         else:
             td, res = self.latest
             d = np.asarray(res.distance, dtype=float)

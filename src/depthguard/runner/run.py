@@ -47,6 +47,7 @@ class RunLog:
         self.distances: list[np.ndarray] = []
         self.wall_query: list[float] = []
         self.frames = 0
+        self.faults: Counter = Counter()  # "camera: fault" -> frames
 
 
 class _Recorder:
@@ -163,6 +164,7 @@ def run_chain(
             if tick.frames is not None and tick.q is not None:
                 masks = chain.on_frames(tick.frames, tick.q)
                 log.frames += 1
+                log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
                 if rec is not None:
                     rec.masks(tick.t, masks)
             if chain.ready and tick.q is not None and tick.t >= next_query - 1e-9:
@@ -198,6 +200,7 @@ def run_chain(
         "commands": len(log.t),
         "distance_hz_median": float(1.0 / np.median(wq)) if wq.size else None,
         "statuses": dict(Counter(log.status)),
+        "sensor_faults": dict(log.faults),
         "duration_s": float(log.t[-1] - log.t[0]) if log.t else 0.0,
         "wall_s": round(time.perf_counter() - wall0, 3),
     }
