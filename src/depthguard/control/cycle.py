@@ -13,8 +13,9 @@ Per cycle (:func:`control_cycle`), a sequence of small stages:
 4. unless stopping, :func:`plan_motion`: forward kinematics and the control points at the measured
    ``q``; end effector (eqs. 7, 10): ``xdot_c = xdot_d + V_R(P_EE)``; body points (eqs. 12-14): the
    bounds tightened further; eq. 11 under those bounds by SNS (:mod:`depthguard.control.sns`), with
-   damped least squares near singularities. A speed-scaling stage (e.g. speed and separation
-   monitoring) fits between the body bounds and SNS;
+   damped least squares near singularities. With ``avoidance`` "ssm" or "both", speed and separation
+   monitoring (:mod:`depthguard.control.ssm`) scales the task velocity before SNS, and its protective stop
+   (``STOP_PROTECTIVE``) brakes like any other stop;
 5. :func:`generate`: Ruckig (velocity mode) towards the target, the fallback braking step if Ruckig
    fails (``ERROR_OTG``), and :func:`~depthguard.control.bounded.enforce_velocity_bounds`: the command
    of every cycle lies within that cycle's bounds; when a bound shrinks faster than the jerk limit can
@@ -83,6 +84,7 @@ class Plan(NamedTuple):
     target: np.ndarray
     scale: float
     xdot_c: np.ndarray
+    ssm: object | None = None
 
 
 @dataclass
@@ -116,6 +118,15 @@ class AvoidanceController:
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
         self.sensor_fault: str | None = None
+        if cfg.avoidance not in ("repulsion", "ssm", "both"):
+            raise ValueError(f"avoidance must be 'repulsion', 'ssm' or 'both', got {cfg.avoidance!r}")
+        self.monitor = None
+        if cfg.avoidance != "repulsion":
+            from depthguard.control.braking import chain_lengths
+            from depthguard.control.ssm import SsmConfig, SsmMonitor
+
+            L = chain_lengths(model, self.points.joints, self.points.offsets)
+            self.monitor = SsmMonitor(L, self.otg.a_max, self.otg.j_max, cfg.ssm or SsmConfig())
 
     def set_sensor_fault(self, fault: str | None) -> None:
         """Report a sensor fault (e.g. ``"camera0: frozen"``) or its end (None). While set, every cycle
@@ -158,19 +169,22 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
     if status.stopping:
         plan = Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
     else:
-        plan = plan_motion(ctrl, chk, b)
+        plan = plan_motion(ctrl, chk, b, otg, max(chk.t - float(inp.t_distances), 0.0))
         if not (np.isfinite(plan.target).all() and np.isfinite(plan.xdot_c).all()):
             status, plan = CycleStatus.STOP_INVALID_INPUT, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
-        elif plan.scale < 1.0 - 1e-9:
+        elif plan.ssm is not None and plan.ssm.scale <= 0.0:
+            status, plan = CycleStatus.STOP_PROTECTIVE, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK), plan.ssm)
+        elif plan.scale < 1.0 - 1e-9 or (plan.ssm is not None and plan.ssm.scale < 1.0):
             status = CycleStatus.SCALED
     new, ok, limited = generate(ctrl, otg, plan.target, b.lo, b.hi)
     if not ok:
         status = CycleStatus.ERROR_OTG
-    if status.stopping and status != CycleStatus.STOP_RESUME_WAIT:
+    # the SSM stop has its own hysteresis (the monitor releases it): it does not latch the resume wait
+    if status.stopping and status not in (CycleStatus.STOP_RESUME_WAIT, CycleStatus.STOP_PROTECTIVE):
         st = st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
     out = CycleOutput(
         new.velocity, new.position, new.acceleration, status, float(plan.scale), plan.target, b.lo, b.hi,
-        plan.xdot_c, limited,
+        plan.xdot_c, limited, plan.ssm,
     )  # fmt: skip
     return out, st._replace(otg=new)
 
@@ -234,15 +248,22 @@ def joint_bounds(ctrl: AvoidanceController, otg: OtgState) -> Bounds:
     return Bounds(lo, hi, np.maximum(lo, lo3[1]), np.minimum(hi, hi3[2]))
 
 
-def plan_motion(ctrl: AvoidanceController, chk: CheckedInput, b: Bounds) -> Plan:
-    """Stage 4 of the module docstring for valid inputs: end-effector repulsion, body bounds (which
-    tighten all of ``b`` in place) and SNS within ``b.lo_s``/``b.hi_s``."""
+def plan_motion(
+    ctrl: AvoidanceController, chk: CheckedInput, b: Bounds, otg: OtgState | None = None, data_age: float = 0.0
+) -> Plan:
+    """Stage 4 of the module docstring for valid inputs: end-effector repulsion (unless ``avoidance`` is
+    "ssm"), body bounds (which tighten all of ``b`` in place), the SSM speed scale of the task (when on;
+    ``otg`` is the current motion, ``data_age`` the age of the distances, s) and SNS within
+    ``b.lo_s``/``b.hi_s``."""
     cfg = ctrl.config
     ctrl.points.model.update(chk.q)
     cps = ctrl.points.evaluate(chk.q, updated=True)
     dist, dirs = chk.distances, chk.directions
-    v_rep = repulsive_velocity(dist[0], dirs[0], cfg.v_rep_max, cfg.rho_ee, cfg.alpha_ee)
-    xdot_c = commanded_task_velocity(chk.xdot_d, v_rep)
+    if cfg.avoidance == "ssm":
+        xdot_c = np.asarray(chk.xdot_d, dtype=float).copy()
+    else:
+        v_rep = repulsive_velocity(dist[0], dirs[0], cfg.v_rep_max, cfg.rho_ee, cfg.alpha_ee)
+        xdot_c = commanded_task_velocity(chk.xdot_d, v_rep)
     lo_b, hi_b = -ctrl.v_max, ctrl.v_max.copy()
     body_bounds_inplace(
         cps.jacobians, np.maximum(dist, 0.0), dirs, ctrl.body_use, ctrl.v_max,
@@ -251,11 +272,15 @@ def plan_motion(ctrl: AvoidanceController, chk: CheckedInput, b: Bounds) -> Plan
     for a, c in ((b.lo, b.lo_s), (b.hi, b.hi_s)):
         np.clip(a, lo_b, hi_b, out=a)
         np.clip(c, lo_b, hi_b, out=c)
-    # (a speed-scaling stage, e.g. speed and separation monitoring, would scale xdot_c or b here)
     J = np.ascontiguousarray(cps.jacobians[0])
     lam = dls_damping(J, cfg.dls_eps, cfg.dls_lambda_max)
+    ssm = None
+    if ctrl.monitor is not None and otg is not None:  # speed and separation monitoring scales the task
+        nominal = J.T @ np.linalg.solve(J @ J.T + (lam * lam + 1e-12) * np.eye(J.shape[0]), xdot_c)
+        ssm = ctrl.monitor.update(cps.jacobians, otg.velocity, otg.acceleration, nominal, dist, dirs, data_age)
+        xdot_c = xdot_c * ssm.scale
     target, scale = sns_velocity_unchecked(J, xdot_c, b.lo_s, b.hi_s, lam)
-    return Plan(target, float(scale), xdot_c)
+    return Plan(target, float(scale), xdot_c, ssm)
 
 
 def generate(

@@ -32,6 +32,9 @@ class CycleStatus(IntEnum):
     #: a camera reported a fault (frozen, covered, moved: :mod:`depthguard.robot.health`); the faulty camera
     #: is named in :attr:`AvoidanceController.sensor_fault`: jerk-limited stop, resume latch afterwards
     STOP_SENSOR_FAULT = 8
+    #: speed and separation monitoring: the separation is below the protective separation distance even
+    #: at rest (ISO/TS 15066): jerk-limited stop until the monitor's hysteresis releases it
+    STOP_PROTECTIVE = 9
 
     @property
     def stopping(self) -> bool:
@@ -58,6 +61,9 @@ class ControllerConfig:
             joint brakes and accelerates on its own time-optimal profile; "time"/"phase" stretch the faster
             joints' profiles to finish together, which slows their braking below the acceleration limit
             that the position-limit bounds assume (a test drove a joint past its limit that way).
+        avoidance: "repulsion" (the papers: end-effector repulsion and body bounds), "ssm" (speed and
+            separation monitoring, ISO/TS 15066, scaling the task, plus the body bounds) or "both".
+        ssm: the :class:`depthguard.control.ssm.SsmConfig` (None = its defaults) when SSM is on.
         resume_time: after any stop, motion resumes only once every input has been valid (and fresh)
             for this long in a row, s (cycles in a row and elapsed time both count); until then the
             cycle reports ``STOP_RESUME_WAIT`` and keeps stopping.
@@ -80,6 +86,8 @@ class ControllerConfig:
     dls_lambda_max: float = 0.05
     synchronization: str = "none"
     resume_time: float = 0.1
+    avoidance: str = "repulsion"
+    ssm: object | None = None
 
 
 class CycleInput(NamedTuple):
@@ -129,6 +137,7 @@ class CycleOutput(NamedTuple):
         xdot_c: (3,) commanded end-effector velocity (eq. 10), m/s.
         bound_limited: True when a bound shrank faster than the jerk limit can follow, so the bound won:
             ``qdot_cmd`` was set to it, breaking the acceleration or jerk limit in this cycle.
+        ssm: the speed and separation monitor's output of this cycle (None when SSM is off or stopping).
     """
 
     qdot_cmd: np.ndarray
@@ -141,3 +150,4 @@ class CycleOutput(NamedTuple):
     qdot_max: np.ndarray
     xdot_c: np.ndarray
     bound_limited: bool = False
+    ssm: object | None = None  #: the cycle's :class:`depthguard.control.ssm.SsmOutput` when SSM is on

@@ -1,0 +1,91 @@
+"""The controller's SSM mode (ISO/TS 15066): the monitor's scale multiplies the task before SNS, its protective
+stop brakes, nobody within reach means no slow-down, and the task resumes when the person leaves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pinocchio")
+pytest.importorskip("ruckig")
+
+from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput, CycleStatus  # noqa: E402
+from depthguard.control.ssm import MonitorState, protective_separation  # noqa: E402
+from depthguard.robot.control_points import ControlPointSet  # noqa: E402
+from depthguard.robot.model import load_lwr4  # noqa: E402
+
+Q0 = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
+XDOT = np.array([0.0, 0.3, 0.0])  # 0.3 m/s sideways task
+
+
+@pytest.fixture(scope="module")
+def points() -> ControlPointSet:
+    return ControlPointSet.build(load_lwr4(), "ral-9")
+
+
+def _run(ctrl, dist_fn, n=400, dt=0.001):
+    """Closed loop on the controller's own command: dist_fn(k) -> (distances (N,), directions (N, 3))."""
+    q, qd = Q0.copy(), np.zeros(7)
+    outs = []
+    for k in range(n):
+        t = k * dt
+        d, u = dist_fn(k)
+        out = ctrl.step(CycleInput(t, q, qd, t, XDOT, d, u, t))
+        q, qd = out.q_cmd, out.qdot_cmd
+        outs.append(out)
+    return outs
+
+
+def test_nobody_within_reach_no_slow_down(points):
+    N = points.n_points
+    plain = AvoidanceController(points, ControllerConfig())
+    ssm = AvoidanceController(points, ControllerConfig(avoidance="both"))
+    far = lambda k: (np.full(N, np.inf), np.zeros((N, 3)))  # noqa: E731
+    a, b = _run(plain, far, 200), _run(ssm, far, 200)
+    assert all(o.status == CycleStatus.OK for o in b)
+    assert all(o.ssm.state == MonitorState.MONITOR_OK for o in b)
+    np.testing.assert_allclose([o.qdot_cmd for o in a], [o.qdot_cmd for o in b], atol=1e-12)
+
+
+def test_close_person_stops_and_resumes_after_leaving(points):
+    N = points.n_points
+    ctrl = AvoidanceController(points, ControllerConfig(avoidance="ssm"))
+    up = np.tile([0.0, 0.0, 1.0], (N, 1))
+
+    def person(k):  # within reach for 0.2-0.5 s, then gone
+        if 200 <= k < 500:
+            return np.full(N, 0.1), up
+        return np.full(N, np.inf), np.zeros((N, 3))
+
+    outs = _run(ctrl, person, 900)
+    st = [o.status for o in outs]
+    assert CycleStatus.STOP_PROTECTIVE in st[200:210]
+    assert all(s == CycleStatus.STOP_PROTECTIVE for s in st[210:500])
+    speeds = np.array([np.abs(o.qdot_cmd).max() for o in outs])
+    assert speeds[200] > 0.05 and speeds[450] < 1e-9  # jerk-limited stop completed
+    jerk_ok = np.abs(np.diff([o.qddot_cmd for o in outs], axis=0)).max() / 0.001 <= 500 * 1.0001 + 1e-6
+    assert jerk_ok
+    assert st[-1] == CycleStatus.OK and speeds[-1] > 0.05  # resumed after the hysteresis
+
+
+def test_scaled_motion_keeps_the_protective_distance(points):
+    """A person at 0.25 m from every point: the task is slowed so that S >= S_p for the state it allows."""
+    N = points.n_points
+    ctrl = AvoidanceController(points, ControllerConfig(avoidance="ssm"))
+    st = points.evaluate(Q0)
+    toward = -np.tile(XDOT / np.linalg.norm(XDOT), (N, 1))  # the obstacle lies ahead of the motion
+
+    outs = _run(ctrl, lambda k: (np.full(N, 0.25), toward), 300)
+    reduced = [o for o in outs if o.ssm is not None and o.ssm.state == MonitorState.REDUCED]
+    assert reduced, "the monitor should reduce the speed"
+    for o in reduced:
+        assert np.all(o.ssm.margin >= -1e-9)
+    # the formula at the allowed state, independently: the points' approach speed times T_r etc.
+    o = reduced[-1].ssm
+    assert o.s_p.min() >= protective_separation(2.0, o.reaction_time, 0.0, 0.0, 0.0, 0.05, 0.05, 0.01) - 1e-12
+    assert st is not None
+
+
+def test_bad_mode_is_a_configuration_error(points):
+    with pytest.raises(ValueError, match="avoidance"):
+        AvoidanceController(points, ControllerConfig(avoidance="ISO"))
