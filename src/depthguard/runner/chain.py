@@ -89,6 +89,7 @@ class Chain:
         self.controller = AvoidanceController(points, self.config)
         self.latest: tuple[float, PointDistances] | None = None
         self.masks: list[np.ndarray] | None = None
+        self.t_frames: float | None = None
         self.health = [CameraHealth(c, cc.name, model) for c, cc in zip(self.cameras, cell.cameras, strict=True)]
         self.faults: dict[str, str] = {}
 
@@ -96,7 +97,7 @@ class Chain:
     def joint_names(self) -> tuple[str, ...]:
         return self.model.joint_names
 
-    def on_frames(self, depths: list[np.ndarray], q: np.ndarray) -> list[np.ndarray]:
+    def on_frames(self, depths: list[np.ndarray], q: np.ndarray, t_frames: float | None = None) -> list[np.ndarray]:
         """Frame stage: health check and self-filter of every camera's depth (H, W) m at the joint positions
         ``q``; returns the robot masks (H, W) bool. A faulty camera stops the controller
         (``STOP_SENSOR_FAULT``, :attr:`faults` names it)."""
@@ -111,6 +112,7 @@ class Chain:
         masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
         self.stage.update(depths, masks)
         self.masks = masks
+        self.t_frames = t_frames
         return masks
 
     @property
@@ -121,7 +123,9 @@ class Chain:
         """Distance stage at ``t``: control spheres at ``q`` against the latest frames."""
         cps = self.points.evaluate(q)
         res = self.stage.query(cps.centres, cps.radii)
-        self.latest = (t, res)
+        # the distances are as old as the frames they come from: a camera that stops sending makes them
+        # stale (STOP_STALE_DISTANCES after distance_timeout), however often they are recomputed
+        self.latest = (t if self.t_frames is None else min(t, self.t_frames), res)
         return res
 
     def control(

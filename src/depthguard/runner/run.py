@@ -159,10 +159,11 @@ def run_chain(
                 lag = (tick.t - t_first) - (time.perf_counter() - wall0)
                 if lag > 0:
                     time.sleep(lag)
+            log.faults.update(f"{k}: {v}" for k, v in tick.faults.items())  # source faults (dropped stream...)
             if rec is not None:
                 rec.inputs(tick, tick.frames)
             if tick.frames is not None and tick.q is not None:
-                masks = chain.on_frames(tick.frames, tick.q)
+                masks = chain.on_frames(tick.frames, tick.q, tick.t_frames)
                 log.frames += 1
                 log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
                 if rec is not None:
