@@ -38,6 +38,8 @@ __all__ = [
     "markers_msg",
     "joint_trajectory_msg",
     "float64_array_msg",
+    "labelled_array_msg",
+    "rgb_image_msg",
     "serialize",
     "deserialize",
     "msgdef",
@@ -355,6 +357,38 @@ def float64_array_msg(values: np.ndarray):
     """``std_msgs/msg/Float64MultiArray`` (for a ros2_control ``forward_command_controller``)."""
     layout = _t("std_msgs/msg/MultiArrayLayout")(dim=[], data_offset=0)
     return _t("std_msgs/msg/Float64MultiArray")(layout=layout, data=np.asarray(values, dtype=float))
+
+
+def labelled_array_msg(fields: dict[str, Any]):
+    """``std_msgs/msg/Float64MultiArray`` carrying named fields: one layout dimension per field (``label`` =
+    the field name, ``size`` = its number of values, ``stride`` = its offset + size), the values flattened
+    in that order. Booleans are 0/1; non-finite numbers stay (NaN, inf)."""
+    dims, data = [], []
+    D = _t("std_msgs/msg/MultiArrayDimension")
+    for name, value in fields.items():
+        arr = np.asarray(value, dtype=float).ravel()
+        data.append(arr)
+        dims.append(D(label=str(name), size=int(arr.size), stride=int(sum(a.size for a in data))))
+    layout = _t("std_msgs/msg/MultiArrayLayout")(dim=dims, data_offset=0)
+    flat = np.concatenate(data) if data else np.zeros(0)
+    return _t("std_msgs/msg/Float64MultiArray")(layout=layout, data=flat)
+
+
+def rgb_image_msg(t: float, frame_id: str, rgb: np.ndarray):
+    """(H, W, 3) uint8 image as ``sensor_msgs/msg/Image`` (``rgb8``)."""
+    img = np.ascontiguousarray(np.asarray(rgb, dtype=np.uint8))
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"an rgb8 image must be (H, W, 3), got shape {img.shape}")
+    h, w, _ = img.shape
+    return _t("sensor_msgs/msg/Image")(
+        header=header(t, frame_id),
+        height=h,
+        width=w,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=3 * w,
+        data=img.reshape(-1),
+    )
 
 
 def serialize(msg, typename: str) -> bytes:

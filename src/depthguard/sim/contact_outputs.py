@@ -5,15 +5,14 @@
   point from its position at the onset (Figs. 24 bottom, 28); time 0 is the contact onset.
 * ``depth_contact.png``: the depth image at the middle of the push with the estimated force drawn in red
   at the contact point (Figs. 23, 25).
-* ``recording.mcap`` (Foxglove, JSON channels): ``/camera0/calibration``, ``/camera0/depth``
-  (``foxglove.RawImage`` 16UC1, 320×240, 10 Hz), ``/camera0/contact_overlay`` (rgb8 depth image with the
-  force arrow, 10 Hz), ``/joint_states``, ``/residual`` and ``/contact`` (estimated and true contact
-  points and forces, detection state) at 100 Hz.
+* ``recording.mcap`` (ROS 2 messages, :mod:`depthguard.io.mcap_ros2`): ``/camera0/camera_info``,
+  ``/camera0/depth`` (``sensor_msgs/Image`` 16UC1, 320×240, 10 Hz), ``/camera0/contact_overlay`` (rgb8 depth
+  image with the force arrow, 10 Hz), ``/joint_states``, ``/residual`` and ``/contact`` (estimated and true
+  contact points and forces, detection state; labelled ``std_msgs/Float64MultiArray``) at 100 Hz.
 """
 
 from __future__ import annotations
 
-import base64
 import json
 from pathlib import Path
 
@@ -127,121 +126,38 @@ def _cycle_at(log: ContactLog, t: float) -> int:
     return int(np.argmin(np.abs(np.array(log.t) - t)))
 
 
-def _record_images(channel, put, stamp, log: ContactLog, cam) -> None:
-    """Calibration, depth (16UC1) and force-overlay (rgb8) images at 10 Hz, 320 pixels wide."""
-    st = max(1, cam.width // 320)
-    K = [cam.fx / st, 0, cam.cx / st, 0, cam.fy / st, cam.cy / st, 0, 0, 1]
-    put(
-        channel("/camera0/calibration", "foxglove.CameraCalibration"),
-        0.0,
-        {
-            "timestamp": stamp(0.0),
-            "frame_id": "camera0",
-            "width": cam.width // st,
-            "height": cam.height // st,
-            "distortion_model": "plumb_bob",
-            "D": [0.0] * 5,
-            "K": K,
-            "R": cam.R.ravel().tolist(),
-            "P": [K[0], 0, K[2], 0, 0, K[4], K[5], 0, 0, 0, 1, 0],
-        },
-    )
-    ch_d, ch_o = (
-        channel("/camera0/depth", "foxglove.RawImage"),
-        channel("/camera0/contact_overlay", "foxglove.RawImage"),
-    )
-    for n, (t, depth, _) in enumerate(log.frames):
-        if n % 3:
-            continue
-        mm = np.nan_to_num(depth[::st, ::st] * 1000.0, nan=0.0).clip(0, 65535).astype("<u2")
-        put(
-            ch_d,
-            t,
-            {
-                "timestamp": stamp(t),
-                "frame_id": "camera0",
-                "width": mm.shape[1],
-                "height": mm.shape[0],
-                "encoding": "16UC1",
-                "step": mm.shape[1] * 2,
-                "data": base64.b64encode(mm.tobytes()).decode(),
-            },
-        )
-        i = _cycle_at(log, t)
-        ov = overlay_image(cam, depth, log.p_hat[i], log.f_hat[i], st)
-        put(
-            ch_o,
-            t,
-            {
-                "timestamp": stamp(t),
-                "frame_id": "camera0",
-                "width": ov.shape[1],
-                "height": ov.shape[0],
-                "encoding": "rgb8",
-                "step": ov.shape[1] * 3,
-                "data": base64.b64encode(ov.tobytes()).decode(),
-            },
-        )
-
-
 def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None:
-    from mcap.writer import CompressionType, Writer
+    """The recording as ROS 2 messages: ``/camera0/depth`` (16UC1) and ``/camera0/contact_overlay`` (rgb8,
+    the estimated force drawn at the contact point) at 10 Hz, 320 pixels wide, with ``/camera0/camera_info``;
+    ``/joint_states``; ``/residual`` and ``/contact`` as labelled ``Float64MultiArray``."""
+    from depthguard.io import ros2
+    from depthguard.io.mcap_ros2 import Ros2McapWriter
 
     cam = camera.cam
-    with open(path, "wb") as fh:
-        w = Writer(fh, compression=CompressionType.ZSTD)
-        w.start(profile="", library="depthguard")
-
-        def channel(topic: str, title: str) -> int:
-            sid = w.register_schema(
-                name=title, encoding="jsonschema", data=json.dumps({"title": title, "type": "object"}).encode()
-            )
-            return w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
-
-        def put(ch: int, t: float, msg: dict) -> None:
-            ns = int(round(t * 1e9))
-            w.add_message(ch, log_time=ns, publish_time=ns, data=json.dumps(msg).encode())
-
-        def stamp(t: float) -> dict:
-            ns = int(round(t * 1e9))
-            return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
-
-        _record_images(channel, put, stamp, log, cam)
-        ch_j, ch_r, ch_c = (
-            channel("/joint_states", "depthguard.JointState"),
-            channel("/residual", "depthguard.Residual"),
-            channel("/contact", "depthguard.Contact"),
-        )
+    st = max(1, cam.width // 320)
+    small = type(cam)(
+        width=cam.width // st, height=cam.height // st, fx=cam.fx / st, fy=cam.fy / st, cx=cam.cx / st,
+        cy=cam.cy / st, R=cam.R, t=cam.t, min_depth=cam.min_depth, max_depth=cam.max_depth,
+    )  # fmt: skip
+    names = [f"lwr_joint_{i + 1}" for i in range(np.asarray(log.q[0]).size)] if log.q else []
+    with Ros2McapWriter(path) as w:
+        for n, (t, depth, _) in enumerate(log.frames):
+            if n % 3:
+                continue
+            w.write("/camera0/depth", "sensor_msgs/msg/Image", ros2.image_msg(t, "camera0", depth[::st, ::st]), t)
+            w.write("/camera0/camera_info", "sensor_msgs/msg/CameraInfo", ros2.camera_info_msg(t, "camera0", small), t)
+            i = _cycle_at(log, t)
+            ov = overlay_image(cam, depth, log.p_hat[i], log.f_hat[i], st)
+            w.write("/camera0/contact_overlay", "sensor_msgs/msg/Image", ros2.rgb_image_msg(t, "camera0", ov), t)
         every = max(1, int(round(setup.rate / 100)))
-
-        def lst(a) -> list:
-            return np.nan_to_num(np.asarray(a, float), nan=0.0).round(5).tolist()
-
         for i in range(0, len(log.t), every):
             t = log.t[i]
-            put(ch_j, t, {"t": t, "position": lst(log.q[i])})
-            put(
-                ch_r,
-                t,
-                {
-                    "r": lst(log.r[i]),
-                    "tau_ext_true": lst(log.tau_ext[i]),
-                    "active": bool(log.active[i]),
-                    "label": log.label[i],
-                },
-            )
-            put(
-                ch_c,
-                t,
-                {
-                    "points": lst(log.p_hat[i]),
-                    "forces": lst(log.f_hat[i]),
-                    "links": log.links_hat[i],
-                    "true_points": lst(log.p_true[i]),
-                    "true_forces": lst(log.f_true[i]),
-                },
-            )
-        w.finish()
+            w.write("/joint_states", "sensor_msgs/msg/JointState", ros2.joint_state_msg(t, names, log.q[i]), t)
+            res = {"r": log.r[i], "tau_ext_true": log.tau_ext[i], "active": bool(log.active[i])}
+            w.write("/residual", "std_msgs/msg/Float64MultiArray", ros2.labelled_array_msg(res), t)
+            con = {"points": log.p_hat[i], "forces": log.f_hat[i], "true_points": log.p_true[i],
+                   "true_forces": log.f_true[i]}  # fmt: skip
+            w.write("/contact", "std_msgs/msg/Float64MultiArray", ros2.labelled_array_msg(con), t)
 
 
 def write_outputs(out_dir: Path, setup: ExperimentSetup, log: ContactLog, camera, metrics: dict) -> dict[str, str]:

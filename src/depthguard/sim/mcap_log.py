@@ -1,8 +1,12 @@
-"""A small MCAP writer for the SAPHARI experiments: JSON messages on JSON-schema channels (Foxglove)."""
+"""Recordings of the SAPHARI experiments as ROS 2 messages (:mod:`depthguard.io.mcap_ros2`).
+
+``/joint_states`` becomes ``sensor_msgs/msg/JointState``; every other topic's messages (dicts of named
+numbers and arrays) become ``std_msgs/msg/Float64MultiArray`` with one labelled layout dimension per field
+(:func:`depthguard.io.ros2.labelled_array_msg`).
+"""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -10,34 +14,20 @@ import numpy as np
 __all__ = ["write_mcap"]
 
 
-def _clean(x):
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple, np.ndarray)):
-        return [_clean(v) for v in (x.tolist() if isinstance(x, np.ndarray) else x)]
-    if isinstance(x, (float, np.floating)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def write_mcap(path: str | Path, channels: dict[str, list[tuple[float, dict]]]) -> Path:
-    """Write ``{topic: [(t_seconds, message_dict), ...]}`` to ``path`` (.mcap, zstd). Non-finite numbers
-    become null. Returns the path."""
-    from mcap.writer import CompressionType, Writer
+    """Write ``{topic: [(t_seconds, message_dict), ...]}`` to ``path`` (.mcap, ROS 2). Returns the path."""
+    from depthguard.io import ros2
+    from depthguard.io.mcap_ros2 import Ros2McapWriter
 
     path = Path(path)
-    with open(path, "wb") as fh:
-        w = Writer(fh, compression=CompressionType.ZSTD)
-        w.start(profile="", library="depthguard")
+    with Ros2McapWriter(path) as w:
         for topic, msgs in channels.items():
-            props = {k: {} for k in (msgs[0][1] if msgs else {})}
-            schema = {"title": "depthguard" + topic.replace("/", "."), "type": "object", "properties": props}
-            sid = w.register_schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
-            ch = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
             for t, msg in msgs:
-                ns = int(round(t * 1e9))
-                w.add_message(ch, log_time=ns, publish_time=ns, data=json.dumps(_clean(msg)).encode())
-        w.finish()
+                if topic == "/joint_states" and "position" in msg:
+                    q = np.asarray(msg["position"], float)
+                    names = msg.get("name") or [f"joint{i + 1}" for i in range(q.size)]
+                    w.write(topic, "sensor_msgs/msg/JointState", ros2.joint_state_msg(t, names, q), t)
+                else:
+                    fields = {k: v for k, v in msg.items() if not isinstance(v, str)}
+                    w.write(topic, "std_msgs/msg/Float64MultiArray", ros2.labelled_array_msg(fields), t)
     return path
