@@ -272,14 +272,16 @@ def _rest_output(ctrl: AvoidanceController, status: CycleStatus) -> CycleOutput:
 
 
 def _emergency_stop(ctrl: AvoidanceController, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
-    """After an unexpected exception: the fallback braking step from the last state, within v_max."""
+    """After an unexpected exception: the fallback braking step from the last state, within the joint
+    bounds (v_max, position limits)."""
     st = st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
     status = CycleStatus.STOP_INTERNAL_ERROR
     if st.otg is None:
         return _rest_output(ctrl, status), st
     try:
         j = ctrl.otg
-        lo, hi = -ctrl.v_max, ctrl.v_max.copy()
+        b = joint_bounds(ctrl, st.otg)
+        lo, hi = b.lo, b.hi
         new, limited = enforce_velocity_bounds(st.otg, braking_step(st.otg, j.a_max, j.j_max, j.dt), lo, hi,
                                                j.a_max, j.j_max, j.dt)  # fmt: skip
         if not (np.isfinite(new.position).all() and np.isfinite(new.velocity).all()):
