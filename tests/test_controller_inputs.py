@@ -278,3 +278,23 @@ def test_resume_time_must_be_a_non_negative_number(points) -> None:
         AvoidanceController(points, ControllerConfig(resume_time=-1.0))
     with pytest.raises(ValueError, match="resume_time"):
         AvoidanceController(points, ControllerConfig(resume_time=float("nan")))
+
+
+def test_an_unexpected_exception_inside_the_cycle_becomes_a_jerk_limited_stop(points, monkeypatch) -> None:
+    ctrl, (t, q, qd) = _moving(points, cycles=200)
+
+    import depthguard.control.cycle as cycle_module
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("injected fault in the solver")
+
+    monkeypatch.setattr(cycle_module, "sns_velocity_unchecked", broken)
+    outs = []
+    for _ in range(150):
+        out = ctrl.step(CycleInput(t, q, qd, t, XD, *_free(points.n_points), t))
+        outs.append(out)
+        q, qd, t = out.q_cmd, out.qdot_cmd, t + DT
+    # the fault latches the stop; while it waits for resume_time nothing is solved, then it fails again
+    assert outs[0].status == CycleStatus.STOP_INTERNAL_ERROR
+    assert {o.status for o in outs} == {CycleStatus.STOP_INTERNAL_ERROR, CycleStatus.STOP_RESUME_WAIT}
+    _check_jerk_limited_stop(outs)

@@ -147,3 +147,29 @@ def test_bad_configuration_raises() -> None:
         JointOtg(2, DT, 1.0, 1.0, synchronization="x")
     with pytest.raises(ValueError, match="dt"):
         JointOtg(2, 0.0, 1.0, 1.0)
+
+
+def test_joint_velocity_bounds_match_the_numpy_formula() -> None:
+    from depthguard.control.otg import joint_velocity_bounds
+
+    rng = np.random.default_rng(5)
+    n = 7
+    for _ in range(50):
+        q_min, q_max = -rng.uniform(1.0, 3.0, n), rng.uniform(1.0, 3.0, n)
+        q = rng.uniform(q_min - 0.1, q_max + 0.1)
+        v = rng.uniform(-3.0, 3.0, n)
+        v_max, a_max, j_max = rng.uniform(1, 3, n), rng.uniform(5, 15, n), rng.uniform(100, 1000, n)
+        ahead, latency, margin = 0.04, 0.002, 0.02
+        lo, hi, lo_s, hi_s = joint_velocity_bounds(q, v, q_min, q_max, v_max, a_max, j_max, latency, margin, ahead)
+        lo_p, hi_p = position_limited_velocity_bounds(q, q_min, q_max, a_max, j_max, latency, margin)
+        np.testing.assert_allclose(lo, np.minimum(np.maximum(-v_max, lo_p), 0.0), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(hi, np.maximum(np.minimum(v_max, hi_p), 0.0), rtol=1e-12, atol=1e-15)
+        lo_a, _ = position_limited_velocity_bounds(
+            q + np.minimum(v, 0) * ahead, q_min, q_max, a_max, j_max, latency, margin
+        )
+        _, hi_a = position_limited_velocity_bounds(
+            q + np.maximum(v, 0) * ahead, q_min, q_max, a_max, j_max, latency, margin
+        )
+        np.testing.assert_allclose(lo_s, np.maximum(lo, lo_a), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(hi_s, np.minimum(hi, hi_a), rtol=1e-12, atol=1e-15)
+        assert np.all(lo <= lo_s) and np.all(lo_s <= 0) and np.all(0 <= hi_s) and np.all(hi_s <= hi)

@@ -109,7 +109,7 @@ def test_no_larger_feasible_scale_exists(p) -> None:
     assert s <= s_lp + 1e-6
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(problems(max_m=6, max_n=9), st.floats(0.0001, 0.02))
 def test_damped_path_never_scales_more_than_the_lp_optimum(p, sigma_min: float) -> None:
     """The controller's real path near a singularity (damping from dls_damping > 0): the task is never

@@ -2,7 +2,8 @@
 
 ``run_control_benchmark`` times one 1 kHz control cycle for the shipped 7-DOF LWR and the 9 RA-L'16
 control points (distance query excluded): forward kinematics + Jacobians, control points, body bounds,
-SNS, Ruckig and the whole cycle, in free space and with obstacles that make SNS scale the task. The
+SNS, Ruckig, the input checks, the joint bounds (v_max, position limits) and the bound enforcement,
+and the whole cycle, in free space and with obstacles that make SNS scale the task. The
 budget is 200 µs p99. A plain pseudo-inverse with clipping is timed in the same run as the peer.
 
 ``run_selffilter_benchmark`` times the self-filter on 640x480 frames (target 3 ms) with the exact
@@ -49,8 +50,10 @@ def _inputs(points, q: np.ndarray, constrained: bool):
 def run_control_benchmark(quick: bool = False) -> dict:
     """Time the control cycle and its parts; returns a JSON-able dict (µs, median and p99)."""
     from depthguard.control.body import body_bounds_inplace
-    from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput
+    from depthguard.control.bounded import enforce_bounds_kernel
+    from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput, joint_bounds
     from depthguard.control.endeffector import dls_damping
+    from depthguard.control.inputs import check_inputs
     from depthguard.control.otg import OtgState
     from depthguard.control.sns import sns_velocity_unchecked
     from depthguard.robot.control_points import ControlPointSet
@@ -98,6 +101,11 @@ def run_control_benchmark(quick: bool = False) -> dict:
             "body_bounds": body,
             "sns": lambda J=J, lo=lo, hi=hi, lam=lam, xc=xc: sns_velocity_unchecked(J, xc, lo, hi, lam),
             "ruckig": lambda ctrl=ctrl, s=otg_state, tg=target: ctrl.otg.step(s, tg),
+            "input_checks": lambda ctrl=ctrl, i=inp0: check_inputs(i, 7, points.n_points, 3, cfg, -np.inf),
+            "joint_bounds": lambda ctrl=ctrl, s=otg_state: joint_bounds(ctrl, s),
+            "bound_enforcement": lambda ctrl=ctrl, s=otg_state, lo=lo, hi=hi: enforce_bounds_kernel(
+                *s, *s, lo, hi, ctrl.otg.a_max, ctrl.otg.j_max, cfg.dt
+            ),
             "full_cycle": cycle,
             "peer_pinv_clip": pinv_clip,
         }

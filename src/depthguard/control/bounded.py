@@ -25,10 +25,11 @@ every cycle that does not report ``limited``.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from depthguard.control.otg import OtgState
 
-__all__ = ["enforce_velocity_bounds", "braking_step"]
+__all__ = ["enforce_velocity_bounds", "enforce_bounds_kernel", "braking_step"]
 
 _ROUNDING = 1e-12  # a planned velocity this far beyond a bound is rounding: clipped, not reported
 
@@ -39,6 +40,45 @@ def _constant_jerk(state: OtgState, a_new: np.ndarray, dt: float) -> OtgState:
     v_new = v + 0.5 * (a + a_new) * dt
     p_new = p + v * dt + a * (dt * dt / 2.0) + (a_new - a) * (dt * dt / 6.0)
     return OtgState(p_new, v_new, a_new)
+
+
+@njit(cache=True)
+def enforce_bounds_kernel(
+    p0: np.ndarray, v0: np.ndarray, a0_in: np.ndarray, pp: np.ndarray, vp: np.ndarray, ap: np.ndarray,
+    lo: np.ndarray, hi: np.ndarray, a_max: np.ndarray, j_max: np.ndarray, dt: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:  # fmt: skip
+    """:func:`enforce_velocity_bounds` on float64 C-contiguous (n,) arrays (state p0, v0, a0; planned
+    pp, vp, ap): steps 1-3 of the module docstring per joint. Returns position, velocity, acceleration,
+    limited."""
+    n = p0.shape[0]
+    p, v, a = pp.copy(), vp.copy(), ap.copy()
+    limited = False
+    for i in range(n):
+        over = vp[i] > hi[i] + _ROUNDING
+        under = vp[i] < lo[i] - _ROUNDING
+        if over or under:
+            a0 = min(max(a0_in[i], -a_max[i]), a_max[i])
+            a_lo = max(a0 - j_max[i] * dt, -a_max[i])  # accelerations reachable within the jerk limit
+            a_hi = min(a0 + j_max[i] * dt, a_max[i])
+            if over:  # land on hi with a_new <= 0 (the constant-jerk step: v0 + (a0 + a_new) dt / 2)
+                a_new = min(2.0 * (hi[i] - v0[i]) / dt - a0, 0.0, a_hi)
+                ok = a_new >= a_lo
+            else:  # land on lo with a_new >= 0
+                a_new = max(2.0 * (lo[i] - v0[i]) / dt - a0, 0.0, a_lo)
+                ok = a_new <= a_hi
+            v_new = v0[i] + 0.5 * (a0 + a_new) * dt
+            if ok and lo[i] - _ROUNDING <= v_new <= hi[i] + _ROUNDING:
+                p[i] = p0[i] + v0[i] * dt + a0 * (dt * dt / 2.0) + (a_new - a0) * (dt * dt / 6.0)
+                v[i], a[i] = v_new, a_new
+            else:  # no jerk-limited step stays within the bound: the bound wins
+                vb = hi[i] if over else lo[i]
+                p[i] = p0[i] + 0.5 * (v0[i] + vb) * dt
+                v[i] = vb
+                # the acceleration keeps to its jerk limit, braking as hard as it may (not pushing on)
+                a[i] = min(a_lo, 0.0) if over else max(a_hi, 0.0)
+                limited = True
+        v[i] = min(max(v[i], lo[i]), hi[i])
+    return p, v, a, limited
 
 
 def enforce_velocity_bounds(
@@ -61,37 +101,13 @@ def enforce_velocity_bounds(
         the new state with ``lo <= velocity <= hi`` exactly, and ``limited``: True when a bound had to
         win over the acceleration or jerk limit in this cycle.
     """
-    v_plan = planned.velocity
-    over = v_plan > hi + _ROUNDING
-    under = v_plan < lo - _ROUNDING
-    if not (np.any(over) or np.any(under)):
-        v = np.minimum(np.maximum(v_plan, lo), hi)
-        return OtgState(planned.position, v, planned.acceleration), False
-    v0 = state.velocity
-    a0 = np.minimum(np.maximum(state.acceleration, -a_max), a_max)
-    a_lo = np.maximum(a0 - j_max * dt, -a_max)  # the accelerations reachable within the jerk limit
-    a_hi = np.minimum(a0 + j_max * dt, a_max)
-    hit_hi = 2.0 * (hi - v0) / dt - a0  # the a_new whose constant-jerk step lands on hi (or lo)
-    hit_lo = 2.0 * (lo - v0) / dt - a0
-    a_up = np.minimum(np.minimum(hit_hi, 0.0), a_hi)  # upper bound crossed: land on it, a_new <= 0
-    a_dn = np.maximum(np.maximum(hit_lo, 0.0), a_lo)  # lower bound crossed: land on it, a_new >= 0
-    ok_up = a_up >= a_lo
-    ok_dn = a_dn <= a_hi
-    fix = (over & ok_up) | (under & ok_dn)
-    step = _constant_jerk(state, np.where(over, a_up, a_dn), dt)
-    fix &= (step.velocity <= hi + _ROUNDING) & (step.velocity >= lo - _ROUNDING)
-    wins = (over | under) & ~fix
-    pos = np.where(fix, step.position, planned.position)
-    vel = np.where(fix, step.velocity, v_plan)
-    acc = np.where(fix, step.acceleration, planned.acceleration)
-    if np.any(wins):  # no jerk-limited step stays within the bound: the bound wins
-        v_bound = np.minimum(np.maximum(v_plan, lo), hi)
-        pos = np.where(wins, state.position + 0.5 * (v0 + v_bound) * dt, pos)
-        vel = np.where(wins, v_bound, vel)
-        # the acceleration keeps to its jerk limit, braking as hard as it may (and not pushing on)
-        acc = np.where(wins, np.where(over, np.minimum(a_lo, 0.0), np.maximum(a_hi, 0.0)), acc)
-    vel = np.minimum(np.maximum(vel, lo), hi)
-    return OtgState(pos, vel, acc), bool(np.any(wins))
+    f = np.ascontiguousarray
+    p, v, a, limited = enforce_bounds_kernel(
+        f(state.position, np.float64), f(state.velocity, np.float64), f(state.acceleration, np.float64),
+        f(planned.position, np.float64), f(planned.velocity, np.float64), f(planned.acceleration, np.float64),
+        f(lo, np.float64), f(hi, np.float64), f(a_max, np.float64), f(j_max, np.float64), float(dt),
+    )  # fmt: skip
+    return OtgState(p, v, a), bool(limited)
 
 
 def braking_step(state: OtgState, a_max: np.ndarray, j_max: np.ndarray, dt: float) -> OtgState:

@@ -35,10 +35,10 @@ from typing import NamedTuple
 import numpy as np
 
 from depthguard.control.body import body_bounds_inplace
-from depthguard.control.bounded import braking_step, enforce_velocity_bounds
+from depthguard.control.bounded import braking_step, enforce_bounds_kernel, enforce_velocity_bounds
 from depthguard.control.endeffector import commanded_task_velocity, dls_damping, repulsive_velocity
 from depthguard.control.inputs import CheckedInput, check_inputs
-from depthguard.control.otg import JointOtg, OtgState, position_limited_velocity_bounds
+from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
 from depthguard.robot.control_points import ControlPointSet
@@ -114,6 +114,7 @@ class AvoidanceController:
         self.otg = JointOtg(
             n, cfg.dt, np.asarray(cfg.a_max), np.asarray(cfg.j_max), cfg.synchronization, v_max=self.v_max
         )
+        self.plan_ahead = 2.0 * float(np.max(self.otg.a_max / self.otg.j_max))  # s, see Bounds
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
@@ -222,8 +223,8 @@ class Bounds(NamedTuple):
 
     ``lo``/``hi`` hold for the command of this cycle (enforced, reported). ``lo_s``/``hi_s`` (within
     them) are the ones SNS plans with: the position-limit bounds there are evaluated ``2 a_max / j_max``
-    seconds ahead along the current velocity, so that braking towards a position limit starts while
-    the jerk limit can still follow the shrinking bound.
+    seconds (the largest over the joints) ahead along the current velocity, so that braking towards a
+    position limit starts while the jerk limit can still follow the shrinking bound.
     """
 
     lo: np.ndarray
@@ -236,16 +237,11 @@ def joint_bounds(ctrl: AvoidanceController, otg: OtgState) -> Bounds:
     """The bounds that hold in every cycle: ``|qdot| <= v_max`` and the position-limit braking bounds at
     the state's position (two periods of latency, ``position_margin`` inside the limits)."""
     cfg, j = ctrl.config, ctrl.otg
-    q, v = otg.position, otg.velocity
-    ahead = 2.0 * j.a_max / j.j_max
-    # one call for the three positions: now, ahead while moving down, ahead while moving up
-    qs = np.stack((q, q + np.minimum(v, 0.0) * ahead, q + np.maximum(v, 0.0) * ahead))
-    lo3, hi3 = position_limited_velocity_bounds(
-        qs, ctrl.q_min, ctrl.q_max, j.a_max, j.j_max, 2.0 * cfg.dt, cfg.position_margin
-    )
-    lo = np.minimum(np.maximum(-ctrl.v_max, lo3[0]), 0.0)
-    hi = np.maximum(np.minimum(ctrl.v_max, hi3[0]), 0.0)
-    return Bounds(lo, hi, np.maximum(lo, lo3[1]), np.minimum(hi, hi3[2]))
+    lo, hi, lo_s, hi_s = joint_velocity_bounds(
+        otg.position, otg.velocity, ctrl.q_min, ctrl.q_max, ctrl.v_max,
+        j.a_max, j.j_max, 2.0 * cfg.dt, cfg.position_margin, ctrl.plan_ahead,
+    )  # fmt: skip
+    return Bounds(lo, hi, lo_s, hi_s)
 
 
 def plan_motion(
@@ -264,14 +260,12 @@ def plan_motion(
     else:
         v_rep = repulsive_velocity(dist[0], dirs[0], cfg.v_rep_max, cfg.rho_ee, cfg.alpha_ee)
         xdot_c = commanded_task_velocity(chk.xdot_d, v_rep)
-    lo_b, hi_b = -ctrl.v_max, ctrl.v_max.copy()
-    body_bounds_inplace(
-        cps.jacobians, np.maximum(dist, 0.0), dirs, ctrl.body_use, ctrl.v_max,
-        cfg.rho_body, cfg.alpha_body, cfg.contact_distance, 1e-6, lo_b, hi_b,
-    )  # fmt: skip
-    for a, c in ((b.lo, b.lo_s), (b.hi, b.hi_s)):
-        np.clip(a, lo_b, hi_b, out=a)
-        np.clip(c, lo_b, hi_b, out=c)
+    dist0 = np.maximum(dist, 0.0)
+    for lo, hi in ((b.lo, b.hi), (b.lo_s, b.hi_s)):  # (the body bounds only ever tighten lo/hi)
+        body_bounds_inplace(
+            cps.jacobians, dist0, dirs, ctrl.body_use, ctrl.v_max,
+            cfg.rho_body, cfg.alpha_body, cfg.contact_distance, 1e-6, lo, hi,
+        )  # fmt: skip
     J = np.ascontiguousarray(cps.jacobians[0])
     lam = dls_damping(J, cfg.dls_eps, cfg.dls_lambda_max)
     ssm = None
@@ -295,8 +289,11 @@ def generate(
     ok = code >= 0
     if not ok:
         planned = braking_step(otg, j.a_max, j.j_max, j.dt)
-    new, limited = enforce_velocity_bounds(otg, planned, lo, hi, j.a_max, j.j_max, j.dt)
-    return new, ok, limited
+    p, v, a, limited = enforce_bounds_kernel(
+        otg.position, otg.velocity, otg.acceleration, planned.position, planned.velocity,
+        planned.acceleration, lo, hi, j.a_max, j.j_max, j.dt,
+    )  # fmt: skip
+    return OtgState(p, v, a), ok, bool(limited)
 
 
 def _rest_output(ctrl: AvoidanceController, status: CycleStatus) -> CycleOutput:
@@ -308,14 +305,16 @@ def _rest_output(ctrl: AvoidanceController, status: CycleStatus) -> CycleOutput:
 
 
 def _emergency_stop(ctrl: AvoidanceController, st: ControllerState) -> tuple[CycleOutput, ControllerState]:
-    """After an unexpected exception: the fallback braking step from the last state, within v_max."""
+    """After an unexpected exception: the fallback braking step from the last state, within the joint
+    bounds (v_max, position limits)."""
     st = st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
     status = CycleStatus.STOP_INTERNAL_ERROR
     if st.otg is None:
         return _rest_output(ctrl, status), st
     try:
         j = ctrl.otg
-        lo, hi = -ctrl.v_max, ctrl.v_max.copy()
+        b = joint_bounds(ctrl, st.otg)
+        lo, hi = b.lo, b.hi
         new, limited = enforce_velocity_bounds(st.otg, braking_step(st.otg, j.a_max, j.j_max, j.dt), lo, hi,
                                                j.a_max, j.j_max, j.dt)  # fmt: skip
         if not (np.isfinite(new.position).all() and np.isfinite(new.velocity).all()):

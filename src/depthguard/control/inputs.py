@@ -20,6 +20,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from depthguard.control.types import ControllerConfig, CycleInput, CycleStatus
 
@@ -63,15 +64,41 @@ def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndar
     """``x`` as a float64 C-contiguous array of ``shape`` (all finite if ``finite``), else None."""
     if x is None:
         return None
-    try:
-        a = np.ascontiguousarray(x, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        return None
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous:
+        a = x  # the usual case, without a copy
+    else:
+        try:
+            a = np.ascontiguousarray(x, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            return None
     if a.shape != shape:
         return None
-    if finite and not np.isfinite(a).all():
+    if finite and not _all_finite(a.reshape(-1)):
         return None
     return a
+
+
+@njit(cache=True)
+def _all_finite(a: np.ndarray) -> bool:
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _distances_valid(d: np.ndarray, dirs: np.ndarray) -> int:
+    """0: invalid (NaN or -inf distance, non-finite direction with a finite distance); 1: valid, all
+    directions usable; 2: valid, some distance is +inf (its direction is to be ignored)."""
+    code = 1
+    for k in range(d.shape[0]):
+        if d[k] == np.inf:
+            code = 2
+        elif not np.isfinite(d[k]):
+            return 0
+        elif not (np.isfinite(dirs[k, 0]) and np.isfinite(dirs[k, 1]) and np.isfinite(dirs[k, 2])):
+            return 0
+    return code
 
 
 def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.ndarray | None, np.ndarray | None]:
@@ -82,14 +109,11 @@ def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.nd
     dirs = as_vector(dirs_in, (N, 3), finite=False)
     if d is None or dirs is None:
         return False, None, None
-    if np.isnan(d).any() or (d == -np.inf).any():
+    code = _distances_valid(d, dirs)
+    if code == 0:
         return False, None, None
-    far = d == np.inf
-    dir_ok = np.isfinite(dirs).all(axis=1)
-    if not (dir_ok | far).all():
-        return False, None, None
-    if far.any():
-        dirs = np.where(far[:, None], 0.0, dirs)
+    if code == 2:
+        dirs = np.where((d == np.inf)[:, None], 0.0, dirs)
     return True, d, dirs
 
 
