@@ -396,7 +396,7 @@ def monkeypatch_module():
 
     def stub(*args, **kwargs):
         calls.append(args)
-        raise AssertionError("the simulation started although the scenario file is invalid")
+        raise AssertionError("the simulation started (stub)")
 
     mp.setattr(scenarios, "_run_one", stub)
     mp.calls = calls
@@ -429,3 +429,21 @@ def test_scenario_files_missing_keyframes_or_waypoints(tmp_path):
     for name in SCENARIOS:
         (tmp_path / "d.toml").write_text(_toml_dump(tomllib.loads(_scenario_bytes(name).decode())))
         assert load_scenario(tmp_path / "d.toml")["name"] == name
+
+
+def test_simulated_scenario_checks_out_before_the_run(tmp_path, monkeypatch_module):
+    """``--out`` under a file fails at once, naming the path, for the simulated scenarios too (library and CLI)."""
+    from depthguard.sim.scenarios import run_scenario
+
+    (tmp_path / "file").write_text("x")
+    bad = tmp_path / "file" / "run"
+    monkeypatch_module.calls.clear()
+    with pytest.raises(InputError, match="file' is a file, not a folder"):
+        run_scenario("icra-exp1", quick=True, out_dir=bad)
+    rc, out, err = _run_cli(["scenario", "ral-hexagon", "--quick", "--json", "--out", str(bad)])
+    assert rc == 2 and out == "" and str(bad) in err and err.count("\n") == 1
+    assert monkeypatch_module.calls == []
+    with pytest.raises(AssertionError, match="the simulation started"):  # the stub, reached with a good --out
+        main(["scenario", "icra-exp1", "--quick", "--json", "--out", str(tmp_path / "new" / "run")])
+    assert (tmp_path / "new" / "run").is_dir()  # created before the (stubbed) run started
+    assert len(monkeypatch_module.calls) == 1
