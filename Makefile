@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: venv demo test test-quick lint bench clean
+.PHONY: venv demo test test-quick test-random lint bench clean
 
 $(STAMP): pyproject.toml
 	rm -rf $(VENV)
@@ -19,11 +19,16 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/depthguard demo
 
+# every extra is installed here, so a skipped test is a failure (tests/conftest.py; listed skips excepted)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	DEPTHGUARD_REQUIRE_EXTRAS=1 $(BIN)/python -m pytest -q
+
+# the property tests with fresh random seeds and 5x their examples (CI runs them derandomized)
+test-random: $(STAMP)
+	DEPTHGUARD_HYPOTHESIS=random $(BIN)/python -m pytest -q -m "not slow"
 
 test-quick: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not slow"
+	DEPTHGUARD_REQUIRE_EXTRAS=1 $(BIN)/python -m pytest -q -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests examples

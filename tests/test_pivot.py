@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from depthguard.pivot import PivotFilter, pivot
-from depthguard.scenarios.pivot import run_pivot_scenario
+from depthguard.pivot_scenario import run_pivot_scenario
 
 vec = st.lists(st.floats(-2, 2), min_size=3, max_size=3).map(np.array)
 

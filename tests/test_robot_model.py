@@ -14,13 +14,21 @@ from depthguard.scene import Capsule  # noqa: E402
 
 
 def _panda_urdf(name: str = "panda.urdf") -> Path:
-    import site
+    """The Franka Panda URDF shipped by example-robot-data, located through the installed distribution's
+    file list (``importlib.metadata``), so it works for any install prefix or layout."""
+    from importlib import metadata
 
-    for sp in site.getsitepackages():
-        p = Path(sp) / "cmeel.prefix/share/example-robot-data/robots/panda_description/urdf" / name
-        if p.is_file():
-            return p
-    pytest.skip("example-robot-data panda not installed")
+    try:
+        dist = metadata.distribution("example-robot-data")
+    except metadata.PackageNotFoundError:
+        pytest.skip("example-robot-data (extra 'robot') not installed")
+    suffix = f"panda_description/urdf/{name}"
+    for f in dist.files or []:
+        if str(f).replace("\\", "/").endswith(suffix):
+            path = Path(dist.locate_file(f))
+            assert path.is_file(), path
+            return path
+    raise AssertionError(f"example-robot-data {dist.version} lists no {suffix}")
 
 
 @pytest.fixture(scope="module")

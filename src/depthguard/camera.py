@@ -1,6 +1,6 @@
 """Pinhole depth camera: intrinsics, extrinsics, projection into depth space.
 
-Conventions (DESIGN.md §3, ICRA'12 eqs. 1-3, RA-L'16 eqs. 1-3):
+Conventions (``docs/conventions.md``, ICRA'12 eqs. 1-3, RA-L'16 eqs. 1-3):
 
 * world frame W = robot base frame; a camera pose is ``P_C = R @ P_W + t`` (eq. 2);
 * camera axes follow OpenCV: x right, y down, z forward;
@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from depthguard.errors import check_known_keys
 from depthguard.validation import check_finite_array, check_positive, check_rotation
 
 __all__ = ["Camera", "look_at"]
@@ -51,15 +52,23 @@ class Camera:
     def __post_init__(self) -> None:
         for name in ("width", "height"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not float(value).is_integer() or value <= 0:
-                raise ValueError(f"camera field '{name}' must be a positive integer, got {value!r}")
+            try:
+                ok = not isinstance(value, bool) and float(value).is_integer() and 0 < value < 2**31
+            except (TypeError, ValueError, OverflowError):
+                ok = False
+            if not ok:
+                raise ValueError(f"camera field '{name}' must be a positive integer below 2**31, got {value!r}")
             object.__setattr__(self, name, int(value))
         for name in ("fx", "fy"):
             object.__setattr__(self, name, check_positive(getattr(self, name), f"camera field '{name}'"))
         for name in ("cx", "cy"):
-            value = float(getattr(self, name))
+            raw = getattr(self, name)
+            try:
+                value = float(raw)
+            except (TypeError, ValueError, OverflowError):
+                value = float("nan")
             if not np.isfinite(value):
-                raise ValueError(f"camera field '{name}' must be a finite number, got {value!r}")
+                raise ValueError(f"camera field '{name}' must be a finite number, got {raw!r}")
             object.__setattr__(self, name, value)
         R = check_rotation(self.R, "camera field 'R'")
         t = check_finite_array(self.t, (3,), "camera field 't'")
@@ -161,7 +170,7 @@ class Camera:
 
     # ------------------------------------------------------------- (de)serialise
     def to_dict(self) -> dict[str, Any]:
-        """The camera JSON object of DESIGN.md §3."""
+        """The camera JSON object (``docs/conventions.md``, "Camera file")."""
         return {
             "width": self.width,
             "height": self.height,
@@ -178,15 +187,16 @@ class Camera:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Camera:
-        """Build a camera from the JSON object of DESIGN.md §3, naming any bad or missing field."""
+        """Build a camera from its JSON object (``docs/conventions.md``), naming any bad, missing or unknown field."""
         if not isinstance(data, dict):
             raise ValueError(f"camera JSON must be an object, got {type(data).__name__}")
         required = ("width", "height", "fx", "fy", "cx", "cy", "R", "t")
         missing = [k for k in required if k not in data]
         if missing:
             raise ValueError(f"camera JSON is missing field(s) {missing}; required: {list(required)}")
-        known = set(required) | {"min_depth", "max_depth", "depth_scale"}
-        kwargs = {k: v for k, v in data.items() if k in known}
+        known = [*required, "min_depth", "max_depth", "depth_scale"]
+        check_known_keys(data, known, "camera JSON")  # a typo such as 'min_Depth' must not fall back to a default
+        kwargs = dict(data)
         for k in ("width", "height", "fx", "fy", "cx", "cy", "min_depth", "max_depth", "depth_scale"):
             if k in kwargs and (isinstance(kwargs[k], bool) or not isinstance(kwargs[k], int | float)):
                 raise ValueError(f"camera field '{k}' must be a number, got {kwargs[k]!r}")

@@ -9,12 +9,20 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
 
 class _Exit(Exception):
     """Raised by commands for a clean error exit."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors as one line on stderr (exit code 2), like every other error of the command line."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
 def _parse_workspace(text: str) -> tuple[float, ...]:
@@ -157,8 +165,12 @@ def _scenario_options(args: argparse.Namespace) -> dict:
 
 
 def _cmd_scenario(args: argparse.Namespace) -> int:
+    if args.out:  # before any work: a bad --out must not cost a whole run
+        from depthguard.io.files import prepare_out_dir
+
+        prepare_out_dir(args.out, "--out folder")
     if args.name == "pivot":
-        from depthguard.scenarios.pivot import run_pivot_scenario
+        from depthguard.pivot_scenario import run_pivot_scenario
 
         res = run_pivot_scenario()
         out = {k: {"min_distance": v["min_distance"], "collided": v["collided"]} for k, v in res.items()}
@@ -240,6 +252,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------------- demo
 def _cmd_demo(args: argparse.Namespace) -> int:
+    if args.out:
+        from depthguard.io.files import prepare_out_dir
+
+        prepare_out_dir(args.out, "--out folder")
     if not args.static:
         try:
             from depthguard.sim.demo import run_demo
@@ -304,7 +320,7 @@ def _check_out_dir(path: str) -> None:
 
 # ------------------------------------------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="depthguard", description="Depth-space human-robot collision avoidance")
+    parser = _Parser(prog="depthguard", description="Depth-space human-robot collision avoidance")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("distance", help="distances from control points to the obstacles in depth image(s)")
@@ -455,12 +471,16 @@ def _join_negative_values(argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; return the exit code (0, 2 for any bad input with one line on stderr)."""
     parser = build_parser()
-    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+    try:
+        args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
+    except SystemExit as exc:  # usage errors (already printed as one line) and --help
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         return int(args.func(args) or 0)
-    except (_Exit, ValueError) as exc:
-        print(f"depthguard {args.command}: error: {exc}", file=sys.stderr)
+    except (_Exit, ValueError) as exc:  # InputError is a ValueError
+        print(f"depthguard {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
 
 

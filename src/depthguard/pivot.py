@@ -3,7 +3,7 @@
 ``dV/dt`` of the repulsive vector stands in for the obstacle velocity. With ``a = dV/dt/|dV/dt|``,
 ``r = V/|V|`` and ``β = acos(aᵀr)``: if ``β < π/2`` (the obstacle approaches) the vector is turned in the
 plane of ``a`` and ``r`` to the angle ``γ = β + (π/2 - β) σ`` from ``a``, with
-``σ = 1 / (1 + exp(-(|dV/dt| 2/dVmax - 1) c))`` (DESIGN.md §4), shifted and rescaled so that it is exactly 0
+``σ = 1 / (1 + exp(-(|dV/dt| 2/dVmax - 1) c))`` (``docs/conventions.md``), shifted and rescaled so that it is exactly 0
 at ``|dV/dt| = 0`` (the raw sigmoid is ``1/(1+e^c)`` there: 0.7 % for c = 5, 27 % for c = 1): ``γ = β`` for
 a still obstacle and
 ``γ -> π/2`` (escape at right angles to the approach) as ``|dV/dt| -> dVmax``. When ``a`` and ``r`` are

@@ -1,6 +1,6 @@
 """Repulsive vectors from distances (ICRA'12 §IV, eqs. 6-9; RA-L'16 eq. 11).
 
-The magnitude profile (eq. 7, read as in DESIGN.md §4) is
+The magnitude profile (eq. 7, read as in ``docs/conventions.md``) is
 ``v(D) = Vmax / (1 + exp((D * 2/ρ - 1) α))``: about ``Vmax`` at ``D = 0`` and about 0 at ``D = ρ``
 (Fig. 4: Vmax = 3 m/s, ρ = 0.4 m, α = 6).
 """

@@ -2,7 +2,7 @@
 
 Used for ground truth in tests, for the demo and for the benchmarks. Each primitive is a solid
 (sphere, capsule, oriented box, half-space). Rendering casts one ray through each pixel centre
-(``p_x = u + 0.5``, DESIGN.md §3) and stores the depth ``z_C`` of the first hit, NaN where nothing is hit.
+(``p_x = u + 0.5``, ``docs/conventions.md``) and stores the depth ``z_C`` of the first hit, NaN where nothing is hit.
 """
 
 from __future__ import annotations

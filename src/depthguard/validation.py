@@ -11,7 +11,7 @@ def check_positive(value: object, name: str) -> float:
     """Return ``value`` as a float, or raise if it is not a finite number > 0."""
     try:
         x = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} must be a positive number, got {value!r}") from None
     if not np.isfinite(x) or x <= 0:
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
@@ -22,7 +22,7 @@ def check_finite_array(value: object, shape: tuple[int, ...], name: str) -> np.n
     """Return ``value`` as a float array of ``shape`` (-1 = any length), or raise."""
     try:
         arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise ValueError(f"{name} must be a numeric array of shape {shape}, got {value!r}") from None
     if arr.ndim != len(shape) or any(s != -1 and a != s for a, s in zip(arr.shape, shape, strict=True)):
         raise ValueError(f"{name} must have shape {shape}, got shape {arr.shape}")

@@ -1,4 +1,4 @@
-"""Benchmarks of the control stage and of the self-filter.
+"""Benchmarks of the control stage and of the self-filter (BENCHMARKS.md).
 
 ``run_control_benchmark`` times one 1 kHz control cycle for the shipped 7-DOF LWR and the 9 RA-L'16
 control points (distance query excluded): forward kinematics + Jacobians, control points, body bounds,

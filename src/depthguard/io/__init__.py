@@ -1,7 +1,10 @@
-"""File formats (DESIGN.md §3): camera JSON, points JSON, depth images, masks."""
+"""File formats (``docs/conventions.md``, "File formats"): camera JSON, points JSON, depth images, masks."""
 
+from depthguard.errors import InputError
 from depthguard.io.files import (
     ControlPoint,
+    check_input_file,
+    prepare_out_dir,
     read_camera,
     read_depth,
     read_mask,
@@ -14,6 +17,9 @@ from depthguard.io.files import (
 
 __all__ = [
     "ControlPoint",
+    "InputError",
+    "check_input_file",
+    "prepare_out_dir",
     "read_camera",
     "read_depth",
     "read_mask",

@@ -1,4 +1,4 @@
-"""Readers and writers for DepthGuard's file formats (DESIGN.md §3).
+"""Readers and writers for DepthGuard's file formats (``docs/conventions.md``, "File formats").
 
 * camera JSON: ``{"width", "height", "fx", "fy", "cx", "cy", "R": 3x3, "t": 3}`` plus optional
   ``"min_depth"``, ``"max_depth"``, ``"depth_scale"``;
@@ -7,12 +7,16 @@
   where 0, NaN and inf mean no reading. Readers return float32 metres with NaN for "no reading".
 * mask: 8- or 16-bit PNG (or ``.npy``), nonzero = robot pixel.
 
-PNG I/O uses ``pypng`` (pure Python, no system libraries).
+Every reader raises :class:`~depthguard.errors.InputError` (a ``ValueError``) with one line naming the file
+and the problem for anything it cannot use: a missing file or a directory, bytes that are not UTF-8 JSON, a
+truncated or corrupt PNG or ``.npy``, wrong shapes or types, unknown fields (a typo such as ``min_Depth``
+is an error, never a silent default). PNG I/O uses ``pypng`` (pure Python, no system libraries).
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -20,6 +24,7 @@ import numpy as np
 import png
 
 from depthguard.camera import Camera
+from depthguard.errors import InputError, check_known_keys
 
 __all__ = [
     "ControlPoint",
@@ -31,7 +36,14 @@ __all__ = [
     "write_depth",
     "read_mask",
     "write_mask",
+    "check_input_file",
+    "prepare_out_dir",
 ]
+
+#: The largest image a reader accepts when no camera gives the expected size (pixels).
+MAX_PIXELS = 1 << 26
+
+POINT_FIELDS = ("name", "position", "radius")
 
 
 class ControlPoint(NamedTuple):
@@ -42,22 +54,62 @@ class ControlPoint(NamedTuple):
     radius: float
 
 
-def _load_json(path: str | Path, what: str) -> Any:
+def check_input_file(path: str | Path, what: str) -> Path:
+    """Return ``path`` as a :class:`Path` if it is a readable file, else raise :class:`InputError` saying why."""
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{what} file '{p}' is a directory, expected a file")
+    if not p.exists():
+        raise InputError(f"{what} file '{p}' does not exist")
     if not p.is_file():
-        raise ValueError(f"{what} file '{p}' does not exist")
+        raise InputError(f"{what} file '{p}' is not a regular file")
+    if not os.access(p, os.R_OK):
+        raise InputError(f"{what} file '{p}' is not readable (permission denied)")
+    return p
+
+
+def prepare_out_dir(path: str | Path, what: str = "output folder") -> Path:
+    """Create the output folder ``path`` (with parents) and check that it is writable, before any work starts.
+
+    Raises:
+        InputError: naming the path when it is a file, lies under a file, or cannot be created or written.
+    """
+    p = Path(path)
+    for parent in (p, *p.parents):
+        if parent.exists() and not parent.is_dir():
+            raise InputError(f"{what} '{p}': '{parent}' is a file, not a folder")
     try:
-        return json.loads(p.read_text())
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{what} '{p}' cannot be created: {exc.strerror or exc}") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise InputError(f"{what} '{p}' is not writable (permission denied)")
+    return p
+
+
+def _load_json(path: str | Path, what: str) -> Any:
+    p = check_input_file(path, what)
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{what} file '{p}' is not UTF-8 text (byte {exc.start}): expected JSON") from None
+    except OSError as exc:
+        raise InputError(f"{what} file '{p}' cannot be read: {exc.strerror or exc}") from None
+    try:
+        return json.loads(text)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"{what} file '{p}' is not valid JSON: {exc}") from None
+        raise InputError(f"{what} file '{p}' is not valid JSON: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{what} file '{p}' is not valid JSON: nested too deeply") from None
 
 
 def read_camera(path: str | Path) -> Camera:
-    """Read a camera JSON file; errors name the file and the field."""
+    """Read a camera JSON file; errors (:class:`InputError`) name the file and the field."""
+    data = _load_json(path, "camera")
     try:
-        return Camera.from_dict(_load_json(path, "camera"))
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        return Camera.from_dict(data)
+    except (ValueError, TypeError, OverflowError) as exc:
+        raise InputError(str(exc), path) from None
 
 
 def write_camera(path: str | Path, camera: Camera) -> None:
@@ -66,30 +118,35 @@ def write_camera(path: str | Path, camera: Camera) -> None:
 
 
 def read_points(path: str | Path) -> list[ControlPoint]:
-    """Read a points JSON file into a list of :class:`ControlPoint`."""
+    """Read a points JSON file into a list of :class:`ControlPoint`; errors name the file and the entry."""
     data = _load_json(path, "points")
     if not isinstance(data, list):
-        raise ValueError(f"{path}: points JSON must be a list of objects, got {type(data).__name__}")
+        raise InputError(f"{path}: points JSON must be a list of objects, got {type(data).__name__}")
     out: list[ControlPoint] = []
     for i, item in enumerate(data):
         where = f"{path}: points[{i}]"
         if not isinstance(item, dict):
-            raise ValueError(f"{where} must be an object with 'name', 'position', 'radius'")
+            raise InputError(f"{where} must be an object with 'name', 'position', 'radius'")
+        check_known_keys(item, POINT_FIELDS, where)
         for key in ("position", "radius"):
             if key not in item:
-                raise ValueError(f"{where} is missing field '{key}'")
+                raise InputError(f"{where} is missing field '{key}'")
         name = item.get("name", f"p{i}")
         if not isinstance(name, str):
-            raise ValueError(f"{where}.name must be a string, got {name!r}")
+            raise InputError(f"{where}.name must be a string, got {name!r}")
         try:
             pos = np.array(item["position"], dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"{where}.position must be [x, y, z] numbers, got {item['position']!r}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise InputError(f"{where}.position must be [x, y, z] numbers, got {item['position']!r}") from None
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
-            raise ValueError(f"{where}.position must be [x, y, z] finite numbers, got {item['position']!r}")
+            raise InputError(f"{where}.position must be [x, y, z] finite numbers, got {item['position']!r}")
         r = item["radius"]
-        if isinstance(r, bool) or not isinstance(r, int | float) or not np.isfinite(r) or r < 0:
-            raise ValueError(f"{where}.radius must be a number >= 0, got {r!r}")
+        try:
+            ok = not isinstance(r, bool) and isinstance(r, int | float) and bool(np.isfinite(float(r))) and r >= 0
+        except OverflowError:
+            ok = False
+        if not ok:
+            raise InputError(f"{where}.radius must be a finite number >= 0, got {r!r}")
         out.append(ControlPoint(name, pos, float(r)))
     return out
 
@@ -100,14 +157,37 @@ def write_points(path: str | Path, points: list[ControlPoint]) -> None:
     Path(path).write_text(json.dumps(data, indent=2))
 
 
-def _read_png(path: Path) -> tuple[np.ndarray, int]:
+def _read_png(path: Path, shape: tuple[int, int] | None) -> tuple[np.ndarray, int]:
+    """Decode a PNG to ``(H, W, planes)`` uint16 and its bit depth; the size is checked before the pixels."""
     try:
         width, height, rows, info = png.Reader(filename=str(path)).asDirect()
-    except (png.Error, OSError) as exc:
-        raise ValueError(f"{path}: cannot read PNG: {exc}") from None
-    planes = info["planes"]
-    arr = np.vstack([np.asarray(r, dtype=np.uint16) for r in rows]).reshape(height, width, planes)
+        if shape is not None and (height, width) != shape:
+            raise InputError(
+                f"{path}: image has shape {(height, width)}, expected (height, width) = {shape} from the camera"
+            )
+        if width * height > MAX_PIXELS:
+            raise InputError(f"{path}: image of {width}x{height} pixels is larger than {MAX_PIXELS} pixels")
+        planes = info["planes"]
+        arr = np.vstack([np.asarray(r, dtype=np.uint16) for r in rows]).reshape(height, width, planes)
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001  pypng raises many kinds (ChunkError, AttributeError, zlib.error ...)
+        raise InputError(f"{path}: cannot read PNG (truncated or corrupt?): {type(exc).__name__}: {exc}") from None
     return arr, info["bitdepth"]
+
+
+def _read_npy(path: Path, what: str) -> np.ndarray:
+    """Load a ``.npy`` array without pickles; a short, empty or corrupt file is an :class:`InputError`."""
+    try:
+        arr = np.load(path, allow_pickle=False, mmap_mode="r")
+        if not isinstance(arr, np.ndarray):
+            raise ValueError("not a single array")
+        if arr.size > MAX_PIXELS:
+            raise ValueError(f"{arr.shape} is larger than {MAX_PIXELS} pixels")
+        return np.array(arr)
+    except Exception as exc:  # noqa: BLE001  numpy's header parser raises many kinds (EOFError, TokenError ...)
+        problem = f"{type(exc).__name__}: {exc}"
+        raise InputError(f"{path}: cannot read {what} .npy (empty, truncated or corrupt?): {problem}") from None
 
 
 def read_depth(path: str | Path, camera: Camera | None = None) -> np.ndarray:
@@ -115,16 +195,15 @@ def read_depth(path: str | Path, camera: Camera | None = None) -> np.ndarray:
 
     ``.png`` must be single-channel 16-bit; its values are multiplied by ``camera.depth_scale``
     (default 0.001, millimetres). ``.npy`` must be a 2-D float array in metres. If ``camera`` is given,
-    the shape is checked against it.
+    the shape is checked against it. Raises :class:`InputError` naming the file.
     """
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"depth file '{p}' does not exist")
+    p = check_input_file(path, "depth")
     suffix = p.suffix.lower()
+    shape = camera.shape if camera is not None else None
     if suffix == ".png":
-        arr, bitdepth = _read_png(p)
+        arr, bitdepth = _read_png(p, shape)
         if arr.shape[2] != 1 or bitdepth != 16:
-            raise ValueError(
+            raise InputError(
                 f"{p}: depth PNG must be single-channel 16-bit (mm, 0 = no reading), "
                 f"got {arr.shape[2]} channel(s) of {bitdepth} bits"
             )
@@ -133,18 +212,16 @@ def read_depth(path: str | Path, camera: Camera | None = None) -> np.ndarray:
         depth = raw * np.float32(scale)
         depth[raw == 0] = np.nan
     elif suffix == ".npy":
-        try:
-            depth = np.load(p, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise ValueError(f"{p}: cannot read .npy: {exc}") from None
+        depth = _read_npy(p, "depth")
         if depth.ndim != 2 or not np.issubdtype(depth.dtype, np.floating):
-            raise ValueError(f"{p}: depth .npy must be a 2-D float array in metres, got {depth.dtype} {depth.shape}")
-        depth = depth.astype(np.float32)
+            raise InputError(f"{p}: depth .npy must be a 2-D float array in metres, got {depth.dtype} {depth.shape}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            depth = depth.astype(np.float32)
         depth[~np.isfinite(depth) | (depth <= 0)] = np.nan
     else:
-        raise ValueError(f"{p}: depth file must be .png (16-bit mm) or .npy (float32 m), got '{suffix}'")
-    if camera is not None:
-        camera.check_image(depth, f"depth '{p}'")
+        raise InputError(f"{p}: depth file must be .png (16-bit mm) or .npy (float32 m), got '{suffix}'")
+    if shape is not None and depth.shape != shape:
+        raise InputError(f"{p}: depth image has shape {depth.shape}, expected (height, width) = {shape} (camera)")
     return depth
 
 
@@ -167,22 +244,25 @@ def write_depth(path: str | Path, depth: np.ndarray, depth_scale: float = 0.001)
 
 
 def read_mask(path: str | Path, camera: Camera | None = None) -> np.ndarray:
-    """Read a robot mask (PNG of any bit depth or ``.npy``) as an (H, W) bool array, nonzero = robot."""
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"mask file '{p}' does not exist")
-    if p.suffix.lower() == ".png":
-        arr, _ = _read_png(p)
+    """Read a robot mask (PNG of any bit depth or ``.npy``) as an (H, W) bool array, nonzero = robot.
+
+    Raises :class:`InputError` naming the file.
+    """
+    p = check_input_file(path, "mask")
+    suffix = p.suffix.lower()
+    shape = camera.shape if camera is not None else None
+    if suffix == ".png":
+        arr, _ = _read_png(p, shape)
         mask = arr[..., 0] != 0
-    elif p.suffix.lower() == ".npy":
-        arr = np.load(p, allow_pickle=False)
-        if arr.ndim != 2:
-            raise ValueError(f"{p}: mask .npy must be 2-D, got shape {arr.shape}")
+    elif suffix == ".npy":
+        arr = _read_npy(p, "mask")
+        if arr.ndim != 2 or not (arr.dtype == bool or np.issubdtype(arr.dtype, np.number)):
+            raise InputError(f"{p}: mask .npy must be a 2-D array of numbers or booleans, got {arr.dtype} {arr.shape}")
         mask = arr != 0
     else:
-        raise ValueError(f"{p}: mask file must be .png or .npy")
-    if camera is not None:
-        camera.check_image(mask, f"mask '{p}'")
+        raise InputError(f"{p}: mask file must be .png or .npy, got '{suffix}'")
+    if shape is not None and mask.shape != shape:
+        raise InputError(f"{p}: mask image has shape {mask.shape}, expected (height, width) = {shape} (camera)")
     return mask
 
 

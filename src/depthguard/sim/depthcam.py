@@ -1,6 +1,6 @@
 """A simulated Kinect v1 depth camera: exact depth by ray casting (or OpenGL rendering), then sensor effects.
 
-Output follows DepthGuard's convention (DESIGN.md §3): an (H, W) float32 image in metres, NaN = no
+Output follows DepthGuard's convention (``docs/conventions.md``): an (H, W) float32 image in metres, NaN = no
 reading, depth = ``z_C`` along the optical axis (not the ray length), pixel (u, v) sampled through its
 centre ``(u + 0.5, v + 0.5)``. The camera pose is a depthguard :class:`~depthguard.camera.Camera`
 (``P_C = R P_W + t``, OpenCV axes); the cell also holds a MuJoCo camera (-z forward, y up) at the same pose.

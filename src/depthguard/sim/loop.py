@@ -1,4 +1,4 @@
-"""The three-rate simulation (DESIGN.md §1), in simulated time.
+"""The three-rate simulation (``docs/conventions.md``, "The three rates"), in simulated time.
 
 * frame stage, every ``frame_period`` (1/30 s): each simulated Kinect takes a depth image of the cell;
   the self-filter removes the robot using the *measured* joint positions and the controller's model;

@@ -47,22 +47,32 @@ def list_scenarios() -> list[str]:
 
 
 def load_scenario(name_or_path: str | Path) -> dict[str, Any]:
-    """Read a scenario by name (shipped) or path (.toml). Raises ``ValueError`` naming the problem."""
+    """Read a scenario by name (shipped) or path (.toml) and check every field
+    (:func:`~depthguard.sim.scenario_schema.validate_scenario`).
+
+    Raises:
+        InputError: (a ``ValueError``) one line naming the file and the problem.
+    """
+    from depthguard.errors import InputError
+    from depthguard.io.files import check_input_file
+    from depthguard.sim.scenario_schema import validate_scenario
+
     p = Path(name_or_path)
-    if p.suffix == ".toml" and p.is_file():
-        text = p.read_text()
+    if p.suffix == ".toml" or len(p.parts) > 1:
+        source = str(check_input_file(p, "scenario"))
+        raw = p.read_bytes()
     else:
         ref = _scenario_dir().joinpath(f"{name_or_path}.toml")
         if not ref.is_file():
-            raise ValueError(f"unknown scenario {name_or_path!r}; known: {list_scenarios()}")
-        text = ref.read_text()
+            raise InputError(f"unknown scenario {str(name_or_path)!r}; known: {list_scenarios()} or a .toml file")
+        source, raw = f"scenario {str(name_or_path)!r} ({ref})", ref.read_bytes()
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{source}: not UTF-8 text (byte {exc.start}): expected TOML") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"scenario {name_or_path!r}: bad TOML: {exc}") from exc
-    for key in ("name", "task", "cameras"):
-        if key not in data:
-            raise ValueError(f"scenario {name_or_path!r}: missing field '{key}'")
+        raise InputError(f"{source}: bad TOML: {exc}") from None
+    validate_scenario(data, source)
     return data
 
 
@@ -308,6 +318,10 @@ def run_scenario(
     """
 
     sc = load_scenario(name)
+    if out_dir is not None:  # check the output folder before the run, not after it
+        from depthguard.io.files import prepare_out_dir
+
+        prepare_out_dir(out_dir)
     t0 = time.perf_counter()
     cell, log, task, cfg = _run_one(
         sc,

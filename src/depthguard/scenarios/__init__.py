@@ -1,1 +1,0 @@
-"""Scenarios that need no simulator (the MuJoCo ones live in depthguard.sim)."""
