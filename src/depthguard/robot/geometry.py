@@ -109,10 +109,11 @@ class RobotGeometry:
         T[:, :, 3] = pj @ Rc.T + tc
         return T
 
-    def link_points(self) -> dict[str, np.ndarray]:
-        """Per link, the vertices (P, 3) in the link frame of its original geometry (before decimation);
-        for analytic capsules the vertices of a polytope that contains them."""
-        out: dict[str, list[np.ndarray]] = {}
+    def link_points(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per link, what its ``auto`` spheres must cover, in the link frame: ball centres (P, 3) and radii
+        (P,) m (mesh vertices before decimation and face samples with radius 0; balls along capsules)."""
+        out: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
         for g in self.geoms:
-            out.setdefault(g.shape.link, []).append(g.source_vertices)
-        return {k: np.vstack(v) for k, v in out.items()}
+            r = np.zeros(len(g.source_vertices)) if g.source_radii is None else g.source_radii
+            out.setdefault(g.shape.link, []).append((g.source_vertices, r))
+        return {k: (np.vstack([p for p, _ in v]), np.concatenate([r for _, r in v])) for k, v in out.items()}

@@ -78,8 +78,10 @@ class Shape:
 @dataclass
 class ShapeGeometry:
     """Link-frame geometry of one shape: a triangle mesh (``vertices`` (V, 3), ``faces`` (F, 3)) or an
-    analytic capsule (``a``, ``b`` (3,), ``radius``), metres. ``source_vertices``: the vertices of the
-    original geometry (before any decimation), used for the control-point coverage."""
+    analytic capsule (``a``, ``b`` (3,), ``radius``), metres. ``source_vertices`` (P, 3) and
+    ``source_radii`` (P,): what the ``auto`` control points cover: the vertices of the original mesh (before
+    any decimation) and points sampled on its faces (radius 0); for a capsule, balls centred on its
+    segment whose union contains it."""
 
     shape: Shape
     vertices: np.ndarray | None = None
@@ -88,6 +90,7 @@ class ShapeGeometry:
     b: np.ndarray | None = None
     radius: float = 0.0
     source_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    source_radii: np.ndarray | None = None  # (P,) balls around source_vertices to cover (None: points)
     slack: float = 0.0  # how far the original surface may lie outside ``vertices``' surface (decimation), m
 
     @property
@@ -287,17 +290,27 @@ def inflation_directions(v: np.ndarray, f: np.ndarray, max_offset: float = 2.0, 
     return o
 
 
-def capsule_points(a: np.ndarray, b: np.ndarray, radius: float) -> np.ndarray:
-    """Vertices (2 * 162, 3) of a polytope that contains the capsule ``a``-``b`` of ``radius``: an
-    icosphere (2 subdivisions) circumscribing the end balls, at each end (their convex hull contains it)."""
-    import trimesh
+def capsule_balls(a: np.ndarray, b: np.ndarray, radius: float, spacing: float = 0.005) -> dict:
+    """Balls whose union contains the capsule ``a``-``b`` of ``radius``: centres on the segment at most
+    ``spacing`` apart, radius ``radius + spacing / 2`` (every capsule point is within ``radius`` of a segment
+    point, which is within ``spacing / 2`` of a centre). As ShapeGeometry keyword arguments."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    n = int(np.ceil(np.linalg.norm(b - a) / spacing)) + 1
+    centres = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+    return {"source_vertices": centres, "source_radii": np.full(n, radius + 0.5 * spacing)}
 
-    ico = trimesh.creation.icosphere(subdivisions=2)
-    v = np.asarray(ico.vertices, float)
-    n = np.asarray(ico.face_normals, float)
-    inr = float(np.min(np.einsum("ij,ij->i", n, v[ico.faces[:, 0]])))  # face-plane distance, unit sphere
-    v = v * (radius / inr)
-    return np.vstack([v + np.asarray(a, float), v + np.asarray(b, float)])
+
+def surface_points(v: np.ndarray, f: np.ndarray, spacing: float = 0.02) -> np.ndarray:
+    """The vertices (V, 3) plus points on each triangle at most about ``spacing`` m apart (barycentric grid)."""
+    tri = v[f]
+    edge = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
+    nsub = np.ceil(edge / spacing).astype(int)
+    out = [v]
+    for n in np.unique(nsub[nsub > 1]):
+        ij = np.array([(i, j) for i in range(n + 1) for j in range(n + 1 - i)], float) / n
+        w = np.c_[ij, 1.0 - ij.sum(axis=1)]  # (G, 3) barycentric weights
+        out.append(np.einsum("gk,tkd->tgd", w, tri[nsub == n]).reshape(-1, 3))
+    return np.vstack(out)
 
 
 def shape_geometry(shape: Shape, n_sides: int = 24) -> ShapeGeometry:
@@ -307,7 +320,7 @@ def shape_geometry(shape: Shape, n_sides: int = 24) -> ShapeGeometry:
         r = shape.size[0]
         half = 0.0 if shape.kind == "sphere" else 0.5 * shape.size[1]
         a, b = p - R[:, 2] * half, p + R[:, 2] * half
-        return ShapeGeometry(shape, a=a, b=b, radius=float(r), source_vertices=capsule_points(a, b, r))
+        return ShapeGeometry(shape, a=a, b=b, radius=float(r), **capsule_balls(a, b, r))
     if shape.kind == "mesh":
         v, f = load_mesh(shape.mesh, shape.scale)
     elif shape.kind == "box":
@@ -315,7 +328,7 @@ def shape_geometry(shape: Shape, n_sides: int = 24) -> ShapeGeometry:
     else:
         v, f = _prism_mesh(shape.size[0], shape.size[1], n_sides)
     v = v @ R.T + p
-    return ShapeGeometry(shape, vertices=v, faces=f, source_vertices=v.copy())
+    return ShapeGeometry(shape, vertices=v, faces=f, source_vertices=surface_points(v, f))
 
 
 def capsule_idiom(shapes: list[Shape]) -> tuple[list[ShapeGeometry], list[Shape]]:
@@ -347,6 +360,6 @@ def capsule_idiom(shapes: list[Shape]) -> tuple[list[ShapeGeometry], list[Shape]
             continue
         used.update([i, *ends])
         cap = Shape(link=s.link, kind="capsule", size=(r, 2 * half), xyz=s.xyz, rpy=s.rpy, name=s.name)
-        caps.append(ShapeGeometry(cap, a=a, b=b, radius=float(r), source_vertices=capsule_points(a, b, r)))
+        caps.append(ShapeGeometry(cap, a=a, b=b, radius=float(r), **capsule_balls(a, b, r)))
     rest = [s for i, s in enumerate(shapes) if i not in used]
     return caps, rest
