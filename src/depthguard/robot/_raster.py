@@ -17,11 +17,19 @@ from numba import njit
 @njit(cache=True, inline="always")
 def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
     """Fill one projected triangle (image coordinates ``x, y``, inverse depths ``w = 1 / z > 0``) into the
-    per-shape ``snear``/``sfar`` (H, W) buffers; ``rows`` (H, 2) holds each row's touched span [lo, hi]."""
+    per-shape buffers of inverse depth: ``snear`` keeps the largest, ``sfar`` the smallest; ``rows`` (H, 2)
+    holds each row's touched span [lo, hi]. Scanline: the vertices sorted by y, each row's span lies between
+    the long edge and one of the two short ones."""
     H, W = snear.shape
     area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     if abs(area) < 1e-12:
         return  # edge-on: its neighbours cover the pixels
+    v_lo = max(int(np.ceil(min(y0, y1, y2) - 0.5 - 1e-7)), 0)
+    v_hi = min(int(np.floor(max(y0, y1, y2) - 0.5 + 1e-7)), H - 1)
+    u_lo = max(int(np.ceil(min(x0, x1, x2) - 0.5 - 1e-7)), 0)
+    u_hi = min(int(np.floor(max(x0, x1, x2) - 0.5 + 1e-7)), W - 1)
+    if v_lo > v_hi or u_lo > u_hi:
+        return
     inv = 1.0 / area
     # 1/z is affine in the image: iz = A px + B py + C (from the barycentric coordinates)
     d0, d1 = w0 - w2, w1 - w2
@@ -29,25 +37,29 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
     B = ((x2 - x1) * d0 + (x0 - x2) * d1) * inv
     C = w2 + ((x1 * y2 - x2 * y1) * d0 + (x2 * y0 - x0 * y2) * d1) * inv
     w_lo, w_hi = min(w0, w1, w2), max(w0, w1, w2)
-    u0 = max(int(np.ceil(min(x0, x1, x2) - 0.5 - 1e-7)), 0)
-    u1 = min(int(np.floor(max(x0, x1, x2) - 0.5 + 1e-7)), W - 1)
-    v0 = max(int(np.ceil(min(y0, y1, y2) - 0.5 - 1e-7)), 0)
-    v1 = min(int(np.floor(max(y0, y1, y2) - 0.5 + 1e-7)), H - 1)
-    for v in range(v0, v1 + 1):
+    # sort the vertices by y: (ax, ay) <= (bx, by) <= (cx, cy)
+    ax, ay, bx, by, cx_, cy_ = x0, y0, x1, y1, x2, y2
+    if ay > by:
+        ax, ay, bx, by = bx, by, ax, ay
+    if by > cy_:
+        bx, by, cx_, cy_ = cx_, cy_, bx, by
+    if ay > by:
+        ax, ay, bx, by = bx, by, ax, ay
+    s_ac = (cx_ - ax) / (cy_ - ay) if cy_ > ay else 0.0
+    s_ab = (bx - ax) / (by - ay) if by > ay else 0.0
+    s_bc = (cx_ - bx) / (cy_ - by) if cy_ > by else 0.0
+    for v in range(v_lo, v_hi + 1):
         py = v + 0.5
-        # the row's span inside the triangle: where the line y = py crosses the edges
-        lo, hi = np.inf, -np.inf
-        for xa, ya, xb, yb in ((x0, y0, x1, y1), (x1, y1, x2, y2), (x2, y2, x0, y0)):
-            if (ya <= py <= yb) or (yb <= py <= ya):
-                if ya == yb:
-                    xl, xh = min(xa, xb), max(xa, xb)
-                else:
-                    xl = xh = xa + (py - ya) * (xb - xa) / (yb - ya)
-                lo, hi = min(lo, xl), max(hi, xh)
-        if lo > hi:
-            continue
-        ua = max(int(np.ceil(lo - 0.5 - 1e-7)), u0)
-        ub = min(int(np.floor(hi - 0.5 + 1e-7)), u1)
+        xl = ax + (py - ay) * s_ac
+        if py < by:
+            xr = ax + (py - ay) * s_ab
+        elif cy_ > by:
+            xr = bx + (py - by) * s_bc
+        else:  # py == by == cy: the flat edge b-c
+            xr = bx
+        lo, hi = min(xl, xr), max(xl, xr)
+        ua = max(int(np.ceil(lo - 0.5 - 1e-7)), u_lo)
+        ub = min(int(np.floor(hi - 0.5 + 1e-7)), u_hi)
         if ua > ub:
             continue
         if ua < rows[v, 0]:
@@ -55,13 +67,13 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
         if ub > rows[v, 1]:
             rows[v, 1] = ub
         row_n, row_f = snear[v], sfar[v]
+        base = B * py + C
         for u in range(ua, ub + 1):
-            iz = min(max(A * (u + 0.5) + B * py + C, w_lo), w_hi)  # clamp: rounding at the edges
-            z = 1.0 / iz
-            if z < row_n[u]:
-                row_n[u] = z
-            if z > row_f[u]:
-                row_f[u] = z
+            iz = min(max(A * (u + 0.5) + base, w_lo), w_hi)  # clamp: rounding at the edges
+            if iz > row_n[u]:
+                row_n[u] = iz
+            if iz < row_f[u]:
+                row_f[u] = iz
 
 
 @njit(cache=True)
@@ -119,7 +131,7 @@ def mesh_kernel(
         depth: (H, W) measured z_C, m (no reading: not > 0 or not finite).
         mask: (H, W) bool, set True where a measured point lies in ``[near, far]`` of a shape.
         near: (H, W) running minimum of the inflated robot's depth (inf = none).
-        snear, sfar: (H, W) work buffers, inf / -inf on entry and on exit.
+        snear, sfar: (H, W) work buffers of inverse depth (largest / smallest 1/z), 0 / inf on entry and exit.
         ubox: (4,) int union box (u_lo, u_hi, v_lo, v_hi) of the pixels touched, updated.
     """
     nv_max = 0
@@ -162,16 +174,17 @@ def mesh_kernel(
             ubox[0], ubox[1] = min(ubox[0], rows[v, 0]), max(ubox[1], rows[v, 1])
             ubox[2], ubox[3] = min(ubox[2], v), max(ubox[3], v)
             for u in range(rows[v, 0], rows[v, 1] + 1):
-                zn = snear[v, u]
-                if zn == np.inf:
+                izn = snear[v, u]
+                if izn == 0.0:
                     continue
+                zn, zf = 1.0 / izn, 1.0 / sfar[v, u]
                 d = depth[v, u]
-                if d > 0.0 and d < np.inf and zn <= d <= sfar[v, u]:
+                if d > 0.0 and d < np.inf and zn <= d <= zf:
                     mask[v, u] = True
                 if zn < near[v, u]:
                     near[v, u] = zn
-                snear[v, u] = np.inf
-                sfar[v, u] = -np.inf
+                snear[v, u] = 0.0
+                sfar[v, u] = np.inf
             rows[v, 0], rows[v, 1] = 1 << 30, -1
 
 

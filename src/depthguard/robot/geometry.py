@@ -26,15 +26,29 @@ __all__ = ["RobotGeometry"]
 def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray, float]:
     """Decimate to about ``target`` faces (fast-simplification); returns the mesh and the largest distance
     from an original vertex to the decimated surface (m), by which the decimated mesh is inflated more."""
-    import fast_simplification
-    import trimesh
+    try:
+        import coal
+        import fast_simplification
+        import trimesh
+    except ImportError as e:  # pragma: no cover
+        raise ValueError(f"max_triangles needs fast-simplification (pip install 'depthguard[robot]'): {e}") from e
 
     ratio = 1.0 - target / len(f)
     v2, f2 = fast_simplification.simplify(v.astype(np.float32), f.astype(np.int32), target_reduction=ratio)
     m2 = trimesh.Trimesh(np.asarray(v2, float), np.asarray(f2, np.int64), process=True)
     trimesh.repair.fix_normals(m2)
-    _, dist, _ = trimesh.proximity.closest_point(m2, v)
-    return np.asarray(m2.vertices, float), np.asarray(m2.faces, np.int64), float(np.max(dist))
+    v2, f2 = np.asarray(m2.vertices, float), np.asarray(m2.faces, np.int64)
+    bvh = coal.BVHModelOBBRSS()  # distance of every original vertex to the decimated surface
+    bvh.beginModel(len(f2), len(v2))
+    bvh.addVertices(np.ascontiguousarray(v2))
+    bvh.addTriangles(np.ascontiguousarray(f2))
+    bvh.endModel()
+    dot, eye, req, res = coal.Sphere(1e-12), coal.Transform3s(), coal.DistanceRequest(), coal.DistanceResult()
+    worst = 0.0
+    for p in v:
+        res.clear()
+        worst = max(worst, coal.distance(bvh, eye, dot, coal.Transform3s(np.eye(3), p), req, res))
+    return v2, f2, worst
 
 
 class RobotGeometry:

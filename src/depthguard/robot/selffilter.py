@@ -56,10 +56,11 @@ _WORK = threading.local()
 
 
 def _work_buffers(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-thread (H, W) work buffers (near: inf, snear: inf, sfar: -inf between calls)."""
+    """Per-thread (H, W) work buffers: near depth (inf), largest and smallest inverse depth of one shape
+    (0, inf) between calls."""
     bufs = getattr(_WORK, "bufs", None)
     if bufs is None or bufs[0].shape != shape:
-        bufs = (np.full(shape, np.inf), np.full(shape, np.inf), np.full(shape, -np.inf))
+        bufs = (np.full(shape, np.inf), np.zeros(shape), np.full(shape, np.inf))
         _WORK.bufs = bufs
     return bufs
 
