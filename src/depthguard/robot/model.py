@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from depthguard.robot.geometry import RobotGeometry
-from depthguard.robot.shapes import Shape, parse_collision_shapes
+from depthguard.robot.shapes import Shape, parse_collision_shapes, rpy_to_matrix
 from depthguard.validation import check_finite_array
 
 __all__ = ["LinkCapsule", "RobotModel", "load_lwr4", "lwr4_urdf_path"]
@@ -69,24 +69,12 @@ class LinkCapsule:
     radius: float
 
 
-def _rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
 def _origin(elem: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
     if elem is None:
         return np.eye(3), np.zeros(3)
     xyz = np.array([float(x) for x in elem.get("xyz", "0 0 0").split()])
     rpy = np.array([float(x) for x in elem.get("rpy", "0 0 0").split()])
-    return _rpy_to_matrix(rpy), xyz
+    return rpy_to_matrix(rpy), xyz
 
 
 def _parse_capsules(urdf_path: Path, default_radius: float) -> list[LinkCapsule]:
