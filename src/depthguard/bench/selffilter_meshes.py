@@ -1,5 +1,6 @@
 """``bench selffilter`` on real robots' meshes (Panda, UR5): the mesh self-filter against the capsule
-filter (the coarse description of :attr:`RobotModel.capsules`, the only one before), same run, same frames.
+filter (the coarse description of :attr:`RobotModel.capsules`, the only one before), same run, same frames,
+and against bounding volumes fitted to the meshes (the ``auto`` control spheres, ray cast exactly; counts only).
 
 Frames: the robot's collision meshes plus a floor and a wall, ray cast by MuJoCo through pinocchio/coal's
 placements (:mod:`depthguard.bench.meshtruth`), 640x480 Kinect v1 intrinsics, random configurations
@@ -56,17 +57,23 @@ def _counts(mask, measured, robot_vis, urdf, q, cam, margin) -> dict:
 def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
     from depthguard.bench.meshtruth import MeshRobotTruth
     from depthguard.camera import Camera, look_at
+    from depthguard.robot.control_points import ControlPointSet
     from depthguard.robot.robots import load_robot, robot_urdf
     from depthguard.robot.selffilter import self_filter, self_filter_capsules
 
     model = load_robot(name)
     urdf = str(robot_urdf(name))
+    spheres = ControlPointSet.build(model, "auto", ee_radius=0.0)  # bounding volumes fitted to the meshes
     rng = np.random.default_rng(2026)
     rows = []
     for _ in range(n_q):
         q = rng.uniform(np.maximum(model.q_min, -2.5), np.minimum(model.q_max, 2.5))
         truth = MeshRobotTruth(urdf, q, ENV)
         a, b, r = model.link_capsules(q)
+        sc = spheres.evaluate(q)
+        keep = sc.radii > 0  # the base link has no sphere: it does not move, so it is left to the capsules
+        sa = np.vstack([sc.centres[keep], a[:1]])
+        sr = np.concatenate([sc.radii[keep], r[:1]])
         for view, eye in VIEWS.items():
             R, t = look_at(np.array(eye), np.array([0.0, 0.0, 0.4]))
             cam = Camera.kinect_v1(R, t, min_depth=0.3)
@@ -74,6 +81,7 @@ def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
             robot_vis = np.isfinite(robot_only) & (np.abs(measured - robot_only) < 1e-9)
             mesh = self_filter(cam, measured, q, model, margin=margin)
             caps = self_filter_capsules(cam, measured, a, b, r, margin=margin)
+            sph = self_filter_capsules(cam, measured, sa, sa, sr, margin=margin)
             tm = _time(lambda c=cam, m=measured, q=q: self_filter(c, m, q, model, margin=margin), repeat)
             tc = _time(
                 lambda c=cam, m=measured, a=a, b=b, r=r: self_filter_capsules(c, m, a, b, r, margin=margin), repeat
@@ -84,17 +92,23 @@ def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
                     "robot_pixels": int(robot_vis.sum()),
                     "mesh": {**_counts(mesh.mask, measured, robot_vis, urdf, q, cam, margin), **tm},
                     "capsules": {**_counts(caps.mask, measured, robot_vis, urdf, q, cam, margin), **tc},
+                    "auto_spheres": _counts(sph.mask, measured, robot_vis, urdf, q, cam, margin),
                 }
             )  # fmt: skip
     vis = sum(r["robot_pixels"] for r in rows)
 
     def agg(kind: str) -> dict:
         left = sum(r[kind]["pixels_left"] for r in rows)
-        return {
+        out = {
             "pixels_left": left,
             "pixels_left_fraction": left / max(vis, 1),
             "background_removed": sum(r[kind]["background_removed"] for r in rows),
             "background_removed_beyond_margin": sum(r[kind]["background_removed_beyond_margin"] for r in rows),
+        }
+        if kind == "auto_spheres":
+            return out
+        return {
+            **out,
             "ms_median": float(np.median([r[kind]["ms_median"] for r in rows])),
             "ms_p99": float(np.max([r[kind]["ms_p99"] for r in rows])),
             "cpu_ms_median": float(np.median([r[kind]["cpu_ms_median"] for r in rows])),
@@ -109,6 +123,7 @@ def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
         "robot_pixels": vis,
         "mesh": mesh,
         "capsule_baseline": caps,
+        "auto_spheres_baseline": agg("auto_spheres"),
         "time_ratio_mesh_over_capsules": mesh["ms_median"] / max(caps["ms_median"], 1e-9),
         "cpu_time_ratio_mesh_over_capsules": mesh["cpu_ms_median"] / max(caps["cpu_ms_median"], 1e-9),
         "frames_detail": rows,
