@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("pinocchio")
 pytest.importorskip("mujoco")
@@ -148,3 +150,45 @@ def test_default_model_is_per_thread() -> None:
     with ThreadPoolExecutor(4) as ex:
         got = list(ex.map(lambda q: self_filter(cam, depth, q).mask, qs * 3))
     assert all(np.array_equal(g, ref[i % len(qs)]) for i, g in enumerate(got))
+
+
+@pytest.mark.slow
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    dist=st.floats(0.05, 3.0),
+    junk=st.sampled_from([np.nan, np.inf, -np.inf, 0.0, -1.0, 1e-9, 1e9]),
+)
+def test_property_never_raises_and_masks_only_inside_the_silhouette(seed: int, dist: float, junk: float) -> None:
+    """Any configuration, camera distance (down to 5 cm: triangles cross the near plane) and junk depth:
+    no exception; robot pixels only inside the inflated silhouette, measured ones at or behind its near side."""
+    model = _model("panda")
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(model.q_min, model.q_max)
+    target = model.frame_pose(q, "panda_link4")[1]
+    eye = target + dist * rng.normal(size=3) / np.sqrt(3)
+    R, t = look_at(eye, target + 1e-3 * rng.normal(size=3))
+    cam = Camera(width=80, height=60, fx=70.0, fy=70.0, cx=40.0, cy=30.0, R=R, t=t, min_depth=0.01, max_depth=10.0)
+    depth = rng.uniform(0.0, 3.0, cam.shape)
+    depth[rng.uniform(size=cam.shape) < 0.3] = junk
+    res = self_filter(cam, depth, q, model, margin=MARGIN)
+    inside = np.isfinite(res.robot_depth)
+    assert not np.any(res.mask & ~inside)
+    measured = np.isfinite(depth) & (depth > 0)
+    assert np.all(res.robot_depth[res.mask & measured] <= depth[res.mask & measured] + 1e-9)
+    assert np.all(res.robot_depth[inside] >= 0.0)
+
+
+def test_bad_inputs_raise_clear_errors() -> None:
+    model = _model("panda")
+    cam = _camera(VIEWS[0])
+    with pytest.raises(ValueError, match="q"):
+        self_filter(cam, np.zeros(cam.shape), np.zeros(7), model)  # the Panda's q has 9 entries
+    with pytest.raises(ValueError, match="q"):
+        self_filter(cam, np.zeros(cam.shape), np.full(9, np.nan), model)
+    with pytest.raises(ValueError, match="margin"):
+        self_filter(cam, np.zeros(cam.shape), np.zeros(9), model, margin=np.inf)
+    with pytest.raises(ValueError, match="cannot resolve"):
+        from depthguard.robot.shapes import resolve_mesh_path
+
+        resolve_mesh_path("package://no_such_pkg/meshes/x.stl", robot_urdf("panda"))
