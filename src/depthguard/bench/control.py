@@ -146,7 +146,7 @@ def _selffilter_scene(model, q, eye):
     return cam, Scene(robot), Scene((hand,)), Scene(robot + (hand,) + env)
 
 
-def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: int = 3) -> dict:
+def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: int = 0) -> dict:
     """Time the self-filter per 640x480 frame and count errors against exact ground truth."""
     from depthguard.robot.model import load_lwr4
     from depthguard.robot.selffilter import self_filter
