@@ -1,6 +1,7 @@
 """``bench selffilter`` on real robots' meshes (Panda, UR5): the mesh self-filter against the capsule
 filter (the coarse description of :attr:`RobotModel.capsules`, the only one before), same run, same frames,
-and against bounding volumes fitted to the meshes (the ``auto`` control spheres, ray cast exactly; counts only).
+and against bounding volumes fitted to the meshes (3 spheres per link as for ``auto``, ray cast exactly; counts
+only).
 
 Frames: the robot's collision meshes plus a floor and a wall, ray cast by MuJoCo through pinocchio/coal's
 placements (:mod:`depthguard.bench.meshtruth`), 640x480 Kinect v1 intrinsics, random configurations
@@ -57,23 +58,23 @@ def _counts(mask, measured, robot_vis, urdf, q, cam, margin) -> dict:
 def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
     from depthguard.bench.meshtruth import MeshRobotTruth
     from depthguard.camera import Camera, look_at
-    from depthguard.robot.control_points import ControlPointSet
     from depthguard.robot.robots import load_robot, robot_urdf
     from depthguard.robot.selffilter import self_filter, self_filter_capsules
+    from depthguard.robot.spheres import cover_points
 
     model = load_robot(name)
     urdf = str(robot_urdf(name))
-    spheres = ControlPointSet.build(model, "auto", ee_radius=0.0)  # bounding volumes fitted to the meshes
+    # bounding volumes fitted to the meshes: 3 spheres per link (the base included), link frame
+    fitted = {lk: cover_points(p, 3, radii=r) for lk, (p, r) in model.geometry.link_points().items()}
     rng = np.random.default_rng(2026)
     rows = []
     for _ in range(n_q):
         q = rng.uniform(np.maximum(model.q_min, -2.5), np.minimum(model.q_max, 2.5))
         truth = MeshRobotTruth(urdf, q, ENV)
         a, b, r = model.link_capsules(q)
-        sc = spheres.evaluate(q)
-        keep = sc.radii > 0  # the base link has no sphere: it does not move, so it is left to the capsules
-        sa = np.vstack([sc.centres[keep], a[:1]])
-        sr = np.concatenate([sc.radii[keep], r[:1]])
+        poses = {lk: model.frame_pose(q, lk) for lk in fitted}
+        sa = np.vstack([c @ poses[lk][0].T + poses[lk][1] for lk, (c, _) in fitted.items()])
+        sr = np.concatenate([rr for _, rr in fitted.values()])
         for view, eye in VIEWS.items():
             R, t = look_at(np.array(eye), np.array([0.0, 0.0, 0.4]))
             cam = Camera.kinect_v1(R, t, min_depth=0.3)
@@ -130,7 +131,8 @@ def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
     }
 
 
-def run_mesh_selffilter(quick: bool = False, margin: float = 0.03, robots=("panda", "ur5")) -> dict:
-    """Panda and UR5 entries of ``bench selffilter`` (module docstring); ``quick``: 1 configuration, 20 calls."""
+def run_mesh_selffilter(quick: bool = False, margin: float = 0.03, robots=("panda", "ur5", "lwr4")) -> dict:
+    """Panda, UR5 and shipped-LWR entries of ``bench selffilter`` (module docstring; for the LWR the "capsule
+    baseline" is its exact capsule model, the filter before this change); ``quick``: 1 configuration, 20 calls."""
     n_q, repeat = (1, 20) if quick else (3, 200)
     return {name: _robot(name, n_q, repeat, margin) for name in robots}

@@ -33,7 +33,11 @@ def robot_data_dir() -> Path:
 
 
 def robot_urdf(name: str) -> Path:
-    """URDF path of a named robot of :data:`ROBOTS`."""
+    """URDF path of ``"lwr4"`` (shipped) or a named robot of :data:`ROBOTS`."""
+    if name == "lwr4":
+        from depthguard.robot.model import lwr4_urdf_path
+
+        return lwr4_urdf_path()
     if name not in ROBOTS:
         raise ValueError(f"unknown robot '{name}'; known: {['lwr4', *sorted(ROBOTS)]}")
     return robot_data_dir() / "robots" / ROBOTS[name][0]
