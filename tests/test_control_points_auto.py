@@ -30,7 +30,7 @@ def _uncovered(cps: ControlPointSet, q: np.ndarray, pts_by_link: dict[str, np.nd
     return out
 
 
-@pytest.mark.parametrize("name", ["panda", "ur5", "xarm7"])
+@pytest.mark.parametrize("name", ["panda", "ur5", pytest.param("xarm7", marks=pytest.mark.slow)])
 def test_auto_spheres_cover_every_mesh_vertex(name: str) -> None:
     model = load_robot(name)
     cps = ControlPointSet.build(model, "auto")
