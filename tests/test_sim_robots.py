@@ -53,3 +53,26 @@ def test_panda_self_filter_leaves_no_robot_pixels_in_simulated_kinects(panda) ->
         mask = self_filter(cam, depth, cell.q(), kin)
         assert np.sum(robot & ~mask) <= 0.01 * robot.sum()
         assert np.sum(mask & ~robot & np.isfinite(depth)) < 0.5 * robot.sum()
+
+
+def test_meshes_that_mujoco_cannot_read_go_inline() -> None:
+    """Meshes in other formats (or decimated) reach MuJoCo as the vertices the model loaded (UR5, decimated)."""
+    import mujoco
+
+    from depthguard.robot.robots import load_robot
+    from depthguard.sim.robotdesc import RobotDesc, geoms_from_model, parse_urdf
+
+    model = load_robot("ur5", max_triangles=200)
+    geoms = geoms_from_model(model)
+    inline = [g for g in geoms if g.kind == "mesh" and g.mesh is None]
+    assert inline and all(len(g.faces) <= 200 for g in inline)
+    d = parse_urdf(model.urdf_path.read_text(), str(model.urdf_path), "tool0", geoms)
+    desc = RobotDesc(d.name, d.root, d.joints, d.geoms, d.ee_link, d.source, tuple(model.joint_names))
+    cell = build_cell(CellSpec(q0=(0.0, -1.2, 1.2, 0.0, 0.5, 0.0), robot="ur5"), desc)
+    meshes = cell.model.geom_type[cell.robot_geoms] == mujoco.mjtGeom.mjGEOM_MESH
+    assert meshes.sum() == len([g for g in geoms if g.kind == "mesh"])
+    assert cell.nq == 6  # the URDF's root link "world" became a body of its own
+    q = np.array([0.3, -1.0, 1.1, -0.4, 0.6, 0.2])
+    cell.set_q(q)
+    _, p = model.frame_pose(q, "tool0")
+    np.testing.assert_allclose(cell.ee_position(), p, atol=1e-6)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +100,11 @@ def _vec(text: str | None, default: tuple[float, float, float] = (0.0, 0.0, 0.0)
     return (vals[0], vals[1], vals[2])
 
 
+def _link_name(name: str) -> str:
+    """URDF link name as a MuJoCo body name: ``world`` is MuJoCo's own world body (UR5's root link)."""
+    return "robot_world" if name == "world" else name
+
+
 def parse_urdf(
     text: str, source: str = "<string>", ee_link: str | None = None, geoms: tuple[GeomDesc, ...] = ()
 ) -> RobotDesc:
@@ -113,8 +118,8 @@ def parse_urdf(
         joints.append(
             JointDesc(
                 name=j.get("name", ""),
-                parent=j.find("parent").get("link"),
-                child=j.find("child").get("link"),
+                parent=_link_name(j.find("parent").get("link")),
+                child=_link_name(j.find("child").get("link")),
                 xyz=_vec(origin.get("xyz") if origin is not None else None),
                 rpy=_vec(origin.get("rpy") if origin is not None else None),
                 axis=_vec(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
@@ -125,7 +130,7 @@ def parse_urdf(
             )
         )
     children = {j.child for j in joints}
-    links = [lk.get("name") for lk in root.findall("link")]
+    links = [_link_name(lk.get("name")) for lk in root.findall("link")]
     roots = [lk for lk in links if lk not in children]
     if len(roots) != 1:
         raise ValueError(f"URDF {source}: expected one root link, got {roots}")
@@ -144,7 +149,7 @@ def parse_urdf(
         name=root.get("name", "robot"),
         root=roots[0],
         joints=tuple(ordered),
-        geoms=tuple(geoms),
+        geoms=tuple(replace(g, link=_link_name(g.link)) for g in geoms),
         ee_link=ee_link,
         source=source,
     )
