@@ -20,6 +20,9 @@ from depthguard.scene import Capsule, HalfSpace, Scene, Sphere, render_depth  # 
 
 Q = np.array([0.3, 0.6, 0.0, -1.3, 0.2, 0.9, 0.0])
 MARGIN = 0.03
+# the LWR's base is a URDF cylinder (the scenes here draw it as its bounding capsule); the filter draws it as
+# a 24-gon prism around the circle; inflated, its corners stand out by (r + margin) (1 / cos(pi / 24) - 1)
+TOL = (0.075 + MARGIN) * (1.0 / np.cos(np.pi / 24) - 1.0) + 1e-9
 
 
 @pytest.fixture(scope="module")
@@ -86,14 +89,14 @@ def test_hand_next_to_forearm_and_wall(lwr, clearance: float) -> None:
     measured = render_depth(cam, Scene(robot + (hand,) + _wall_and_floor()))
     robot_only = render_depth(cam, Scene(robot))
     hand_only = render_depth(cam, Scene((hand,)))
-    res = self_filter(cam, measured, Q, lwr, margin=MARGIN, pad_px=3)
+    res = self_filter(cam, measured, Q, lwr, margin=MARGIN)
     left, hand_removed, bg_removed, n_robot = _counts(measured, robot_only, hand_only, res.mask)
     assert n_robot > 2000 and np.isfinite(hand_only).sum() > 500
     assert left == 0
     assert hand_removed == 0
     # background (wall, floor) removed only within the margin of the robot: where the base meets the floor
     pts = cam.unproject_image(measured)
-    assert np.all(Scene(robot).distance(pts[bg_removed]) <= MARGIN + 1e-9)
+    assert np.all(Scene(robot).distance(pts[bg_removed]) <= MARGIN + TOL)
 
 
 def test_hand_within_the_margin_is_removed_only_where_it_is_that_close(lwr) -> None:
@@ -104,7 +107,7 @@ def test_hand_within_the_margin_is_removed_only_where_it_is_that_close(lwr) -> N
     res = self_filter(cam, measured, Q, lwr, margin=MARGIN)
     pts = cam.unproject_image(measured)
     removed = res.mask & np.isfinite(measured)
-    assert np.all(Scene(robot).distance(pts[removed]) <= MARGIN + 1e-9)  # the documented limit, no more
+    assert np.all(Scene(robot).distance(pts[removed]) <= MARGIN + TOL)  # the documented limit, no more
 
 
 def test_latency_within_the_margin_leaves_no_robot_pixels(lwr) -> None:
@@ -121,30 +124,50 @@ def test_latency_within_the_margin_leaves_no_robot_pixels(lwr) -> None:
     assert n_robot > 2000 and left == 0
 
 
-def test_missing_depth_inside_and_along_the_silhouette_is_robot(lwr) -> None:
+def _ring(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Pixels at Chebyshev distance lo..hi (pixels) from ``mask``."""
+    grown = [mask]
+    for _ in range(hi):
+        g = grown[-1].copy()
+        g[1:] |= grown[-1][:-1]
+        g[:-1] |= grown[-1][1:]
+        g[:, 1:] |= g[:, :-1].copy()
+        g[:, :-1] |= g[:, 1:].copy()
+        grown.append(g)
+    return grown[hi] & ~grown[lo - 1]
+
+
+def test_missing_depth_inside_the_inflated_silhouette_is_robot_and_beside_it_is_not(lwr) -> None:
+    """Issue 8: a hole beside the robot is unknown space, not robot (the old pad made it robot, i.e. free)."""
     cam = _camera()
     robot = _robot_scene(lwr, Q)
     measured = render_depth(cam, Scene(robot + _wall_and_floor()))
-    robot_only = render_depth(cam, Scene(robot))
-    sil = np.isfinite(robot_only)
-    # holes inside the silhouette, and a 2-pixel band of missing depth around it (a real camera's edges)
+    sil = np.isfinite(render_depth(cam, Scene(robot)))
+    a, b, r = lwr.link_capsules(Q)
+    inflated = np.isfinite(render_capsules_depth(cam, a, b, r + MARGIN))  # exact silhouette + margin
     rng = np.random.default_rng(0)
     holes = sil & (rng.uniform(size=sil.shape) < 0.2)
-    band = np.zeros_like(sil)
-    for dv in range(-2, 3):
-        for du in range(-2, 3):
-            band |= np.roll(np.roll(sil, dv, 0), du, 1)
-    band &= ~sil
+    band = _ring(sil, 1, 2) & inflated  # a real camera's missing edges, within the margin's silhouette
+    beside = _ring(inflated, 2, 4)  # just outside the inflated silhouette (beyond the prism's sub-pixel corners)
     m = measured.copy()
     m[holes] = np.nan
     m[band] = 0.0  # the 0 = no reading convention
-    far = np.zeros_like(sil)
-    far[5:15, 5:15] = True  # missing pixels far from the robot stay unknown
-    m[far] = np.nan
-    res = self_filter(cam, m, Q, lwr, margin=MARGIN, pad_px=3)
+    m[beside] = np.nan
+    res = self_filter(cam, m, Q, lwr, margin=MARGIN)
+    assert holes.sum() > 500 and band.sum() > 300 and beside.sum() > 1000
     assert np.all(res.mask[holes]) and np.all(res.mask[band])
-    assert not np.any(res.mask[far])
     assert np.all(np.isfinite(res.robot_depth[holes | band]))
+    assert not np.any(res.mask[beside])
+
+
+def test_pad_px_is_deprecated_and_has_no_effect(lwr) -> None:
+    cam = _camera()
+    m = render_depth(cam, Scene(_robot_scene(lwr, Q) + _wall_and_floor()))
+    m[::7, ::5] = np.nan
+    ref = self_filter(cam, m, Q, lwr, margin=MARGIN)
+    with pytest.warns(DeprecationWarning, match="pad_px"):
+        res = self_filter(cam, m, Q, lwr, margin=MARGIN, pad_px=3)
+    assert np.array_equal(res.mask, ref.mask)
 
 
 def test_background_seen_past_a_robot_that_moved_is_kept(lwr) -> None:
@@ -205,9 +228,9 @@ def test_property_no_robot_left_and_nothing_removed_beyond_the_margin(seed: int)
     blobs = tuple(Sphere(rng.uniform([-0.8, -0.8, 0.1], [0.8, 0.8, 1.4]), rng.uniform(0.03, 0.15)) for _ in range(4))
     measured = render_depth(cam, Scene(robot + blobs + _wall_and_floor()))
     robot_only = render_depth(cam, Scene(robot))
-    res = self_filter(cam, measured, q, lwr, margin=MARGIN, pad_px=2)
+    res = self_filter(cam, measured, q, lwr, margin=MARGIN)
     robot_vis = np.isfinite(robot_only) & (np.abs(measured - robot_only) < 1e-9)
     assert not np.any(robot_vis & ~res.mask)  # no robot pixel left in
     removed = res.mask & np.isfinite(measured) & (measured > 0)
     pts = cam.unproject_image(measured)[removed]
-    assert np.all(Scene(robot).distance(pts) <= MARGIN + 1e-9)  # nothing removed beyond the margin
+    assert np.all(Scene(robot).distance(pts) <= MARGIN + TOL)  # nothing removed beyond the margin

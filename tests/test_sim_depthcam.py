@@ -98,6 +98,7 @@ def test_raycast_frame_budget():
 def test_self_filter_against_the_exact_robot_silhouette():
     """The pipeline's self-filter (controller's model, measured q) removes every pixel where the simulator
     sees the robot, and removes little else."""
+    from depthguard.robot.selffilter import self_filter as robot_self_filter
     from depthguard.sim.pipeline import Kinematics, self_filter
 
     cell = _cell()
@@ -115,7 +116,9 @@ def test_self_filter_against_the_exact_robot_silhouette():
         mujoco.mj_multiRay(cell.model, cell.data, cam.position, sim._rays, None, True, -1, geomid, dist, None, n, 1e3)
         robot = np.isin(geomid, cell.robot_geoms).reshape(cam.shape)
         assert robot.sum() > 50
-        mask, robot_depth = self_filter(cam, depth, q, kin)
+        mask = self_filter(cam, depth, q, kin)
+        robot_depth = robot_self_filter(cam, depth, q, kin.model).robot_depth
+        assert np.array_equal(mask, robot_self_filter(cam, depth, q, kin.model).mask)
         leaked = robot & ~mask & np.isfinite(depth)
         assert leaked.sum() == 0, f"camera {i}: {leaked.sum()} robot pixels left as obstacles"
         extra = mask & ~robot

@@ -154,7 +154,7 @@ def _selffilter_scene(model, q, eye):
     return cam, Scene(robot), Scene((hand,)), Scene(robot + (hand,) + env)
 
 
-def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: int = 3) -> dict:
+def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: int = 0) -> dict:
     """Time the self-filter per 640x480 frame and count errors against exact ground truth."""
     from depthguard.robot.model import load_lwr4
     from depthguard.robot.selffilter import self_filter
@@ -200,7 +200,18 @@ def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: 
             "scene": "robot + 5 cm ball 5 cm from the forearm + wall + floor, exact ray casting",
         },
         "results": out,
+        "mesh_robots": _mesh_robots(quick, margin),
     }
+
+
+def _mesh_robots(quick: bool, margin: float) -> dict:
+    """Panda and UR5 from their meshes vs the capsule filter (:mod:`depthguard.bench.selffilter_meshes`)."""
+    try:
+        from depthguard.bench.selffilter_meshes import run_mesh_selffilter
+
+        return run_mesh_selffilter(quick=quick, margin=margin)
+    except ImportError as e:  # needs the robot and sim extras (example-robot-data, trimesh, mujoco)
+        return {"skipped": f"needs the robot and sim extras: {e}"}
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -9,7 +9,7 @@ covered by ``k`` spheres:
   end spheres cover the hemispherical caps, so the union of the spheres contains the capsule.
 
 The sphere centres are the control points; a reported distance is measured from the sphere surface
-(DESIGN.md §3). The end-effector point is a sphere of radius ``ee_radius`` centred at the model's
+(``docs/conventions.md``). The end-effector point is a sphere of radius ``ee_radius`` centred at the model's
 end-effector frame; it is always point 0.
 
 Presets for the shipped LWR (:func:`depthguard.robot.model.load_lwr4`):
@@ -19,7 +19,13 @@ Presets for the shipped LWR (:func:`depthguard.robot.model.load_lwr4`):
 * ``"ral-9"``: RA-L'16 §VIII, nine points including the end effector (upper arm three, forearm four,
   wrist one, plus the end effector).
 
-For any other robot pass a ``{link_name: count}`` mapping.
+For any robot:
+
+* ``"auto"``: every link that moves gets up to ``auto_spheres`` spheres (default 3, one per ``auto_length``
+  = 0.08 m of its longest extent at least) that cover all vertices of its real collision geometry (meshes
+  before decimation, primitives, attached tools and payloads; :mod:`depthguard.robot.spheres`, where the
+  count/accuracy trade-off is documented). Computed once, in :meth:`ControlPointSet.build`.
+* a ``{link_name: count}`` mapping: ``count`` spheres per capsule of :attr:`RobotModel.capsules`.
 """
 
 from __future__ import annotations
@@ -33,6 +39,7 @@ import numpy as np
 from numba import njit
 
 from depthguard.robot.model import RobotModel
+from depthguard.robot.spheres import cover_points
 
 __all__ = ["PRESETS", "ControlPointSet", "ControlPointState", "bounding_spheres", "control_points"]
 
@@ -122,15 +129,25 @@ class ControlPointSet:
 
     @classmethod
     def build(
-        cls, model: RobotModel, counts: str | Mapping[str, int] = "ral-9", ee_radius: float = 0.06
+        cls,
+        model: RobotModel,
+        counts: str | Mapping[str, int] = "ral-9",
+        ee_radius: float = 0.06,
+        *,
+        auto_spheres: int = 3,
+        auto_length: float = 0.08,
     ) -> ControlPointSet:
-        """Cover the links named in ``counts`` (a preset name or ``{link: spheres}``) plus the end effector.
+        """Cover the links named in ``counts`` (a preset name, ``"auto"`` or ``{link: spheres}``) plus the
+        end effector.
 
-        Links with several capsules get ``count`` spheres per capsule.
+        Links with several capsules get ``count`` spheres per capsule. With ``"auto"`` (module docstring)
+        ``auto_spheres`` (>= 1) caps the spheres per link and ``auto_length`` (m) sets one per that length.
         """
+        if isinstance(counts, str) and counts == "auto":
+            return cls._build_auto(model, ee_radius, auto_spheres, auto_length)
         if isinstance(counts, str):
             if counts not in PRESETS:
-                raise ValueError(f"unknown control-point preset '{counts}'; known: {sorted(PRESETS)}")
+                raise ValueError(f"unknown control-point preset '{counts}'; known: {sorted(PRESETS) + ['auto']}")
             counts = PRESETS[counts]
         links = {c.link for c in model.capsules}
         unknown = [name for name in counts if name not in links]
@@ -153,6 +170,34 @@ class ControlPointSet:
                     joints.append(int(frame.parentJoint))
                     offsets.append(M.rotation @ c + M.translation)
                     radii.append(float(r))
+        joints_a = np.array(joints, dtype=np.int64)
+        support = np.array([model.joint_support_mask(j) for j in joints_a])
+        return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)
+
+    @classmethod
+    def _build_auto(cls, model: RobotModel, ee_radius: float, k_max: int, length: float) -> ControlPointSet:
+        if isinstance(k_max, bool) or int(k_max) != k_max or k_max < 1:
+            raise ValueError(f"auto_spheres must be an integer >= 1, got {k_max!r}")
+        if not (np.isfinite(length) and length > 0):
+            raise ValueError(f"auto_length must be a finite number > 0, got {length!r}")
+        if not np.isfinite(ee_radius) or ee_radius < 0:
+            raise ValueError(f"ee_radius must be a finite number >= 0, got {ee_radius!r}")
+        ee = model.model.frames[model.ee_frame_id]
+        names, joints = ["ee"], [int(ee.parentJoint)]
+        offsets, radii = [np.array(ee.placement.translation)], [float(ee_radius)]
+        for link, (pts, prad) in model.geometry.link_points().items():
+            frame = model.model.frames[model.frame_id(link)]
+            if not model.joint_support_mask(int(frame.parentJoint)).any():
+                continue  # fixed to the base: it cannot move away from anything
+            extent = float(np.max(np.ptp(pts, axis=0)) + 2 * np.max(prad))
+            k = int(min(k_max, max(1, np.ceil(extent / length))))
+            centres, rr = cover_points(pts, k, radii=prad)
+            M = frame.placement
+            for i, (c, r) in enumerate(zip(centres, rr, strict=True)):
+                names.append(f"{link}/{i}")
+                joints.append(int(frame.parentJoint))
+                offsets.append(M.rotation @ c + M.translation)
+                radii.append(float(r))
         joints_a = np.array(joints, dtype=np.int64)
         support = np.array([model.joint_support_mask(j) for j in joints_a])
         return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)

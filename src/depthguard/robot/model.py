@@ -9,7 +9,8 @@ of the KUKA LightWeight robot", IFAC 2014) and the open ROS description kuka-isi
 position limits are +-170 deg (A1, A3, A5, A7) and +-120 deg (A2, A4, A6); velocity limits are the
 data sheet's, approximately. Details are in the header of ``data/lwr4/lwr4.urdf``.
 
-Conventions: SI units; the world frame is the robot base frame (DESIGN.md §3). Only models whose joints
+Conventions: SI units; the world frame is the robot base frame, whose root link is at the world
+origin (``docs/conventions.md``). Only models whose joints
 all have one coordinate (revolute, prismatic; ``nq == nv``) are supported.
 
 Collision geometry is read back from the URDF as *capsules* (segment ``a``-``b`` swept by a sphere of
@@ -21,6 +22,10 @@ Collision geometry is read back from the URDF as *capsules* (segment ``a``-``b``
 * ``<box>`` -> a capsule along its longest axis that bounds it;
 * links with only meshes (or none) -> a capsule from the link origin to each child joint origin with
   ``default_radius`` (a coarse fallback; give such robots primitive collision geometry for real use).
+
+The self-filter and the ``auto`` control points use the real collision geometry instead
+(:attr:`RobotModel.geometry`, :mod:`depthguard.robot.geometry`): meshes (``package://`` paths resolved),
+boxes, cylinders, spheres and capsules, plus shapes attached by the user (:meth:`RobotModel.attach`).
 
 A :class:`RobotModel` owns one ``pinocchio.Data`` buffer: it is not thread-safe; use one per thread.
 """
@@ -34,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from depthguard.robot.geometry import RobotGeometry
+from depthguard.robot.shapes import Shape, parse_collision_shapes, rpy_to_matrix
 from depthguard.validation import check_finite_array
 
 __all__ = ["LinkCapsule", "RobotModel", "load_lwr4", "lwr4_urdf_path"]
@@ -62,24 +69,12 @@ class LinkCapsule:
     radius: float
 
 
-def _rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
 def _origin(elem: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
     if elem is None:
         return np.eye(3), np.zeros(3)
     xyz = np.array([float(x) for x in elem.get("xyz", "0 0 0").split()])
     rpy = np.array([float(x) for x in elem.get("rpy", "0 0 0").split()])
-    return _rpy_to_matrix(rpy), xyz
+    return rpy_to_matrix(rpy), xyz
 
 
 def _parse_capsules(urdf_path: Path, default_radius: float) -> list[LinkCapsule]:
@@ -138,7 +133,15 @@ class RobotModel:
         capsules: tuple of :class:`LinkCapsule`, the collision geometry.
     """
 
-    def __init__(self, urdf_path: str | Path, ee_frame: str | None = None, default_radius: float = 0.05) -> None:
+    def __init__(
+        self,
+        urdf_path: str | Path,
+        ee_frame: str | None = None,
+        default_radius: float = 0.05,
+        *,
+        attachments: tuple[Shape, ...] | list[Shape] = (),
+        max_triangles: int | None = None,
+    ) -> None:
         import pinocchio as pin
 
         self._pin = pin
@@ -173,13 +176,50 @@ class RobotModel:
         self._cap_b = np.array(b_j).reshape(-1, 3)
         self.capsule_radii = np.array([c.radius for c in self.capsules], dtype=float)
         self.capsule_radii.setflags(write=False)
+        if max_triangles is not None and (isinstance(max_triangles, bool) or int(max_triangles) < 4):
+            raise ValueError(f"max_triangles must be an integer >= 4 or None, got {max_triangles!r}")
+        self.max_triangles = max_triangles
+        self._urdf_shapes = tuple(parse_collision_shapes(self.urdf_path))
+        self.attachments: tuple[Shape, ...] = ()
+        self.geometry = RobotGeometry(self, self._urdf_shapes, max_triangles)
+        if attachments:
+            self.attach(*attachments)
+
+    def attach(self, *shapes: Shape) -> None:
+        """Fix tools or payloads (:class:`depthguard.robot.shapes.Shape`: mesh, box, cylinder, sphere) to
+        links; the self-filter removes them and ``auto`` control points built afterwards cover them."""
+        for s in shapes:
+            if not isinstance(s, Shape):
+                raise ValueError(f"attach() takes Shape objects, got {type(s).__name__}")
+            self.frame_id(s.link)  # ValueError naming the frame if unknown
+        self.attachments = self.attachments + tuple(shapes)
+        self.geometry = RobotGeometry(self, self._urdf_shapes + self.attachments, self.max_triangles)
+
+    def detach_all(self) -> None:
+        """Remove every attached shape."""
+        self.attachments = ()
+        self.geometry = RobotGeometry(self, self._urdf_shapes, self.max_triangles)
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_urdf(cls, path: str | Path, ee_frame: str | None = None, default_radius: float = 0.05) -> RobotModel:
-        """Load any fixed-base URDF. ``ee_frame`` defaults to the last link; see the module docstring
-        for how collision geometry becomes capsules (``default_radius`` for mesh-only links, m)."""
-        return cls(path, ee_frame=ee_frame, default_radius=default_radius)
+    def from_urdf(
+        cls,
+        path: str | Path,
+        ee_frame: str | None = None,
+        default_radius: float = 0.05,
+        *,
+        attachments: tuple[Shape, ...] | list[Shape] = (),
+        max_triangles: int | None = None,
+    ) -> RobotModel:
+        """Load any fixed-base URDF (root link at the world origin). ``ee_frame`` defaults to the last link.
+
+        ``default_radius`` (m): capsule of mesh-only links in :attr:`capsules` (the coarse description);
+        ``attachments``: shapes fixed to links (:meth:`attach`); ``max_triangles``: decimate each collision
+        mesh above this triangle count at load time for the self-filter (needs ``fast-simplification``).
+        """
+        return cls(
+            path, ee_frame=ee_frame, default_radius=default_radius, attachments=attachments, max_triangles=max_triangles
+        )
 
     # ------------------------------------------------------------------ helpers
     def frame_id(self, name: str) -> int:

@@ -2,9 +2,10 @@
 
 :func:`build_cell` writes MJCF for a :class:`CellSpec` and compiles it through ``mujoco.MjSpec``.
 
-* The arm is built link by link from the robot's URDF (:mod:`depthguard.sim.robotdesc`): one body per
-  link, one hinge per revolute joint, and the URDF's collision capsules as MuJoCo capsules, so the
-  simulator and the controller share one geometry. Each joint has a position servo (kp, kv) fed at
+* The arm (``CellSpec.robot``: "lwr4", "panda", ...) is built link by link from the robot's URDF
+  (:mod:`depthguard.sim.robotdesc`): one body per link, a hinge per revolute joint, a slide per prismatic
+  one, and the collision geometry of the controller's model as MuJoCo geoms (capsules, boxes, cylinders,
+  the robot's own meshes). Each joint has a position servo (kp, kv) fed at
   1 kHz with the controller's joint command (position and velocity:
   ``kp (q_cmd - q) + kv (qd_cmd - qd)``); gravity is off (the LWR compensates it) and contacts are
   disabled: collisions are measured (:mod:`depthguard.sim.truth`), not simulated.
@@ -23,8 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.robot.shapes import rpy_to_matrix
 from depthguard.sim.people import PersonScript, person_segments, segment_pose
-from depthguard.sim.robotdesc import RobotDesc, load_robot_desc, rpy_to_matrix
+from depthguard.sim.robotdesc import RobotDesc, load_robot_desc
 
 __all__ = ["BoxSpec", "CellSpec", "Cell", "build_cell", "GROUP_ENV", "GROUP_ROBOT", "GROUP_PEOPLE", "GROUP_BOX"]
 
@@ -59,6 +61,7 @@ class CellSpec:
     kp: float = 4000.0
     kv: float = 60.0
     armature: float = 0.1
+    robot: str = "lwr4"  # a name of depthguard.robot.robots.load_robot
 
 
 def _f(v) -> str:
@@ -79,31 +82,44 @@ def _quat_from_matrix(Rm: np.ndarray) -> np.ndarray:
     return q
 
 
-def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str]]:
-    """Nested MJCF bodies of the arm. Returns (xml, actuated joint names)."""
+def _geom_xml(name: str, g, indent: str) -> tuple[str, str]:
+    """(geom line, mesh asset line or "") of one :class:`GeomDesc`."""
+    style = f'group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"'
+    a, b = np.asarray(g.a), np.asarray(g.b)
+    if g.kind == "capsule" and np.linalg.norm(b - a) < 1e-9:
+        return f'{indent}<geom name="{name}" type="sphere" size="{g.radius:.6g}" pos="{_f(a)}" {style}/>', ""
+    if g.kind == "capsule":
+        ft = f"{_f(a)} {_f(b)}"
+        return f'{indent}<geom name="{name}" type="capsule" size="{g.radius:.6g}" fromto="{ft}" {style}/>', ""
+    pose = f'pos="{_f(g.pos)}" quat="{_f(_quat_from_matrix(np.asarray(g.rot)))}"' if g.rot is not None else ""
+    if g.kind in ("box", "cylinder"):
+        return f'{indent}<geom name="{name}" type="{g.kind}" size="{_f(g.size)}" {pose} {style}/>', ""
+    if g.mesh is not None:
+        asset = f'    <mesh name="{name}_mesh" file="{g.mesh}" scale="{_f(g.scale)}" inertia="shell"/>'
+    else:
+        verts, faces = " ".join(_f(v) for v in g.vertices), " ".join(" ".join(str(int(i)) for i in f) for f in g.faces)
+        asset = f'    <mesh name="{name}_mesh" vertex="{verts}" face="{faces}" inertia="shell"/>'
+    return f'{indent}<geom name="{name}" type="mesh" mesh="{name}_mesh" {pose} {style}/>', asset
+
+
+def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str], list[str]]:
+    """Nested MJCF bodies of the arm. Returns (xml, actuated joint names, mesh asset lines)."""
     children: dict[str, list] = {}
     for j in desc.joints:
         children.setdefault(j.parent, []).append(j)
-    caps: dict[str, list] = {}
-    for c in desc.capsules:
-        caps.setdefault(c.link, []).append(c)
+    geoms_of: dict[str, list] = {}
+    for g in desc.geoms:
+        geoms_of.setdefault(g.link, []).append(g)
     actuated: list[str] = []
+    assets: list[str] = []
 
     def geoms(link: str, indent: str) -> str:
         out = []
-        for i, c in enumerate(caps.get(link, [])):
-            a, b = np.asarray(c.a), np.asarray(c.b)
-            kind = "capsule" if c.kind == "capsule" else "cylinder"
-            if np.linalg.norm(b - a) < 1e-9:
-                out.append(
-                    f'{indent}<geom name="{link}_g{i}" type="sphere" size="{c.radius:.6g}" pos="{_f(a)}" '
-                    f'group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"/>'
-                )
-            else:
-                out.append(
-                    f'{indent}<geom name="{link}_g{i}" type="{kind}" size="{c.radius:.6g}" '
-                    f'fromto="{_f(a)} {_f(b)}" group="{GROUP_ROBOT}" rgba="0.95 0.55 0.1 1"/>'
-                )
+        for i, g in enumerate(geoms_of.get(link, [])):
+            line, asset = _geom_xml(f"{link}_g{i}", g, indent)
+            out.append(line)
+            if asset:
+                assets.append(asset)
         return "\n".join(out)
 
     def body(link: str, depth: int) -> str:
@@ -112,10 +128,11 @@ def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str]]:
         for j in children.get(link, []):
             quat = _quat_from_matrix(rpy_to_matrix(j.rpy))
             inner = []
-            if j.type in ("revolute", "continuous"):
-                rng = f'range="{j.lower:.6g} {j.upper:.6g}" limited="true"' if j.type == "revolute" else ""
+            if j.type in ("revolute", "continuous", "prismatic"):
+                rng = f'range="{j.lower:.6g} {j.upper:.6g}" limited="true"' if j.type != "continuous" else ""
+                kind = "slide" if j.type == "prismatic" else "hinge"
                 inner.append(
-                    f'{ind}  <joint name="{j.name}" type="hinge" axis="{_f(j.axis)}" {rng} '
+                    f'{ind}  <joint name="{j.name}" type="{kind}" axis="{_f(j.axis)}" {rng} '
                     f'armature="{armature}" damping="0.1"/>'
                 )
                 actuated.append(j.name)
@@ -136,7 +153,9 @@ def _robot_xml(desc: RobotDesc, armature: float) -> tuple[str, list[str]]:
         return "\n".join(parts)
 
     xml = f'    <body name="{desc.root}" pos="0 0 0">\n{geoms(desc.root, "      ")}\n{body(desc.root, 1)}\n    </body>'
-    return xml, actuated
+    if desc.joint_order:  # the controller's q order
+        actuated = [n for n in desc.joint_order if n in actuated]
+    return xml, actuated, assets
 
 
 def mujoco_camera_xml(name: str, cam: Camera) -> str:
@@ -150,10 +169,11 @@ def cell_xml(spec: CellSpec, desc: RobotDesc) -> tuple[str, list[str]]:
     """MJCF text of the cell and the actuated joint names."""
     fz = spec.floor_z
     xmin, xmax, ymin, ymax = spec.room
-    robot, actuated = _robot_xml(desc, spec.armature)
+    robot, actuated, assets = _robot_xml(desc, spec.armature)
     lines = [
         '<mujoco model="depthguard_cell">',
         '  <compiler angle="radian"/>',
+        *(["  <asset>", *assets, "  </asset>"] if assets else []),
         f'  <option timestep="{spec.timestep}" gravity="0 0 0" integrator="implicitfast">',
         '    <flag contact="disable"/>',
         "  </option>",
@@ -242,7 +262,7 @@ class Cell:
     Attributes:
         model, data: MuJoCo model and data.
         desc: the robot description the arm was built from.
-        qadr, dofadr: (7,) qpos / qvel addresses of the arm joints.
+        qadr, dofadr: (n,) qpos / qvel addresses of the arm joints, in the controller's q order.
         robot_geoms: geom ids of the arm (group 1), with ``robot_geom_body`` their link names.
         obstacle_geoms: geom ids of everything that is not the robot and that the robot could hit.
         cameras: the depth cameras (depthguard :class:`Camera`), same order as MuJoCo cameras depthcam<i>.
@@ -252,7 +272,7 @@ class Cell:
         import mujoco
 
         self.spec = spec
-        self.desc = desc or load_robot_desc()
+        self.desc = desc or load_robot_desc(spec.robot)
         xml, actuated = cell_xml(spec, self.desc)
         self.xml = xml
         self.mj_spec = mujoco.MjSpec.from_string(xml)
@@ -293,7 +313,7 @@ class Cell:
         return len(self.qadr)
 
     def set_q(self, q: np.ndarray) -> None:
-        """Put the arm at ``q`` (7,) rad at rest, with the servos holding it there."""
+        """Put the arm at ``q`` (n,) rad at rest, with the servos holding it there."""
         import mujoco
 
         self.data.qpos[self.qadr] = q
@@ -312,8 +332,8 @@ class Cell:
         return self.data.site_xpos[self.ee_site].copy()
 
     def step(self, q_cmd: np.ndarray, qd_cmd: np.ndarray | None = None, n: int = 1) -> None:
-        """Advance the physics ``n`` steps (1 ms each) with the joint command: position ``q_cmd`` (7,) rad and
-        velocity ``qd_cmd`` (7,) rad/s (servo ``kp (q_cmd - q) + kv (qd_cmd - qd)``)."""
+        """Advance the physics ``n`` steps (1 ms each) with the joint command: position ``q_cmd`` (n,) rad (m) and
+        velocity ``qd_cmd`` (n,) (servo ``kp (q_cmd - q) + kv (qd_cmd - qd)``)."""
         import mujoco
 
         self.data.ctrl[: self.nq] = np.clip(q_cmd, self.q_lower, self.q_upper)

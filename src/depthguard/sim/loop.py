@@ -197,7 +197,7 @@ def run_loop(
             w0 = time.perf_counter()
             depths = [c.capture(cell.data) for c in cams]
             w1 = time.perf_counter()
-            masks = [self_filter(c.camera, dimg, q_meas, kin)[0] for c, dimg in zip(cams, depths, strict=True)]
+            masks = [self_filter(c.camera, dimg, q_meas, kin) for c, dimg in zip(cams, depths, strict=True)]
             stage.update(depths, masks)
             w2 = time.perf_counter()
             log.wall_camera.append(w1 - w0)

@@ -9,43 +9,36 @@ controller's own robot model. Nothing here reads the simulator's state.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
 from depthguard.camera import Camera
 from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput
 from depthguard.depthgrid import DepthGridFusion
 from depthguard.depthspace import PointDistances, prepare_frame, query_distances
-from depthguard.robot.control_points import ControlPointSet
-from depthguard.robot.model import load_lwr4
+from depthguard.robot.control_points import ControlPointSet, ControlPointState
+from depthguard.robot.robots import load_robot
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
 
 __all__ = ["Kinematics", "self_filter", "DistanceStage", "Controller", "PointDistances"]
 
 
-class CPState(NamedTuple):
-    """Control points: centres (N, 3) m, radii (N,) m, jacobians (N, 3, n), names; point 0 = end effector."""
-
-    centres: np.ndarray
-    radii: np.ndarray
-    jacobians: np.ndarray
-    names: tuple[str, ...]
-
-
 class Kinematics:
-    """The controller's robot model: control points (preset), end effector, capsules, limits.
+    """The controller's robot model: control points, end effector, limits.
 
     Args:
-        preset: control-point preset, "ee" (end effector only), "icra-exp3" or "ral-9".
+        preset: control-point preset: "ee" (end effector only), "icra-exp3", "ral-9" (the shipped LWR) or
+            "auto" (spheres covering every moving link's real geometry, any robot).
         ee_radius: radius of the end-effector sphere, m.
+        robot: robot name (:func:`depthguard.robot.robots.load_robot`): "lwr4", "panda", "ur5", ...
+        auto_spheres: most spheres per link of the "auto" preset.
     """
 
-    def __init__(self, preset: str = "ral-9", ee_radius: float = 0.06) -> None:
-        self.preset = preset
-        self.model = load_lwr4()
+    def __init__(
+        self, preset: str = "ral-9", ee_radius: float = 0.06, robot: str = "lwr4", auto_spheres: int = 3
+    ) -> None:
+        self.model = load_robot(robot)
         counts = {} if preset == "ee" else preset
-        self.points = ControlPointSet.build(self.model, counts, ee_radius)
+        self.points = ControlPointSet.build(self.model, counts, ee_radius, auto_spheres=auto_spheres)
         self.names = self.points.names
         self.q_min, self.q_max = np.asarray(self.model.q_min), np.asarray(self.model.q_max)
         self.v_max = np.asarray(self.model.v_max)
@@ -54,25 +47,14 @@ class Kinematics:
     def n(self) -> int:
         return len(self.q_min)
 
-    def evaluate(self, q: np.ndarray) -> CPState:
-        """Control points at ``q`` (n,) rad, end effector first."""
-        s = self.points.evaluate(q)
-        return CPState(s.centres, s.radii, s.jacobians, tuple(s.names))
-
-    def capsules(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World capsules (a (L, 3), b (L, 3), radius (L,)) of the robot at ``q``."""
-        return self.model.link_capsules(q)
+    def evaluate(self, q: np.ndarray) -> ControlPointState:
+        """Control points at ``q`` (n,), end effector first."""
+        return self.points.evaluate(q)
 
 
-def self_filter(
-    camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics, pad: float = 0.02
-) -> tuple[np.ndarray, np.ndarray]:
-    """Robot pixels of a depth image from the controller's model: ``(mask (H, W) bool, robot_depth (H, W))``.
-
-    ``pad`` is kept for the callers' signature; the robot package's self-filter uses its own margin.
-    """
-    res = _robot_self_filter(camera, depth, q, kin.model)
-    return res[0], res[1]
+def self_filter(camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics) -> np.ndarray:
+    """Robot pixels (H, W) bool of a depth image, from the controller's model at the measured ``q``."""
+    return _robot_self_filter(camera, depth, q, kin.model).mask
 
 
 class Controller:
@@ -117,7 +99,7 @@ class Controller:
         q: np.ndarray,
         qd: np.ndarray,
         xdot: np.ndarray,
-        cp: CPState,
+        cp: ControlPointState,
         distances: np.ndarray | None,
         directions: np.ndarray | None,
         t_distances: float,
@@ -161,6 +143,7 @@ class DistanceStage:
         self.rho, self.mode, self.alpha = float(rho), mode, float(alpha)
         self.frames = None
         self.fusion = None
+        self._updated = False
         if len(self.cameras) > 1:
             self.fusion = DepthGridFusion(self.cameras, dd=dd, workspace=workspace)
 
@@ -170,10 +153,12 @@ class DistanceStage:
             self.fusion.update(depths, masks)
         else:
             self.frames = [prepare_frame(self.cameras[0], depths[0], masks[0])]
+        self._updated = True
 
     @property
     def ready(self) -> bool:
-        return self.frames is not None or (self.fusion is not None and getattr(self.fusion, "ready", True))
+        """True once a frame set has been taken (:meth:`update`)."""
+        return self._updated
 
     def query(self, centres: np.ndarray, radii: np.ndarray) -> PointDistances:
         """Distance stage: distances of the control spheres to the obstacles."""

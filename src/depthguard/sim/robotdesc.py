@@ -1,31 +1,50 @@
-"""The robot description the simulator builds its arm from: joints and capsules read from the URDF.
+"""The robot description the simulator builds its arm from: joints from the URDF, collision geometry from the
+controller's own model.
 
-The simulated arm and the controller's model must agree, so both come from the same URDF
-(``depthguard/robot/data/lwr4/lwr4.urdf``, written for the controller). URDF has no capsule: each link
-capsule is written there as a cylinder plus a sphere at each end, which we read back as one capsule.
+The simulated arm and the controller's model must agree, so both come from the same URDF. The collision
+geometry is not parsed here: it is :attr:`depthguard.robot.model.RobotModel.geometry` (one implementation),
+turned into MuJoCo geoms: analytic capsules and spheres (URDF cylinders with a sphere at each end, as in the
+shipped arm), boxes, cylinders, and meshes, which MuJoCo reads from their STL/OBJ files itself (other formats
+go inline as the vertices that ``trimesh`` read). The simulated robot thus renders from its real meshes,
+while the self-filter draws its own inflated copy of them.
 """
 
 from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["JointDesc", "CapsuleDesc", "RobotDesc", "load_robot_desc", "rpy_to_matrix"]
+from depthguard.robot.shapes import rpy_to_matrix
+
+__all__ = ["JointDesc", "GeomDesc", "RobotDesc", "load_robot_desc", "rpy_to_matrix"]
 
 
 @dataclass(frozen=True)
-class CapsuleDesc:
-    """A capsule in its link's frame: segment ``a``-``b`` (3,) m and ``radius`` m (``a == b``: sphere)."""
+class GeomDesc:
+    """A collision geom in its link's frame (metres).
+
+    ``kind`` "capsule" (segment ``a``-``b``, ``radius``; ``a == b``: a sphere), "box" (``size`` = half sizes),
+    "cylinder" (``size`` = (radius, half length)), "mesh" (``mesh`` file and ``scale``, or inline ``vertices``
+    (V, 3) / ``faces`` (F, 3) already in the link frame); ``pos``, ``rot`` (3, 3): pose of box, cylinder
+    and file mesh in the link frame.
+    """
 
     link: str
-    a: tuple[float, float, float]
-    b: tuple[float, float, float]
-    radius: float
-    kind: str = "capsule"  # "capsule" or "cylinder"
+    kind: str
+    a: tuple = (0.0, 0.0, 0.0)
+    b: tuple = (0.0, 0.0, 0.0)
+    radius: float = 0.0
+    size: tuple = ()
+    pos: tuple = (0.0, 0.0, 0.0)
+    rot: np.ndarray | None = None
+    mesh: str | None = None
+    scale: tuple = (1.0, 1.0, 1.0)
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -46,31 +65,30 @@ class JointDesc:
 
 @dataclass(frozen=True)
 class RobotDesc:
-    """A serial robot: ``joints`` from the base outwards, link ``capsules``, the root link, the tool link."""
+    """A fixed-base robot: ``joints`` from the base outwards, collision ``geoms``, the root link, the tool
+    link; ``joint_order``: the actuated joints in the order of the controller's ``q`` (pinocchio's)."""
 
     name: str
     root: str
     joints: tuple[JointDesc, ...]
-    capsules: tuple[CapsuleDesc, ...]
+    geoms: tuple[GeomDesc, ...]
     ee_link: str
     source: str
+    joint_order: tuple[str, ...] = ()
 
     @property
     def actuated(self) -> tuple[JointDesc, ...]:
-        return tuple(j for j in self.joints if j.type in ("revolute", "continuous"))
+        """The moving joints (revolute, continuous, prismatic), in ``joint_order`` when given."""
+        moving = [j for j in self.joints if j.type in ("revolute", "continuous", "prismatic")]
+        if self.joint_order:
+            by_name = {j.name: j for j in moving}
+            return tuple(by_name[n] for n in self.joint_order if n in by_name)
+        return tuple(moving)
 
-
-def rpy_to_matrix(rpy: tuple[float, float, float]) -> np.ndarray:
-    """URDF fixed-axis roll-pitch-yaw to a (3, 3) rotation: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
+    @property
+    def capsules(self) -> tuple[GeomDesc, ...]:
+        """The analytic capsules and spheres among the geoms."""
+        return tuple(g for g in self.geoms if g.kind == "capsule")
 
 
 def _vec(text: str | None, default: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[float, float, float]:
@@ -82,8 +100,15 @@ def _vec(text: str | None, default: tuple[float, float, float] = (0.0, 0.0, 0.0)
     return (vals[0], vals[1], vals[2])
 
 
-def parse_urdf(text: str, source: str = "<string>", ee_link: str | None = None) -> RobotDesc:
-    """Parse a URDF string into a :class:`RobotDesc` (cylinder + end spheres -> capsule)."""
+def _link_name(name: str) -> str:
+    """URDF link name as a MuJoCo body name: ``world`` is MuJoCo's own world body (UR5's root link)."""
+    return "robot_world" if name == "world" else name
+
+
+def parse_urdf(
+    text: str, source: str = "<string>", ee_link: str | None = None, geoms: tuple[GeomDesc, ...] = ()
+) -> RobotDesc:
+    """Parse a URDF string's joints into a :class:`RobotDesc` with the given collision ``geoms``."""
     root = ET.fromstring(text)
     joints: list[JointDesc] = []
     for j in root.findall("joint"):
@@ -93,8 +118,8 @@ def parse_urdf(text: str, source: str = "<string>", ee_link: str | None = None) 
         joints.append(
             JointDesc(
                 name=j.get("name", ""),
-                parent=j.find("parent").get("link"),
-                child=j.find("child").get("link"),
+                parent=_link_name(j.find("parent").get("link")),
+                child=_link_name(j.find("child").get("link")),
                 xyz=_vec(origin.get("xyz") if origin is not None else None),
                 rpy=_vec(origin.get("rpy") if origin is not None else None),
                 axis=_vec(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
@@ -105,7 +130,7 @@ def parse_urdf(text: str, source: str = "<string>", ee_link: str | None = None) 
             )
         )
     children = {j.child for j in joints}
-    links = [lk.get("name") for lk in root.findall("link")]
+    links = [_link_name(lk.get("name")) for lk in root.findall("link")]
     roots = [lk for lk in links if lk not in children]
     if len(roots) != 1:
         raise ValueError(f"URDF {source}: expected one root link, got {roots}")
@@ -118,56 +143,45 @@ def parse_urdf(text: str, source: str = "<string>", ee_link: str | None = None) 
             if j.parent == parent:
                 ordered.append(j)
                 frontier.append(j.child)
-    capsules: list[CapsuleDesc] = []
-    for lk in root.findall("link"):
-        name = lk.get("name")
-        cyl = []
-        for c in lk.findall("collision"):
-            geom = c.find("geometry")
-            origin = c.find("origin")
-            xyz = np.array(_vec(origin.get("xyz") if origin is not None else None))
-            rot = rpy_to_matrix(_vec(origin.get("rpy") if origin is not None else None))
-            cy = geom.find("cylinder")
-            if cy is not None:
-                half = 0.5 * float(cy.get("length"))
-                a = xyz - rot[:, 2] * half
-                b = xyz + rot[:, 2] * half
-                cyl.append((a, b, float(cy.get("radius"))))
-        spheres = [
-            (
-                np.array(_vec(c.find("origin").get("xyz") if c.find("origin") is not None else None)),
-                float(c.find("geometry/sphere").get("radius")),
-            )
-            for c in lk.findall("collision")
-            if c.find("geometry/sphere") is not None
-        ]
-        for a, b, r in cyl:
-            # a cylinder with a sphere of its radius at each end is a capsule
-            ends = [s for s in spheres if abs(s[1] - r) < 1e-9]
-            at_a = any(np.linalg.norm(s[0] - a) < 0.02 for s in ends)
-            at_b = any(np.linalg.norm(s[0] - b) < 0.02 for s in ends)
-            if at_a and at_b:
-                # use the sphere centres (they may extend slightly beyond the cylinder)
-                ca = min(ends, key=lambda s: np.linalg.norm(s[0] - a))[0]
-                cb = min(ends, key=lambda s: np.linalg.norm(s[0] - b))[0]
-                capsules.append(CapsuleDesc(name, tuple(ca), tuple(cb), r, "capsule"))
-            else:
-                capsules.append(CapsuleDesc(name, tuple(a), tuple(b), r, "cylinder"))
     if ee_link is None:
         ee_link = ordered[-1].child if ordered else roots[0]
     return RobotDesc(
         name=root.get("name", "robot"),
         root=roots[0],
         joints=tuple(ordered),
-        capsules=tuple(capsules),
+        geoms=tuple(replace(g, link=_link_name(g.link)) for g in geoms),
         ee_link=ee_link,
         source=source,
     )
 
 
-def load_robot_desc() -> RobotDesc:
-    """The LWR IV description, read from the same URDF as the controller's model."""
-    from depthguard.robot.model import lwr4_urdf_path
+def geoms_from_model(model) -> tuple[GeomDesc, ...]:
+    """MuJoCo-ready geoms from a :class:`depthguard.robot.model.RobotModel`'s collision geometry."""
+    out: list[GeomDesc] = []
+    for g in model.geometry.geoms:
+        sh = g.shape
+        if not g.is_mesh:
+            out.append(GeomDesc(sh.link, "capsule", a=tuple(g.a), b=tuple(g.b), radius=float(g.radius)))
+        elif sh.kind == "box":
+            half = tuple(0.5 * float(x) for x in sh.size)
+            out.append(GeomDesc(sh.link, "box", size=half, pos=sh.xyz, rot=sh.rotation))
+        elif sh.kind == "cylinder":
+            size = (float(sh.size[0]), 0.5 * float(sh.size[1]))
+            out.append(GeomDesc(sh.link, "cylinder", size=size, pos=sh.xyz, rot=sh.rotation))
+        elif str(sh.mesh).lower().endswith((".stl", ".obj")) and g.slack == 0.0:
+            out.append(GeomDesc(sh.link, "mesh", pos=sh.xyz, rot=sh.rotation, mesh=sh.mesh, scale=sh.scale))
+        else:  # other formats (or decimated): the vertices as loaded, already in the link frame
+            out.append(GeomDesc(sh.link, "mesh", vertices=g.vertices, faces=g.faces))
+    return tuple(out)
 
-    path = lwr4_urdf_path()
-    return parse_urdf(Path(path).read_text(), source=str(path), ee_link="lwr_ee")
+
+def load_robot_desc(robot: str = "lwr4") -> RobotDesc:
+    """The description of a named robot (:func:`depthguard.robot.robots.load_robot`: ``"lwr4"``, ``"panda"``,
+    ...), read from the same URDF and geometry as the controller's model."""
+    from depthguard.robot.robots import load_robot
+
+    model = load_robot(robot)
+    path = model.urdf_path
+    ee_link = model.model.frames[model.ee_frame_id].name
+    desc = parse_urdf(Path(path).read_text(), source=str(path), ee_link=ee_link, geoms=geoms_from_model(model))
+    return RobotDesc(desc.name, desc.root, desc.joints, desc.geoms, desc.ee_link, desc.source, tuple(model.joint_names))

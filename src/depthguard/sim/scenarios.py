@@ -98,7 +98,10 @@ def _build(sc: dict, *, quick: bool, cameras: int | None, demo: bool = False):
         raise ValueError(f"scenario {sc['name']}: cameras must be 1..{len(cams)} for placement {sc['cameras']!r}")
     cams = cams[:n_cams]
     q0 = np.array(sc.get("q0", [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0]), float)
-    kin = Kinematics(sc.get("control_points", "ral-9"), ee_radius=float(sc.get("ee_radius", 0.12)))
+    robot = str(sc.get("robot", "lwr4"))  # the arm, simulated from its own meshes (depthguard.robot.robots)
+    kin = Kinematics(
+        sc.get("control_points", "ral-9"), float(sc.get("ee_radius", 0.12)), robot, int(sc.get("auto_spheres", 3))
+    )
     if "ee_start" in sc:
         q0 = _ik(kin, q0, np.asarray(sc["ee_start"], float))
     ee0 = kin.evaluate(q0).centres[0]
@@ -131,7 +134,7 @@ def _build(sc: dict, *, quick: bool, cameras: int | None, demo: bool = False):
         for b in sc.get("boxes", [])
     ]
     room = tuple(sc.get("room", (-1.1, 2.0, -1.1, 2.0) if sc["cameras"] == "ral" else (-1.5, 2.3, -1.6, 2.3)))
-    spec = CellSpec(cameras=cams, boxes=boxes, people=people, q0=tuple(q0), floor_z=floor_z, room=room)
+    spec = CellSpec(cameras=cams, boxes=boxes, people=people, q0=tuple(q0), floor_z=floor_z, room=room, robot=robot)
     cell = build_cell(spec)
     return cell, kin, ee0
 

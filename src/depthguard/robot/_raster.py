@@ -1,0 +1,206 @@
+"""Numba triangle rasteriser of inflated meshes into a depth image (no OpenGL), for the self-filter.
+
+For each shape (one rigid mesh) every triangle is projected with the pinhole model and filled at the
+pixel centres it covers (``p = (u + 0.5, v + 0.5)``, edges inclusive); the depth ``z_C`` at a pixel centre
+is exact for a planar triangle because ``1 / z`` is affine in the image. Per shape the kernel keeps the
+nearest and the farthest depth of the shape along each pixel ray (``near``, ``far``): a measured depth in
+``[near, far]`` lies inside the shape (exactly so for a convex shape; in a concavity the gap counts as
+inside). Triangles that cross the near plane ``z = znear`` are clipped against it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
+    """Fill one projected triangle (image coordinates ``x, y``, inverse depths ``w = 1 / z > 0``) into the
+    per-shape buffers of inverse depth: ``snear`` keeps the largest, ``sfar`` the smallest; ``rows`` (H, 2)
+    holds each row's touched span [lo, hi]. Scanline: the vertices sorted by y, each row's span lies between
+    the long edge and one of the two short ones."""
+    H, W = snear.shape
+    area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+    if abs(area) < 1e-12:
+        return  # edge-on: its neighbours cover the pixels
+    v_lo = max(int(np.ceil(min(y0, y1, y2) - 0.5 - 1e-7)), 0)
+    v_hi = min(int(np.floor(max(y0, y1, y2) - 0.5 + 1e-7)), H - 1)
+    u_lo = max(int(np.ceil(min(x0, x1, x2) - 0.5 - 1e-7)), 0)
+    u_hi = min(int(np.floor(max(x0, x1, x2) - 0.5 + 1e-7)), W - 1)
+    if v_lo > v_hi or u_lo > u_hi:
+        return
+    inv = 1.0 / area
+    # 1/z is affine in the image: iz = A px + B py + C (from the barycentric coordinates)
+    d0, d1 = w0 - w2, w1 - w2
+    A = ((y1 - y2) * d0 + (y2 - y0) * d1) * inv
+    B = ((x2 - x1) * d0 + (x0 - x2) * d1) * inv
+    C = w2 + ((x1 * y2 - x2 * y1) * d0 + (x2 * y0 - x0 * y2) * d1) * inv
+    w_lo, w_hi = min(w0, w1, w2), max(w0, w1, w2)
+    # sort the vertices by y: (ax, ay) <= (bx, by) <= (cx, cy)
+    ax, ay, bx, by, cx_, cy_ = x0, y0, x1, y1, x2, y2
+    if ay > by:
+        ax, ay, bx, by = bx, by, ax, ay
+    if by > cy_:
+        bx, by, cx_, cy_ = cx_, cy_, bx, by
+    if ay > by:
+        ax, ay, bx, by = bx, by, ax, ay
+    s_ac = (cx_ - ax) / (cy_ - ay) if cy_ > ay else 0.0
+    s_ab = (bx - ax) / (by - ay) if by > ay else 0.0
+    s_bc = (cx_ - bx) / (cy_ - by) if cy_ > by else 0.0
+    for v in range(v_lo, v_hi + 1):
+        py = v + 0.5
+        xl = ax + (py - ay) * s_ac
+        if py < by:
+            xr = ax + (py - ay) * s_ab
+        elif cy_ > by:
+            xr = bx + (py - by) * s_bc
+        else:  # py == by == cy: the flat edge b-c
+            xr = bx
+        lo, hi = min(xl, xr), max(xl, xr)
+        ua = max(int(np.ceil(lo - 0.5 - 1e-7)), u_lo)
+        ub = min(int(np.floor(hi - 0.5 + 1e-7)), u_hi)
+        if ua > ub:
+            continue
+        if ua < rows[v, 0]:
+            rows[v, 0] = ua
+        if ub > rows[v, 1]:
+            rows[v, 1] = ub
+        row_n, row_f = snear[v], sfar[v]
+        base = B * py + C
+        for u in range(ua, ub + 1):
+            iz = min(max(A * (u + 0.5) + base, w_lo), w_hi)  # clamp: rounding at the edges
+            if iz > row_n[u]:
+                row_n[u] = iz
+            if iz < row_f[u]:
+                row_f[u] = iz
+
+
+@njit(cache=True)
+def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows) -> None:
+    """Clip a triangle against ``z >= znear`` (Sutherland-Hodgman) and fill what is left."""
+    pts = (p0, p1, p2)
+    out = np.empty((4, 3))
+    n = 0
+    for i in range(3):
+        a, b = pts[i], pts[(i + 1) % 3]
+        ina, inb = a[2] >= znear, b[2] >= znear
+        if ina:
+            out[n] = a
+            n += 1
+        if ina != inb:
+            t = (znear - a[2]) / (b[2] - a[2])
+            out[n] = a + t * (b - a)
+            out[n, 2] = znear
+            n += 1
+    for i in range(n):  # project
+        z = out[i, 2]
+        out[i, 0], out[i, 1], out[i, 2] = fx * out[i, 0] / z + cx, fy * out[i, 1] / z + cy, 1.0 / z
+    for k in range(1, n - 1):
+        a, b, c = out[0], out[k], out[k + 1]
+        _raster_tri(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], snear, sfar, rows)
+
+
+@njit(cache=True)
+def mesh_kernel(
+    V: np.ndarray,
+    O: np.ndarray,
+    F: np.ndarray,
+    vr: np.ndarray,
+    fr: np.ndarray,
+    T: np.ndarray,
+    infl: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    znear: float,
+    depth: np.ndarray,
+    mask: np.ndarray,
+    near: np.ndarray,
+    snear: np.ndarray,
+    sfar: np.ndarray,
+    ubox: np.ndarray,
+) -> None:
+    """Rasterise every inflated mesh shape; mark measured pixels inside a shape in ``mask``.
+
+    Args:
+        V, O: (Vt, 3) vertices in their shape's parent-joint frame and inflation offsets (m per m of margin).
+        F: (Ft, 3) vertex indices into V. vr, fr: (S, 2) vertex / face index ranges of each shape.
+        T: (S, 3, 4) camera-from-joint transform of each shape. infl: (S,) inflation of each shape, m.
+        depth: (H, W) measured z_C, m (no reading: not > 0 or not finite).
+        mask: (H, W) bool, set True where a measured point lies in ``[near, far]`` of a shape.
+        near: (H, W) running minimum of the inflated robot's depth (inf = none).
+        snear, sfar: (H, W) work buffers of inverse depth (largest / smallest 1/z), 0 / inf on entry and exit.
+        ubox: (4,) int union box (u_lo, u_hi, v_lo, v_hi) of the pixels touched, updated.
+    """
+    nv_max = 0
+    for s in range(vr.shape[0]):
+        nv_max = max(nv_max, vr[s, 1] - vr[s, 0])
+    P = np.empty((nv_max, 3))  # camera frame
+    S = np.empty((nv_max, 3))  # projected: x, y, 1 / z
+    H = depth.shape[0]
+    rows = np.empty((H, 2), dtype=np.int64)
+    rows[:, 0], rows[:, 1] = 1 << 30, -1
+    for s in range(vr.shape[0]):
+        v_start = vr[s, 0]
+        m = infl[s]
+        zmin = np.inf
+        for i in range(v_start, vr[s, 1]):
+            x0 = V[i, 0] + m * O[i, 0]
+            x1 = V[i, 1] + m * O[i, 1]
+            x2 = V[i, 2] + m * O[i, 2]
+            for r in range(3):
+                P[i - v_start, r] = T[s, r, 0] * x0 + T[s, r, 1] * x1 + T[s, r, 2] * x2 + T[s, r, 3]
+            z = P[i - v_start, 2]
+            zmin = min(zmin, z)
+            if z > znear:
+                iz = 1.0 / z
+                S[i - v_start, 0] = fx * P[i - v_start, 0] * iz + cx
+                S[i - v_start, 1] = fy * P[i - v_start, 1] * iz + cy
+                S[i - v_start, 2] = iz
+        for f in range(fr[s, 0], fr[s, 1]):
+            i0, i1, i2 = F[f, 0] - v_start, F[f, 1] - v_start, F[f, 2] - v_start
+            if zmin > znear or (P[i0, 2] > znear and P[i1, 2] > znear and P[i2, 2] > znear):
+                _raster_tri(
+                    S[i0, 0], S[i0, 1], S[i0, 2], S[i1, 0], S[i1, 1], S[i1, 2], S[i2, 0], S[i2, 1], S[i2, 2],
+                    snear, sfar, rows,
+                )  # fmt: skip
+            elif P[i0, 2] > znear or P[i1, 2] > znear or P[i2, 2] > znear:
+                _raster_clipped(P[i0], P[i1], P[i2], znear, fx, fy, cx, cy, snear, sfar, rows)
+        for v in range(H):
+            if rows[v, 1] < 0:
+                continue
+            ubox[0], ubox[1] = min(ubox[0], rows[v, 0]), max(ubox[1], rows[v, 1])
+            ubox[2], ubox[3] = min(ubox[2], v), max(ubox[3], v)
+            for u in range(rows[v, 0], rows[v, 1] + 1):
+                izn = snear[v, u]
+                if izn == 0.0:
+                    continue
+                zn, zf = 1.0 / izn, 1.0 / sfar[v, u]
+                d = depth[v, u]
+                if d > 0.0 and d < np.inf and zn <= d <= zf:
+                    mask[v, u] = True
+                if zn < near[v, u]:
+                    near[v, u] = zn
+                snear[v, u] = 0.0
+                sfar[v, u] = np.inf
+            rows[v, 0], rows[v, 1] = 1 << 30, -1
+
+
+@njit(cache=True)
+def finish_kernel(depth: np.ndarray, mask: np.ndarray, near: np.ndarray, robot_depth: np.ndarray, ubox) -> None:
+    """Inside the inflated silhouette (``near`` < inf): robot depth = ``near``; a pixel without reading is
+    robot. Outside it nothing is touched (a hole beside the robot follows the missing-depth policy).
+    Resets ``near`` to inf over ``ubox``."""
+    if ubox[1] < 0:
+        return
+    for v in range(ubox[2], ubox[3] + 1):
+        for u in range(ubox[0], ubox[1] + 1):
+            zn = near[v, u]
+            if zn < np.inf:
+                robot_depth[v, u] = zn
+                d = depth[v, u]
+                if not (d > 0.0 and d < np.inf):
+                    mask[v, u] = True
+                near[v, u] = np.inf

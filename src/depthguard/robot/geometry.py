@@ -1,0 +1,133 @@
+"""The robot's collision geometry packed for the self-filter and the control points (built once per model).
+
+:class:`RobotGeometry` holds every collision shape of a :class:`depthguard.robot.model.RobotModel` (the
+URDF's and the user's attachments, :class:`depthguard.robot.shapes.Shape`), split in two:
+
+* analytic capsules (spheres, capsules, URDF cylinders with a sphere at each end): segment ends in the
+  parent *joint* frame, radii;
+* triangle meshes (meshes, boxes, plain cylinders): vertices in the parent joint frame, per-vertex inflation
+  offsets (:func:`depthguard.robot.shapes.inflation_directions`), faces; optionally decimated at load time
+  (``max_triangles`` per mesh), in which case the shape is inflated by the decimation error as well.
+
+Conventions: SI units; world frame = robot base frame (see ``docs/conventions.md``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from depthguard.robot.shapes import Shape, ShapeGeometry, capsule_idiom, inflation_directions, shape_geometry
+
+__all__ = ["RobotGeometry"]
+
+
+def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Decimate to about ``target`` faces (fast-simplification); returns the mesh and the largest distance
+    from an original vertex to the decimated surface (m), by which the decimated mesh is inflated more."""
+    try:
+        import coal
+        import fast_simplification
+        import trimesh
+    except ImportError as e:  # pragma: no cover
+        raise ValueError(f"max_triangles needs fast-simplification (pip install 'depthguard[robot]'): {e}") from e
+
+    ratio = 1.0 - target / len(f)
+    v2, f2 = fast_simplification.simplify(v.astype(np.float32), f.astype(np.int32), target_reduction=ratio)
+    m2 = trimesh.Trimesh(np.asarray(v2, float), np.asarray(f2, np.int64), process=True)
+    trimesh.repair.fix_normals(m2)
+    v2, f2 = np.asarray(m2.vertices, float), np.asarray(m2.faces, np.int64)
+    bvh = coal.BVHModelOBBRSS()  # distance of every original vertex to the decimated surface
+    bvh.beginModel(len(f2), len(v2))
+    bvh.addVertices(np.ascontiguousarray(v2))
+    bvh.addTriangles(np.ascontiguousarray(f2))
+    bvh.endModel()
+    dot, eye, req, res = coal.Sphere(1e-12), coal.Transform3s(), coal.DistanceRequest(), coal.DistanceResult()
+    worst = 0.0
+    for p in v:
+        res.clear()
+        worst = max(worst, coal.distance(bvh, eye, dot, coal.Transform3s(np.eye(3), p), req, res))
+    return v2, f2, worst
+
+
+class RobotGeometry:
+    """Collision geometry of a robot, rigidly attached to its pinocchio joints.
+
+    Attributes:
+        shapes: the :class:`Shape` list it was built from.
+        geoms: per-shape :class:`ShapeGeometry` (link frame), analytic capsules first.
+        cap_joint (C,), cap_a, cap_b (C, 3), cap_r (C,): analytic capsules in their parent joint frame.
+        mesh_joint (S,), V, O (Vt, 3), F (Ft, 3), vr, fr (S, 2), slack (S,): meshes in their joint frame.
+        n_triangles: total triangle count of the meshes used by the filter.
+    """
+
+    def __init__(self, model, shapes: Sequence[Shape], max_triangles: int | None = None) -> None:
+        self.shapes = tuple(shapes)
+        caps, rest = capsule_idiom(list(self.shapes))
+        self.geoms: list[ShapeGeometry] = caps + [shape_geometry(s) for s in rest]
+        cj, ca, cb, cr = [], [], [], []
+        mj, Vs, Os, Fs, vr, fr, slack = [], [], [], [], [], [], []
+        nv = nf = 0
+        for g in self.geoms:
+            fid = model.frame_id(g.shape.link)
+            frame = model.model.frames[fid]
+            M = frame.placement
+            Rl, pl = np.array(M.rotation), np.array(M.translation)
+            if not g.is_mesh:
+                cj.append(int(frame.parentJoint))
+                ca.append(Rl @ g.a + pl)
+                cb.append(Rl @ g.b + pl)
+                cr.append(g.radius)
+                continue
+            v, f = g.vertices, g.faces
+            if max_triangles is not None and len(f) > max_triangles:
+                v, f, g.slack = _decimate(v, f, max_triangles)
+                g.vertices, g.faces = v, f
+            o = inflation_directions(v, f)
+            mj.append(int(frame.parentJoint))
+            Vs.append(v @ Rl.T + pl)
+            Os.append(o @ Rl.T)
+            Fs.append(f + nv)
+            vr.append((nv, nv + len(v)))
+            fr.append((nf, nf + len(f)))
+            slack.append(g.slack)
+            nv += len(v)
+            nf += len(f)
+        self.cap_joint = np.array(cj, dtype=np.int64)
+        self.cap_a = np.array(ca, float).reshape(-1, 3)
+        self.cap_b = np.array(cb, float).reshape(-1, 3)
+        self.cap_r = np.array(cr, float)
+        self.mesh_joint = np.array(mj, dtype=np.int64)
+        self.V = np.ascontiguousarray(np.vstack(Vs) if Vs else np.zeros((0, 3)))
+        self.O = np.ascontiguousarray(np.vstack(Os) if Os else np.zeros((0, 3)))
+        self.F = np.ascontiguousarray(np.vstack(Fs) if Fs else np.zeros((0, 3), np.int64))
+        self.vr = np.array(vr, dtype=np.int64).reshape(-1, 2)
+        self.fr = np.array(fr, dtype=np.int64).reshape(-1, 2)
+        self.slack = np.array(slack, float)
+        self.n_triangles = int(len(self.F))
+
+    def world_capsules(self, R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Analytic capsules in the world frame from joint poses ``R`` (J+1, 3, 3), ``p`` (J+1, 3):
+        ``a``, ``b`` (C, 3) m, ``radius`` (C,) m."""
+        Rj, pj = R[self.cap_joint], p[self.cap_joint]
+        a = np.einsum("kij,kj->ki", Rj, self.cap_a) + pj
+        b = np.einsum("kij,kj->ki", Rj, self.cap_b) + pj
+        return a, b, self.cap_r.copy()
+
+    def mesh_transforms(self, R: np.ndarray, p: np.ndarray, Rc: np.ndarray, tc: np.ndarray) -> np.ndarray:
+        """(S, 3, 4) camera-from-joint transforms of the meshes; camera pose ``P_C = Rc P_W + tc``."""
+        Rj, pj = R[self.mesh_joint], p[self.mesh_joint]
+        T = np.empty((len(self.mesh_joint), 3, 4))
+        T[:, :, :3] = np.einsum("ij,kjl->kil", Rc, Rj)
+        T[:, :, 3] = pj @ Rc.T + tc
+        return T
+
+    def link_points(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per link, what its ``auto`` spheres must cover, in the link frame: ball centres (P, 3) and radii
+        (P,) m (mesh vertices before decimation and face samples with radius 0; balls along capsules)."""
+        out: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+        for g in self.geoms:
+            r = np.zeros(len(g.source_vertices)) if g.source_radii is None else g.source_radii
+            out.setdefault(g.shape.link, []).append((g.source_vertices, r))
+        return {k: (np.vstack([p for p, _ in v]), np.concatenate([r for _, r in v])) for k, v in out.items()}
