@@ -1,0 +1,188 @@
+"""Obstacle octree from several sensors (SAPHARI D4.1.1 §3.2): per-sensor sets and their fusion.
+
+    O(t) = ∪_i ( C(t) ∩ ( P_i ∪ (O_i \\ ∪_{j≠i} F_j) ) )
+
+A measured obstacle point always stays; space occupied or occluded by an obstacle for sensor ``i`` stays
+unless another sensor sees it free. Two modes:
+
+* ``"saphari"``: exactly the formula; space that no sensor observes is free (the deliverable's choice, its
+  sensors do not cover all around the platform). A 2-D scanner's free sectors count as free nodes (its
+  "no overhanging objects" assumption).
+* ``"conservative"`` (default of ``depthguard distance --backend octree``): also every node of C(t) that no
+  sensor sees free and that is neither occupied/occluded by an obstacle nor hidden by the robot is an
+  obstacle ("unseen"), like the depth space's unknown space. A node counts as seen free only if a sensor
+  sees its whole volume free, which a 2-D scanner never does, so scanners only add obstacles here.
+
+In both modes space hidden *only by the robot* (R_i and no O_i) is free, as SAPHARI §3.2 says and as the
+depth grid does (a documented limit). Missing readings never free a node (cameras: the project's
+missing-depth policy of :func:`depthguard.depthspace.prepare_frame`; scanners: REP 117, see
+:mod:`depthguard.octree.scanner`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from depthguard.camera import Camera
+from depthguard.depthspace import prepare_frame
+from depthguard.octree.grid import VoxelBox
+from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points
+from depthguard.octree.sets import F, O, P, R, V, bin_depth_points, bin_points, camera_sets, mark_overlaps, scanner_sets
+
+__all__ = ["MODES", "CameraObservation", "ScanObservation", "OctreeFrame", "sensor_sets", "fuse", "reach_mask"]
+
+MODES = ("conservative", "saphari")
+FREE, OCCUPIED, OCCLUDED, UNSEEN = 0, 1, 2, 3  # node kinds of OctreeFrame.kind
+
+
+@dataclass(frozen=True)
+class CameraObservation:
+    """One depth image: ``depth`` (H, W) metres (0/NaN/inf = no reading); ``mask`` (H, W) bool robot pixels
+    (e.g. from :func:`depthguard.robot.selffilter.self_filter`) or None."""
+
+    camera: Camera
+    depth: np.ndarray
+    mask: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ScanObservation:
+    """One 2-D scan: ``ranges`` (n_rays,) metres (REP 117); ``robot`` (n_rays,) bool rays that hit the robot
+    (e.g. from :func:`depthguard.octree.scanner.scan_robot_rays`) or None."""
+
+    scanner: LaserScanner
+    ranges: np.ndarray
+    robot: np.ndarray | None = None
+
+
+class OctreeFrame(NamedTuple):
+    """The fused obstacle nodes of one frame of all sensors.
+
+    Attributes:
+        box: the node lattice.
+        occupied: (nx, ny, nz) bool, the obstacle set O(t) (plus unseen nodes in conservative mode).
+        kind: (nx, ny, nz) uint8: 0 free or outside C(t), 1 occupied (holds a measured point),
+            2 occluded, 3 unseen (conservative mode only).
+        cand: (M,) flat indices of the candidate nodes (C(t), or the whole box without a robot state).
+        flags: (S, M) uint8 per-sensor flags of the candidates (bits V=1, P=2, O=4, R=8, F=16).
+        mode: the fusion mode.
+    """
+
+    box: VoxelBox
+    occupied: np.ndarray
+    kind: np.ndarray
+    cand: np.ndarray
+    flags: np.ndarray
+    mode: str
+
+    def counts(self) -> dict[str, int]:
+        """Numbers of occupied, occluded and unseen nodes."""
+        return {k: int(np.count_nonzero(self.kind == v)) for k, v in (("occupied", 1), ("occluded", 2), ("unseen", 3))}
+
+
+def reach_mask(box: VoxelBox, reach) -> np.ndarray:
+    """(nx, ny, nz) bool: the nodes of ``box`` that overlap a reachable cell of ``reach`` (a
+    :class:`~depthguard.octree.reach.ReachabilityGrid`, on any lattice)."""
+    out = np.zeros(box.shape, dtype=bool)
+    mark_overlaps(
+        reach.reachable, np.ascontiguousarray(reach.box.origin), float(reach.box.res),
+        np.ascontiguousarray(box.origin), float(box.res), np.array(box.shape, np.int64), out,
+    )  # fmt: skip
+    return out
+
+
+def sensor_sets(
+    box: VoxelBox,
+    cand: np.ndarray,
+    slot: np.ndarray,
+    obs: CameraObservation | ScanObservation,
+    invalid: str = "conservative",
+    fill_radius: int = 4,
+) -> np.ndarray:
+    """(M,) uint8 flags V, P, O, R, F of one sensor's frame for the candidate nodes (flat indices ``cand``;
+    ``slot`` maps a flat index to its position in ``cand`` or -1)."""
+    if isinstance(obs, CameraObservation):
+        cam = obs.camera
+        frame = prepare_frame(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
+        robot = np.where(
+            frame.robot_mask, np.nan_to_num(frame.robot_depth, nan=np.float32(cam.min_depth)), np.float32(np.inf)
+        ).astype(np.float32)
+        flags = camera_sets(cand, box, cam, frame.obstacle_depth, robot)
+        bin_depth_points(cam, np.asarray(obs.depth, dtype=np.float32), frame.robot_mask, box, slot, flags)
+        return flags
+    if isinstance(obs, ScanObservation):
+        sc = obs.scanner
+        blocked = scan_obstacle_ranges(sc, obs.ranges)
+        rob = np.zeros(sc.n_rays, bool) if obs.robot is None else np.asarray(obs.robot, dtype=bool)
+        if rob.shape != (sc.n_rays,):
+            raise ValueError(f"scan robot mask has shape {rob.shape}, expected ({sc.n_rays},)")
+        robot_range = np.where(rob, blocked, np.inf)
+        obstacle_range = np.where(rob, np.inf, blocked)
+        if invalid == "ignore":  # only on explicit request: missing readings are free
+            r = np.asarray(obs.ranges, dtype=float)
+            obstacle_range[np.isnan(r) | (r == 0)] = np.inf
+        flags = scanner_sets(cand, box, sc, obstacle_range, robot_range)
+        pts, idx = scan_points(sc, obs.ranges)
+        bin_points(pts[~rob[idx]], box, slot, flags)
+        return flags
+    raise ValueError(f"observation must be a CameraObservation or a ScanObservation, got {type(obs).__name__}")
+
+
+def fuse(
+    box: VoxelBox,
+    observations: list,
+    reach: np.ndarray | None = None,
+    mode: str = "conservative",
+    invalid: str = "conservative",
+    fill_radius: int = 4,
+) -> OctreeFrame:
+    """Fuse one frame of every sensor into the obstacle nodes O(t) (module docstring).
+
+    Args:
+        box: the node lattice (node size 0.02-0.1 m).
+        observations: :class:`CameraObservation` and :class:`ScanObservation` items, world-frame poses.
+        reach: (nx, ny, nz) bool C(t) on ``box`` (see :func:`reach_mask`), or None for the whole box.
+        mode: ``"conservative"`` or ``"saphari"``.
+        invalid: missing-depth policy of the cameras (``"conservative"``; ``"ignore"`` only on request).
+        fill_radius: hole-filling radius of the cameras, pixels.
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if not observations:
+        raise ValueError("observations: give at least one camera or scanner frame")
+    if reach is None:
+        cand = np.arange(box.size, dtype=np.int64)
+    else:
+        reach = np.asarray(reach, dtype=bool)
+        if reach.shape != box.shape:
+            raise ValueError(f"reach mask has shape {reach.shape}, expected the box's {box.shape}")
+        cand = np.flatnonzero(reach)
+    slot = np.full(box.size, -1, dtype=np.int64)
+    slot[cand] = np.arange(cand.size)
+    flags = np.stack([sensor_sets(box, cand, slot, o, invalid, fill_radius) for o in observations])
+    is_scan = np.array([isinstance(o, ScanObservation) for o in observations])
+    if mode == "conservative":  # a 2-D scan never sees a node's whole volume free
+        flags[is_scan] &= np.uint8(~F & 0xFF)
+    return _combine(box, cand, flags, mode)
+
+
+def _combine(box: VoxelBox, cand: np.ndarray, flags: np.ndarray, mode: str) -> OctreeFrame:
+    Fb = (flags & F) != 0
+    Pb = (flags & P) != 0
+    Ob = (flags & O) != 0
+    nF = Fb.sum(axis=0)
+    freed_by_other = (nF[None, :] - Fb) > 0  # ∪_{j≠i} F_j
+    measured = Pb.any(axis=0)
+    occ = measured | (Ob & ~freed_by_other).any(axis=0)
+    kind_c = np.where(measured, OCCUPIED, np.where(occ, OCCLUDED, FREE)).astype(np.uint8)
+    if mode == "conservative":
+        Rb = (flags & R) != 0
+        unseen = (nF == 0) & ~Ob.any(axis=0) & ~Rb.any(axis=0) & ~measured
+        kind_c[unseen] = UNSEEN
+    kind = np.zeros(box.shape, np.uint8)
+    kind.reshape(-1)[cand] = kind_c
+    _ = V  # (V is implied by F; kept in the flags for inspection)
+    return OctreeFrame(box, kind != FREE, kind, cand, flags, mode)
