@@ -95,7 +95,14 @@ def test_octree_res_is_checked(tmp_path, capsys):
     write_camera(tmp_path / "c.json", CAM1)
     write_depth(tmp_path / "d.npy", render_depth(CAM1, SCENE))
     write_points(tmp_path / "p.json", [ControlPoint("a", np.array([0, 0, 1.5]), 0.05)])
-    rc = main(["distance", "--camera", str(tmp_path / "c.json"), "--depth", str(tmp_path / "d.npy"),
-               "--points", str(tmp_path / "p.json"), "--backend", "octree", "--octree-res", "0.5", "--json"])  # fmt: skip
+    files = [
+        "--camera",
+        str(tmp_path / "c.json"),
+        "--depth",
+        str(tmp_path / "d.npy"),
+        "--points",
+        str(tmp_path / "p.json"),
+    ]
+    rc = main(["distance", *files, "--backend", "octree", "--octree-res", "0.5", "--json"])
     assert rc == 2
     assert "--octree-res" in capsys.readouterr().err

@@ -30,7 +30,17 @@ from depthguard.camera import Camera
 from depthguard.depthspace import prepare_frame
 from depthguard.octree.grid import VoxelBox
 from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points
-from depthguard.octree.sets import F, O, P, R, V, bin_depth_points, bin_points, camera_sets, mark_overlaps, scanner_sets
+from depthguard.octree.sets import (
+    F,
+    bin_depth_points,
+    bin_points,
+    camera_sets,
+    combine,
+    mark_overlaps,
+    mask_pyramid,
+    scanner_sets,
+)
+from depthguard.octree.sets import _levels as _mask_levels
 
 __all__ = ["MODES", "CameraObservation", "ScanObservation", "OctreeFrame", "sensor_sets", "fuse", "reach_mask"]
 
@@ -66,15 +76,15 @@ class OctreeFrame(NamedTuple):
         occupied: (nx, ny, nz) bool, the obstacle set O(t) (plus unseen nodes in conservative mode).
         kind: (nx, ny, nz) uint8: 0 free or outside C(t), 1 occupied (holds a measured point),
             2 occluded, 3 unseen (conservative mode only).
-        cand: (M,) flat indices of the candidate nodes (C(t), or the whole box without a robot state).
-        flags: (S, M) uint8 per-sensor flags of the candidates (bits V=1, P=2, O=4, R=8, F=16).
+        mask: (nx, ny, nz) bool, the candidate nodes (C(t), or the whole box without a robot state).
+        flags: (S, nx, ny, nz) uint8 per-sensor flags (bits V=1, P=2, O=4, R=8, F=16), 0 outside ``mask``.
         mode: the fusion mode.
     """
 
     box: VoxelBox
     occupied: np.ndarray
     kind: np.ndarray
-    cand: np.ndarray
+    mask: np.ndarray
     flags: np.ndarray
     mode: str
 
@@ -96,22 +106,22 @@ def reach_mask(box: VoxelBox, reach) -> np.ndarray:
 
 def sensor_sets(
     box: VoxelBox,
-    cand: np.ndarray,
-    slot: np.ndarray,
+    mask: np.ndarray,
     obs: CameraObservation | ScanObservation,
     invalid: str = "conservative",
     fill_radius: int = 4,
+    mp=None,
 ) -> np.ndarray:
-    """(M,) uint8 flags V, P, O, R, F of one sensor's frame for the candidate nodes (flat indices ``cand``;
-    ``slot`` maps a flat index to its position in ``cand`` or -1)."""
+    """(nx, ny, nz) uint8 flags V, P, O, R, F of one sensor's frame for the nodes of ``mask`` (bool over
+    ``box``); ``mp`` is the mask's :func:`~depthguard.octree.sets.mask_pyramid` (computed when None)."""
     if isinstance(obs, CameraObservation):
         cam = obs.camera
         frame = prepare_frame(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
         robot = np.where(
             frame.robot_mask, np.nan_to_num(frame.robot_depth, nan=np.float32(cam.min_depth)), np.float32(np.inf)
         ).astype(np.float32)
-        flags = camera_sets(cand, box, cam, frame.obstacle_depth, robot)
-        bin_depth_points(cam, np.asarray(obs.depth, dtype=np.float32), frame.robot_mask, box, slot, flags)
+        flags = camera_sets(mask, box, cam, frame.obstacle_depth, robot, mp)
+        bin_depth_points(cam, np.asarray(obs.depth, dtype=np.float32), frame.robot_mask, box, mask, flags)
         return flags
     if isinstance(obs, ScanObservation):
         sc = obs.scanner
@@ -124,9 +134,9 @@ def sensor_sets(
         if invalid == "ignore":  # only on explicit request: missing readings are free
             r = np.asarray(obs.ranges, dtype=float)
             obstacle_range[np.isnan(r) | (r == 0)] = np.inf
-        flags = scanner_sets(cand, box, sc, obstacle_range, robot_range)
+        flags = scanner_sets(mask, box, sc, obstacle_range, robot_range)
         pts, idx = scan_points(sc, obs.ranges)
-        bin_points(pts[~rob[idx]], box, slot, flags)
+        bin_points(pts[~rob[idx]], box, mask, flags)
         return flags
     raise ValueError(f"observation must be a CameraObservation or a ScanObservation, got {type(obs).__name__}")
 
@@ -154,35 +164,17 @@ def fuse(
     if not observations:
         raise ValueError("observations: give at least one camera or scanner frame")
     if reach is None:
-        cand = np.arange(box.size, dtype=np.int64)
+        mask = np.ones(box.shape, dtype=bool)
     else:
-        reach = np.asarray(reach, dtype=bool)
-        if reach.shape != box.shape:
-            raise ValueError(f"reach mask has shape {reach.shape}, expected the box's {box.shape}")
-        cand = np.flatnonzero(reach)
-    slot = np.full(box.size, -1, dtype=np.int64)
-    slot[cand] = np.arange(cand.size)
-    flags = np.stack([sensor_sets(box, cand, slot, o, invalid, fill_radius) for o in observations])
-    is_scan = np.array([isinstance(o, ScanObservation) for o in observations])
+        mask = np.ascontiguousarray(reach, dtype=bool)
+        if mask.shape != box.shape:
+            raise ValueError(f"reach mask has shape {mask.shape}, expected the box's {box.shape}")
+    mp = mask_pyramid(mask, _mask_levels(box.shape))
+    flags = np.stack([sensor_sets(box, mask, o, invalid, fill_radius, mp) for o in observations])
     if mode == "conservative":  # a 2-D scan never sees a node's whole volume free
-        flags[is_scan] &= np.uint8(~F & 0xFF)
-    return _combine(box, cand, flags, mode)
-
-
-def _combine(box: VoxelBox, cand: np.ndarray, flags: np.ndarray, mode: str) -> OctreeFrame:
-    Fb = (flags & F) != 0
-    Pb = (flags & P) != 0
-    Ob = (flags & O) != 0
-    nF = Fb.sum(axis=0)
-    freed_by_other = (nF[None, :] - Fb) > 0  # ∪_{j≠i} F_j
-    measured = Pb.any(axis=0)
-    occ = measured | (Ob & ~freed_by_other).any(axis=0)
-    kind_c = np.where(measured, OCCUPIED, np.where(occ, OCCLUDED, FREE)).astype(np.uint8)
-    if mode == "conservative":
-        Rb = (flags & R) != 0
-        unseen = (nF == 0) & ~Ob.any(axis=0) & ~Rb.any(axis=0) & ~measured
-        kind_c[unseen] = UNSEEN
-    kind = np.zeros(box.shape, np.uint8)
-    kind.reshape(-1)[cand] = kind_c
-    _ = V  # (V is implied by F; kept in the flags for inspection)
-    return OctreeFrame(box, kind != FREE, kind, cand, flags, mode)
+        for s, o in enumerate(observations):
+            if isinstance(o, ScanObservation):
+                flags[s] &= np.uint8(~F & 0xFF)
+    kind = np.empty(box.shape, np.uint8)
+    combine(flags, mask, mode == "conservative", kind)
+    return OctreeFrame(box, kind != FREE, kind, mask, flags, mode)
