@@ -243,11 +243,6 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                             _fill_block(flags, mask, lv, bi, bj, bk, val)
                             stats[8 + lv] += 1
                             continue
-                        if lv == 1 and no_o and no_r:
-                            # nothing here blocks a ray, but the block leaves the field of view: its nodes are
-                            # not counted as seen free (conservative; within one 2-node block of the border)
-                            stats[8] += 1
-                            continue
                         stats[
                             16 + (1 if no_o else 0) + (2 if all_o else 0) + (4 if no_r else 0) + (8 if in_fov else 0)
                         ] += 1
