@@ -2,7 +2,7 @@
 the arm, two 2-D laser scanners at opposite corners near the floor. Their world poses follow the base pose.
 
 Platform frame: x forward, y left, z up, origin at the platform centre on the floor (the URDF
-``data/omni_lwr4/omni_lwr4.urdf``: 0.80 x 0.60 x 0.40 m, the arm's base 0.20 m ahead of the centre on top).
+``data/omni_lwr4/omni_lwr4.urdf``: 0.80 x 0.60 x 0.40 m, the arm's base at the centre of its top).
 """
 
 from __future__ import annotations
@@ -28,18 +28,20 @@ SCANNER_MOUNTS = (
 )
 
 
-def base_pose(q_base: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """World rotation (3, 3) and position (3,) of the platform frame for base coordinates (x, y, yaw)."""
+def base_pose(q_base: np.ndarray, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """World rotation (3, 3) and position (3,) of the platform frame for base coordinates (x, y, yaw); the
+    floor under the platform is at height ``z0``."""
     x, y, yaw = (float(v) for v in q_base[:3])
     c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x, y, 0.0])
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x, y, float(z0)])
 
 
 def platform_sensors(
-    q_base: np.ndarray, width: int = 640, height: int = 480, n_rays: int = 541
+    q_base: np.ndarray, width: int = 640, height: int = 480, n_rays: int = 541, z0: float = 0.0
 ) -> tuple[list[Camera], list[LaserScanner]]:
-    """World-frame cameras (Kinect v1-like, 0.5-4.5 m) and scanners (270°, 0.1-8 m) for the base at (x, y, yaw)."""
-    Rb, pb = base_pose(q_base)
+    """World-frame cameras (Kinect v1-like, 0.5-4.5 m) and scanners (270°, 0.1-8 m) for the base at (x, y, yaw),
+    floor at height ``z0``."""
+    Rb, pb = base_pose(q_base, z0)
     f = 525.0 * width / 640.0
     cams = []
     for eye, target in CAMERA_MOUNTS:

@@ -66,8 +66,11 @@ def _num(x):
     return [None if not np.isfinite(v) else float(v) for v in x.ravel()]
 
 
-def record_run(path: str | Path, cell, log) -> Path:
-    """Write the run's recording to ``path`` (.mcap). Returns the path."""
+def record_run(path: str | Path, cell, log, extra=None) -> Path:
+    """Write the run's recording to ``path`` (.mcap). Returns the path.
+
+    ``extra(channel, put)``, if given, adds a scenario's own channels: ``channel(topic, schema) -> id`` and
+    ``put(id, t, msg)`` (e.g. the octree and the reachability grid of ``saphari-octree``)."""
     from mcap.writer import CompressionType, Writer
 
     path = Path(path)
@@ -154,5 +157,7 @@ def record_run(path: str | Path, cell, log) -> Path:
             )
             put(rep, t, {"v_ee": _num(log.v_ee[i])})
             put(clr, t, {"evaluated_min": _num([log.eval_min[i]])[0], "true_min": float(log.true_min[i])})
+        if extra is not None:
+            extra(channel, put)
         w.finish()
     return path
