@@ -211,6 +211,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             cameras=args.cameras,
             out_dir=args.out,
             progress=not args.json,
+            **({"backend": "octree", "octree_res": args.octree_res or 0.05} if args.backend == "octree" else {}),
         )
     if args.json:
         print(json.dumps(out, default=float))

@@ -25,7 +25,7 @@ from depthguard.scene import Box, Capsule, HalfSpace, Scene, Sphere, render_dept
 __all__ = ["omni_model", "omni_urdf_path", "Q_BENCH", "obstacle_scene", "robot_scene", "sense", "platform_box"]
 
 # base (x, y, yaw), then the arm reaching forward and to the left
-Q_BENCH = np.array([0.0, 0.0, 0.0, 0.4, 0.7, 0.0, -1.1, 0.0, 0.6, 0.0])
+Q_BENCH = np.array([0.0, 0.0, 0.0, 0.5, -0.7, 0.0, 1.1, 0.0, -0.6, 0.0])
 
 
 def omni_urdf_path() -> Path:
