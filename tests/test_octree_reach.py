@@ -86,6 +86,28 @@ def test_mobile_manipulator_grid_holds_every_sampled_trajectory_point():
     check_over_approximation(model, q0, res=0.09, seed=5)
 
 
+@pytest.mark.parametrize("which", ["arm", "omni"])
+def test_random_configurations_of_the_joint_box_are_inside_no_earlier(which):
+    """Every q with |q - q0| <= q̇_max T is reached at max |q - q0| / q̇_max on a straight line."""
+    model = load_lwr4() if which == "arm" else omni()
+    rng = np.random.default_rng(7)
+    q0 = (
+        rng.uniform(model.q_min * 0.5, model.q_max * 0.5)
+        if which == "arm"
+        else np.r_[0.1, -0.2, 0.3, 0.2, -0.6, 0, 1.0, 0, -0.5, 0]
+    )
+    grid = robot_reachability(model, q0, res=0.09)
+    lo = np.maximum(q0 - model.v_max * 0.5, model.q_min)
+    hi = np.minimum(q0 + model.v_max * 0.5, model.q_max)
+    for _ in range(150):
+        u = rng.random(model.n_dof)
+        u = np.where(rng.random(model.n_dof) < 0.5, np.round(u), u)  # many at the box's faces and corners
+        q = lo + u * (hi - lo)
+        t = float(np.max(np.abs(q - q0) / model.v_max))
+        p = capsule_samples(model, q, rng)
+        assert np.all(grid.lookup(p) <= t + 1e-6)
+
+
 def test_time_is_zero_on_the_robot_and_grows_away_from_it():
     model = load_lwr4()
     q0 = np.array([0.0, 0.5, 0.0, -1.0, 0.0, 0.5, 0.0])

@@ -12,10 +12,11 @@ Method (the joint-by-joint sweep of SAPHARI ref. [1], made provably conservative
   is swept by joint ``n``, link ``n-1`` is added, both are swept by joint ``n-1``, and so on.
 * Joints move at the same time, so reaching offsets ``δ`` takes ``max_j |δ_j| / v_j``: a swept sample gets
   ``t' = max(t, |δ_j| / v_j)``. The offset range of joint ``j`` is ``[-v_j T, v_j T] ∩ [q_min - q, q_max - q]``.
-* The set is carried as voxel centres on an internal grid of ``res / subdiv`` (one voxel per cell, the
-  minimum time), so its size stays bounded (the "collapse" of [1]). Each step has a bounded position error:
-  ``h = √3/2 res_i`` per collapse and ``eps`` per sweep (samples every ``eps / (r⊥ + δ)`` rad, the sample on
-  the side of zero, so that its time is never later). Every true point lies within ``δ = Σ errors`` of a
+* The set is carried as cell centres on an internal grid (one sample per cell, the minimum time), so its
+  size stays bounded (the "collapse" of [1]). The internal grid adapts to the set: ``cells`` cells along its
+  longest side, between ``res / 8`` and ``res``, so the small distal sets collapse finely. Each step has a
+  bounded position error: ``h = √3/2 res_i`` per collapse and ``eps = res_i / 2`` per sweep (samples every
+  ``eps / (r⊥ + δ)`` rad, the sample on the side of zero, so that its time is never later). Every true point lies within ``δ = Σ errors`` of a
   kept sample whose time is no later, so the final grid, min-pooled to ``res`` and dilated by
   ``ceil(δ / res)`` cells (L∞ box), is an **over-approximation** in space and an under-estimate in time.
   ``tests/test_octree_reach.py`` checks this against random joint trajectories with ``|q̇| ≤ q̇_max``.
@@ -189,23 +190,24 @@ def _collect(grid):
 
 
 @nb.njit(cache=True, fastmath=False)
-def _sweep(idx, tt, origin, res, grid, kind, axis, point, lo, hi, vmax, delta, eps):
-    """Sweep the kept samples about (along) one joint into ``grid`` (min time).
+def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, delta, eps):
+    """Sweep the kept samples (cell centres of the input grid) about (along) one joint into ``grid`` (min time).
 
     Returns (#samples outside the grid, the largest sampling error, whether any sample left its cell centre).
     """
     nx, ny, nz = grid.shape
+    iny, inz = in_shape[1], in_shape[2]
     out = 0
     err = 0.0
     moved = False
     for m in range(idx.size):
         f = idx[m]
-        i0 = f // (ny * nz)
-        j0 = (f // nz) % ny
-        k0 = f % nz
-        cx = origin[0] + (i0 + 0.5) * res
-        cy = origin[1] + (j0 + 0.5) * res
-        cz = origin[2] + (k0 + 0.5) * res
+        i0 = f // (iny * inz)
+        j0 = (f // inz) % iny
+        k0 = f % inz
+        cx = in_origin[0] + (i0 + 0.5) * in_res
+        cy = in_origin[1] + (j0 + 0.5) * in_res
+        cz = in_origin[2] + (k0 + 0.5) * in_res
         t0 = tt[m]
         if kind == 0:
             vx, vy, vz = cx - point[0], cy - point[1], cz - point[2]
@@ -313,7 +315,7 @@ def reachability_grid(
     horizon: float = 0.5,
     res: float = 0.09,
     box: VoxelBox | None = None,
-    subdiv: int = 1,
+    cells: int = 24,
 ) -> ReachabilityGrid:
     """Minimum-time reachability grid of a serial chain (SAPHARI §3.2, Fig. 1).
 
@@ -322,7 +324,7 @@ def reachability_grid(
         horizon: time horizon T, s (> 0).
         res: output cell size, metres (0.02-0.1).
         box: output cells (default: :func:`chain_box`); its ``res`` overrides ``res``.
-        subdiv: internal cells per output cell edge (1 or more); finer is tighter and slower.
+        cells: the internal grids' size along the swept set's longest side (>= 8); more is tighter and slower.
     Returns:
         :class:`ReachabilityGrid` over ``box``.
     Raises:
@@ -330,49 +332,105 @@ def reachability_grid(
     """
     ch = chain.check()
     horizon = check_positive(horizon, "horizon")
-    if isinstance(subdiv, bool) or int(subdiv) != subdiv or subdiv < 1:
-        raise ValueError(f"subdiv must be an integer >= 1, got {subdiv!r}")
+    if isinstance(cells, bool) or int(cells) != cells or cells < 8:
+        raise ValueError(f"cells must be an integer >= 8, got {cells!r}")
     if box is not None:
-        return _reach(ch, horizon, box, int(subdiv), strict=True)
+        return _reach(ch, horizon, box, int(cells), strict=True)
     res = check_res(res)
     for scale in (1.0, 2.0, 4.0):
-        out = _reach(ch, horizon, chain_box(ch, horizon, res, margin=2 * res, scale=scale), int(subdiv), False)
+        out = _reach(ch, horizon, chain_box(ch, horizon, res, margin=2 * res, scale=scale), int(cells), False)
         if out is not None:
             return out
     raise ValueError("reachability: the reachable set does not fit in a box 4x the robot's size")
 
 
-def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, sub: int, strict: bool) -> ReachabilityGrid | None:
-    res = float(box.res)
-    res_i = res / sub
-    fine = np.full(tuple(s * sub for s in box.shape), np.inf, dtype=np.float32)
-    origin = np.ascontiguousarray(box.origin, dtype=float)
-    eps = 0.5 * res_i
+def _grid_for(lo: np.ndarray, hi: np.ndarray, cells: int, res_floor: float, res_cap: float):
+    """A dense internal grid (origin, res, float32 array of inf) over [lo, hi]: ``cells`` cells along its
+    longest side, cells between ``res_floor`` and ``res_cap``, two cells of padding."""
+    res = min(max(res_floor, float(np.max(hi - lo)) / cells), res_cap)
+    origin = np.floor(lo / res) * res - 2 * res
+    shape = tuple(int(x) for x in np.ceil((hi - origin) / res) + 3)
+    return np.ascontiguousarray(origin), res, np.full(shape, np.inf, dtype=np.float32)
+
+
+def _caps_bbox(ch: ChainSweep, sel: np.ndarray, pad: float):
+    if not sel.any():
+        return None
+    lo = (np.minimum(ch.cap_a[sel], ch.cap_b[sel]) - ch.cap_r[sel, None]).min(axis=0) - pad
+    hi = (np.maximum(ch.cap_a[sel], ch.cap_b[sel]) + ch.cap_r[sel, None]).max(axis=0) + pad
+    return lo, hi
+
+
+def _union(a, b):
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return np.minimum(a[0], b[0]), np.maximum(a[1], b[1])
+
+
+def _swept_bbox(ch: ChainSweep, j: int, lo_j: float, hi_j: float, pts: np.ndarray, pad: float):
+    """A box holding every sample of ``pts`` (N, 3) swept by joint ``j`` over [lo_j, hi_j] (plus ``pad``):
+    the points' box grown by their largest displacement, cut to the ball about the joint that a rotation
+    keeps them in."""
+    rng = max(-lo_j, hi_j)
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    if ch.kind[j] == PRISMATIC:
+        return lo - rng, hi + rng
+    v = pts - ch.point[j]
+    perp = v - np.outer(v @ ch.axis[j], ch.axis[j])
+    move = float(np.linalg.norm(perp, axis=1).max()) * min(rng, 2.0) + pad
+    rad = float(np.linalg.norm(v, axis=1).max()) + pad
+    return np.maximum(lo - move, ch.point[j] - rad), np.minimum(hi + move, ch.point[j] + rad)
+
+
+def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool) -> ReachabilityGrid | None:
+    """The sweep with adaptive internal grids: ``cells`` cells along the set's longest side, between
+    ``res / 8`` and ``res``, so the small distal sets collapse finely (small error) and the large proximal ones
+    coarsely (bounded size)."""
+    res_out = float(box.res)
+    res_floor = res_out / 8.0
     n = len(ch.kind)
     lo = np.maximum(ch.lo, -ch.vmax * horizon)
     hi = np.minimum(ch.hi, ch.vmax * horizon)
+    out = np.full(box.shape, np.inf, dtype=np.float32)
+    box_origin = np.ascontiguousarray(box.origin, dtype=float)
     outside = 0
-    delta = _H * res_i  # the first collapse (capsules -> voxel centres)
-    idx = np.empty(0, np.int64)
-    tt = np.empty(0, np.float32)
+    bb = _caps_bbox(ch, ch.cap_joint == n, 0.0)
+    if bb is None:  # no geometry on the last link: start from an empty set at the last joint
+        bb = (ch.point[n - 1] - res_out, ch.point[n - 1] + res_out)
+    g_origin, g_res, grid = _grid_for(bb[0], bb[1], cells, res_floor, res_out)
+    outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == n, g_origin, g_res, grid)
+    delta = _H * g_res
     for j in range(n, 0, -1):
-        outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j, origin, res_i, fine)
-        idx, tt = _collect(fine)
+        idx, tt = _collect(grid)
+        jj = j - 1
+        in_spec = (g_origin, g_res, np.array(grid.shape, np.int64))
+        if j > 1:
+            cen = g_origin + (np.stack(np.unravel_index(idx, grid.shape), axis=1) + 0.5) * g_res
+            bb_next = _union(_swept_bbox(ch, jj, lo[jj], hi[jj], cen, 1e-6), _caps_bbox(ch, ch.cap_joint == j - 1, 0.0))
+            g_origin, g_res, grid = _grid_for(bb_next[0], bb_next[1], cells, res_floor, res_out)
+            target, t_origin, t_res, eps = grid, g_origin, g_res, 0.5 * g_res
+        else:
+            target, t_origin, t_res, eps = out, box_origin, res_out, 0.5 * res_out
         n_out, err, moved = _sweep(
-            idx, tt, origin, res_i, fine, int(ch.kind[j - 1]), np.ascontiguousarray(ch.axis[j - 1]),
-            np.ascontiguousarray(ch.point[j - 1]), float(lo[j - 1]), float(hi[j - 1]), float(ch.vmax[j - 1]),
-            delta, eps,
+            idx, tt, *in_spec, t_origin, t_res, target, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
+            np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), delta, eps,
         )  # fmt: skip
         outside += n_out
-        # the sampling error, plus the collapse of moved samples to cell centres (the last sweep is pooled
-        # directly into the output cells, so it has no collapse error)
-        delta += err + (_H * res_i if moved and j > 1 else 0.0)
-    outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == 0, origin, res_i, fine)
-    if outside and not strict:
-        return None
+        # the sampling error, plus the collapse of moved samples to cell centres (the last sweep writes into
+        # the output cells, whose containment the final dilation covers)
+        delta += err + (_H * g_res if moved and j > 1 else 0.0)
+        if j > 1:
+            outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, g_origin, g_res, grid)
+            delta = max(delta, _H * g_res)
     if outside:
+        if not strict:
+            return None
         raise ValueError(f"reachability box {box} is too small: {outside} reachable samples fall outside it")
-    k = math.ceil(delta / res - 1e-9)
-    out = np.full(box.shape, np.inf, dtype=np.float32)
-    _pool_dilate(fine, sub, k, out)
-    return ReachabilityGrid(box, out, float(horizon), float(delta))
+    k = math.ceil(delta / res_out - 1e-9)
+    dil = np.full(box.shape, np.inf, dtype=np.float32)
+    _pool_dilate(out, 1, k, dil)
+    # the fixed base: cells that meet its capsules, time 0 (exact, no dilation needed)
+    _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == 0, box_origin, res_out, dil)
+    return ReachabilityGrid(box, dil, float(horizon), float(delta))

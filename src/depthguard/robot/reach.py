@@ -61,8 +61,8 @@ def robot_reachability(
     horizon: float = 0.5,
     res: float = 0.09,
     box: VoxelBox | None = None,
-    subdiv: int = 1,
+    cells: int = 24,
     v_max: np.ndarray | None = None,
 ) -> ReachabilityGrid:
     """:func:`~depthguard.octree.reach.reachability_grid` of ``model`` at ``q`` (see there for the arguments)."""
-    return reachability_grid(chain_sweep(model, q, v_max), horizon=horizon, res=res, box=box, subdiv=subdiv)
+    return reachability_grid(chain_sweep(model, q, v_max), horizon=horizon, res=res, box=box, cells=cells)
