@@ -16,7 +16,8 @@ Method (the joint-by-joint sweep of SAPHARI ref. [1], made provably conservative
   size stays bounded (the "collapse" of [1]). The internal grid adapts to the set: ``cells`` cells along its
   longest side, between ``res / 8`` and ``res``, so the small distal sets collapse finely. Each step has a
   bounded position error: ``h = √3/2 res_i`` per collapse and ``eps = res_i / 2`` per sweep (samples every
-  ``eps / (r⊥ + δ)`` rad, the sample on the side of zero, so that its time is never later). Every true point lies within ``δ = Σ errors`` of a
+  ``eps / (r⊥ + δ)`` rad, the sample on the side of zero, so that its time is never later).
+  Every true point lies within ``δ = Σ errors`` of a
   kept sample whose time is no later, so the final grid, min-pooled to ``res`` and dilated by
   ``ceil(δ / res)`` cells (L∞ box), is an **over-approximation** in space and an under-estimate in time.
   ``tests/test_octree_reach.py`` checks this against random joint trajectories with ``|q̇| ≤ q̇_max``.

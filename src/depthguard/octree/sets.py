@@ -177,12 +177,14 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
 
 @nb.njit(cache=True)
 def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, opyr, omax, rob, rpyr, flags, stats):
+    # omax: the min-pyramid of -obs (a negated max-pyramid), same layout as opyr
     fx, fy, cx, cy = intr
     od, oo, oh, ow = opyr
     rd = rpyr[0]
     shp = mp[2]
     stack = np.empty((64 * (top + 1) * 8, 5), np.int64)
     work = np.empty((4 * 64 + 64, 3), np.int64)
+    gmin = min(od[od.size - 1], rd[rd.size - 1])  # the pyramids' top: the images' minima
     for ti in range(shp[top, 0]):
         for tj in range(shp[top, 1]):
             for tk in range(shp[top, 2]):
@@ -225,17 +227,19 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                         u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
                         if u0 > u1 or v0 > v1:
                             continue  # outside the image
+                    if zhi < gmin and zhi < zlim[0]:
+                        continue  # nearer than every reading and than the near limit: no flag here or below
                     # state bits inherited from the parent block: 1 no O, 2 all O, 4 no R (they hold for children)
                     no_o = (state & 1) != 0
                     all_o = (state & 2) != 0
                     no_r = (state & 4) != 0
                     if lv > 0:
-                        if not (no_o or all_o):
-                            olo, ohi = _rect_bounds(od, omax, oo, oh, ow, u0, v0, u1, v1)
-                            no_o = olo > zhi
-                            all_o = ohi <= zlo  # every ray is blocked before the block: all of it occluded
+                        if not (no_o or all_o):  # exact decisions through the pyramids
+                            no_o = not _any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                            if not no_o:  # every ray blocked before the block (no pixel beyond z_lo): occluded
+                                all_o = not _any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
                         if not no_r:
-                            no_r = _rect_bounds(rd, rd, oo, oh, ow, u0, v0, u1, v1)[0] > zhi
+                            no_r = not _any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)
                         if no_r and (all_o or (no_o and in_fov)):
                             val = 4 if all_o else 17  # O, or V|F
                             if in_fov and all_o:
@@ -304,7 +308,7 @@ def camera_sets(
         mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
         np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
         (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
-        (camera.min_depth, camera.max_depth), obs, opyr, max_pyramid(obs)[0], rob, min_pyramid(rob), flags, stats,
+        (camera.min_depth, camera.max_depth), obs, opyr, min_pyramid(-obs)[0], rob, min_pyramid(rob), flags, stats,
     )  # fmt: skip
     return flags
 
