@@ -21,7 +21,10 @@ missing-depth policy of :func:`depthguard.depthspace.prepare_frame`; scanners: R
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -141,6 +144,11 @@ def sensor_sets(
     raise ValueError(f"observation must be a CameraObservation or a ScanObservation, got {type(obs).__name__}")
 
 
+@lru_cache(maxsize=4)
+def _pool(workers: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="octree-sensor")
+
+
 def fuse(
     box: VoxelBox,
     observations: list,
@@ -148,6 +156,7 @@ def fuse(
     mode: str = "conservative",
     invalid: str = "conservative",
     fill_radius: int = 4,
+    workers: int | None = None,
 ) -> OctreeFrame:
     """Fuse one frame of every sensor into the obstacle nodes O(t) (module docstring).
 
@@ -158,6 +167,8 @@ def fuse(
         mode: ``"conservative"`` or ``"saphari"``.
         invalid: missing-depth policy of the cameras (``"conservative"``; ``"ignore"`` only on request).
         fill_radius: hole-filling radius of the cameras, pixels.
+        workers: threads for the sensors' sets (SAPHARI ran them in parallel processes; the numba kernels
+            release the GIL); default: the number of CPUs, at most the number of sensors. 1 = serial.
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -170,7 +181,12 @@ def fuse(
         if mask.shape != box.shape:
             raise ValueError(f"reach mask has shape {mask.shape}, expected the box's {box.shape}")
     mp = mask_pyramid(mask, _mask_levels(box.shape))
-    flags = np.stack([sensor_sets(box, mask, o, invalid, fill_radius, mp) for o in observations])
+    n_work = min(len(observations), workers if workers is not None else (os.cpu_count() or 1))
+    if n_work > 1:
+        parts = list(_pool(n_work).map(lambda o: sensor_sets(box, mask, o, invalid, fill_radius, mp), observations))
+    else:
+        parts = [sensor_sets(box, mask, o, invalid, fill_radius, mp) for o in observations]
+    flags = np.stack(parts)
     if mode == "conservative":  # a 2-D scan never sees a node's whole volume free
         for s, o in enumerate(observations):
             if isinstance(o, ScanObservation):

@@ -33,7 +33,7 @@ __all__ = [
 V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def min_pyramid(img):
     """Min-pyramid of a (H, W) float32 image: (flat data, level offsets, level heights, level widths)."""
     H, W = img.shape
@@ -69,7 +69,7 @@ def min_pyramid(img):
     return data, offs, np.array(hs, np.int64), np.array(ws, np.int64)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, stack):
     """Whether some pixel of img[v0:v1+1, u0:u1+1] is <= thr: descends the min-pyramid only into blocks
     whose minimum is <= thr, so a negative answer costs a few lookups, not a scan."""
@@ -102,7 +102,7 @@ def _any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, stack):
     return False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def max_pyramid(img):
     """Max-pyramid of a (H, W) float32 image, same layout as :func:`min_pyramid`."""
     data, offs, hs, ws = min_pyramid(-img)
@@ -127,7 +127,7 @@ def _rect_bounds(mn, mx, offs, hs, ws, u0, v0, u1, v1):
     return lo, hi
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def mask_pyramid(mask, levels):
     """Any-True pyramid of a (nx, ny, nz) bool mask: flat uint8 data, offsets (levels+1,), shapes (levels+1, 3)."""
     shp = np.empty((levels + 1, 3), np.int64)
@@ -175,7 +175,7 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
                     flags[i, j, k] |= val
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, opyr, omax, rob, rpyr, flags, stats):
     # omax: the min-pyramid of -obs (a negated max-pyramid), same layout as opyr
     fx, fy, cx, cy = intr
@@ -313,7 +313,7 @@ def camera_sets(
     return flags
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob, flags):
     nx, ny, nz = shape[0], shape[1], shape[2]
     h = 0.5 * math.sqrt(3.0) * res
@@ -401,7 +401,7 @@ def scanner_sets(mask: np.ndarray, box, scanner, obstacle_range: np.ndarray, rob
     return flags
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _bin(points, origin, res, mask, flags):
     nx, ny, nz = mask.shape
     for p in range(points.shape[0]):
@@ -418,7 +418,7 @@ def bin_points(points: np.ndarray, box, mask: np.ndarray, flags: np.ndarray) -> 
     _bin(pts, np.ascontiguousarray(box.origin, float), float(box.res), mask, flags)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
     fx, fy, cx, cy = intr
     H, W = depth.shape
@@ -451,7 +451,7 @@ def bin_depth_points(camera, depth: np.ndarray, robot: np.ndarray, box, mask: np
     )  # fmt: skip
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def combine(flags, mask, conservative, kind):
     """Fusion of SAPHARI §3.2 over (S, nx, ny, nz) flags into ``kind`` (0 free, 1 occupied, 2 occluded, 3 unseen)."""
     S = flags.shape[0]
@@ -488,7 +488,7 @@ def combine(flags, mask, conservative, kind):
                     kind[i, j, k] = 0
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def mark_overlaps(src, src_origin, src_res, origin, res, shape, out):
     """``out`` (dense bool over ``shape``) |= nodes overlapping any True cell of ``src`` (another lattice)."""
     sx, sy, sz = src.shape
