@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from depthguard.camera import Camera, look_at
 from depthguard.octree.fusion import CameraObservation, ScanObservation, fuse
@@ -225,3 +227,30 @@ def test_bad_input():
         fuse(BOX, [ScanObservation(scanner_at([0, 0, 0.2]), np.zeros(541))], reach=np.ones((2, 2, 2), bool))
     with pytest.raises(ValueError, match="n_rays"):
         LaserScanner(n_rays=0)
+
+
+@pytest.mark.slow
+@settings(deadline=None, max_examples=8)
+@given(
+    centre=st.tuples(st.floats(-0.6, 0.6), st.floats(-0.6, 0.6), st.floats(0.3, 1.2)),
+    half=st.tuples(st.floats(0.03, 0.3), st.floats(0.03, 0.3), st.floats(0.03, 0.3)),
+    holes=st.floats(0.0, 0.3),
+    seed=st.integers(0, 1000),
+)
+def test_random_box_scenes_are_conservative(centre, half, holes, seed):
+    """Hypothesis: any box, any hole fraction: every node the reference ray caster finds blocked is in O_1,
+    and the fused obstacle set (conservative mode) holds it unless the other camera's rays cross it free."""
+    box = (np.array(centre) - half, np.array(centre) + half)
+    cams = [small_camera([0.0, -2.5, 1.2], [0.0, 0.0, 0.5]), small_camera([2.2, 1.2, 1.4], [0.0, 0.3, 0.5])]
+    rng = np.random.default_rng(seed)
+    obs, refs = [], []
+    for cam in cams:
+        d, rays = render(cam, [box, *ROOM])
+        d = np.where(rng.random(d.shape) < holes, 0.0, d).astype(np.float32)
+        obs.append(CameraObservation(cam, d))
+        refs.append(reference_sets(cam, d, rays, step=RES / 3))
+    frame = fuse(BOX, obs, mode="conservative", fill_radius=0)
+    for i, (_, blocked) in enumerate(refs):
+        assert not (blocked & ((frame.flags[i] & O) == 0)).any()
+    must = (refs[0][1] & ~refs[1][0]) | (refs[1][1] & ~refs[0][0])
+    assert not (must & ~frame.occupied).any()
