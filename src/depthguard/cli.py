@@ -83,7 +83,9 @@ def _cmd_distance(args: argparse.Namespace) -> int:
     centres = np.array([p.position for p in points])
     radii = np.array([p.radius for p in points])
 
-    if len(cameras) == 1:
+    if args.backend == "octree":
+        query = _octree_query(args, cameras, depths, masks, centres, radii)
+    elif len(cameras) == 1:
         from depthguard.depthspace import prepare_frame, query_distances
 
         frame = prepare_frame(cameras[0], depths[0], masks[0], invalid=args.invalid, fill_radius=args.fill_radius)
@@ -123,6 +125,29 @@ def _cmd_distance(args: argparse.Namespace) -> int:
         if "timing" in out:
             print(f"query time: median {out['timing']['us_median']:.1f} us, p99 {out['timing']['us_p99']:.1f} us")
     return 0
+
+
+def _octree_query(args, cameras, depths, masks, centres, radii):
+    """``--backend octree``: conservative fusion over ``--workspace`` (default: the box within ρ of the points)."""
+    from depthguard.octree.backend import OctreeBackend, box_around_points
+    from depthguard.octree.fusion import CameraObservation
+    from depthguard.octree.grid import VoxelBox, check_res
+
+    res = check_res(args.octree_res, "--octree-res")
+    if args.workspace:
+        w = args.workspace
+        box = VoxelBox.around([w[0], w[2], w[4]], [w[1], w[3], w[5]], res)
+        if box.size > 50_000_000:
+            raise _Exit(f"--workspace holds {box.size} nodes at --octree-res {res}: use a smaller box")
+    else:
+        box = box_around_points(centres, radii, args.rho, res)
+    backend = OctreeBackend(box, mode="conservative", invalid=args.invalid, fill_radius=args.fill_radius)
+    backend.update([CameraObservation(c, d, m) for c, d, m in zip(cameras, depths, masks, strict=True)])
+
+    def query():
+        return backend.query(centres, radii, rho=args.rho, mode=args.mode)
+
+    return query
 
 
 # ----------------------------------------------------------------------------------------------- scenario
@@ -198,6 +223,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             cameras=args.cameras,
             out_dir=args.out,
             progress=not args.json,
+            **({"backend": "octree", "octree_res": args.octree_res or 0.05} if args.backend == "octree" else {}),
         )
     if args.json:
         print(json.dumps(out, default=float))
@@ -385,6 +411,14 @@ def build_parser() -> argparse.ArgumentParser:
         default="onthefly",
         help="depth-grid map: computed on the fly (default, 15 MB) or stored (cached on disk, ~0.9 GB)",
     )
+    p.add_argument(
+        "--backend",
+        choices=["depthspace", "octree"],
+        default="depthspace",
+        help="depthspace (default: depth space for one camera, depth grid for several) or octree (SAPHARI §3, "
+        "conservative: unseen space in the workspace is an obstacle)",
+    )
+    p.add_argument("--octree-res", type=_positive_float, default=0.05, help="octree node size in m (0.02-0.1)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_distance)
 

@@ -37,6 +37,7 @@ __all__ = [
     "status_msg",
     "markers_msg",
     "joint_trajectory_msg",
+    "cube_list_marker",
     "float64_array_msg",
     "labelled_array_msg",
     "rgb_image_msg",
@@ -337,6 +338,30 @@ def markers_msg(
             )
             markers.append(m)
     return _t("visualization_msgs/msg/MarkerArray")(markers=markers)
+
+
+def cube_list_marker(
+    t: float, ns: str, marker_id: int, centres: np.ndarray, size: float, rgba, frame_id: str = "world"
+):
+    """``visualization_msgs/msg/Marker`` of type CUBE_LIST: cubes of edge ``size`` m at ``centres`` (K, 3), one
+    colour ``rgba`` (4,) or one per cube (K, 4)."""
+    c = np.asarray(centres, dtype=float).reshape(-1, 3)
+    col = np.asarray(rgba, dtype=float)
+    per = col.ndim == 2
+    quat = _t("geometry_msgs/msg/Quaternion")(x=0.0, y=0.0, z=0.0, w=1.0)
+    first = col[0] if per and len(col) else (col if not per else np.array([1.0, 1.0, 1.0, 1.0]))
+    return _t("visualization_msgs/msg/Marker")(
+        header=header(t, frame_id), ns=ns, id=int(marker_id), type=6, action=0,
+        pose=_t("geometry_msgs/msg/Pose")(position=_point([0, 0, 0]), orientation=quat),
+        scale=_vec([size, size, size]), color=_color(*first),
+        lifetime=_t("builtin_interfaces/msg/Duration")(sec=0, nanosec=0), frame_locked=False,
+        points=[_point(p) for p in c], colors=[_color(*k) for k in col] if per else [],
+        texture_resource="",
+        texture=_t("sensor_msgs/msg/CompressedImage")(header=header(t, ""), format="", data=np.zeros(0, np.uint8)),
+        uv_coordinates=[], text="", mesh_resource="",
+        mesh_file=_t("visualization_msgs/msg/MeshFile")(filename="", data=np.zeros(0, np.uint8)),
+        mesh_use_embedded_materials=False,
+    )  # fmt: skip
 
 
 def joint_trajectory_msg(t: float, names: list[str] | tuple[str, ...], q: np.ndarray, qdot: np.ndarray, dt: float):

@@ -38,8 +38,12 @@ def _f64(x: float):
     return ros2.typestore().types["std_msgs/msg/Float64"](data=float(x))
 
 
-def record_run(path: str | Path, cell, log, rho: float = 0.4) -> Path:
-    """Write the run's recording to ``path`` (.mcap). Returns the path."""
+def record_run(path: str | Path, cell, log, rho: float = 0.4, extra=None) -> Path:
+    """Write the run's recording to ``path`` (.mcap). Returns the path.
+
+    ``extra(writer)``, if given, adds a scenario's own topics through the
+    :class:`~depthguard.io.mcap_ros2.Ros2McapWriter` (e.g. the octree and the reachability grid of
+    ``saphari-octree`` as ``visualization_msgs/MarkerArray`` cube lists)."""
     path = Path(path)
     types = ros2.typestore().types
     with Ros2McapWriter(path) as w:
@@ -92,4 +96,6 @@ def record_run(path: str | Path, cell, log, rho: float = 0.4) -> Path:
             w.write("/depthguard/repulsion", "geometry_msgs/msg/Vector3Stamped", vec, t)
             w.write("/depthguard/true_clearance", "std_msgs/msg/Float64", _f64(log.true_min[i]), t)
             w.write("/depthguard/evaluated_min", "std_msgs/msg/Float64", _f64(log.eval_min[i]), t)
+        if extra is not None:
+            extra(w)
     return path

@@ -244,6 +244,8 @@ def _run_one(
     seed: int = 0,
     demo: bool = False,
     camera_backend: str = "auto",
+    backend: str = "depthspace",
+    octree_res: float = 0.05,
 ):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
@@ -258,7 +260,7 @@ def _run_one(
         mode=sc.get("mode", "hybrid"),
         alpha=float(av.get("alpha", 6.0)),
         workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
-    )
+    ) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)  # fmt: skip
     ctrl = Controller(
         kin,
         cell.q(),
@@ -291,6 +293,20 @@ def _run_one(
     return cell, log, task, cfg
 
 
+def _octree_stage(sc: dict, cell, kin, res: float):
+    """``--backend octree``: the SAPHARI §3 octree (conservative mode) over the workspace, C(t) from the arm."""
+    from depthguard.octree.grid import VoxelBox
+    from depthguard.sim.octree_stage import OctreeStage
+
+    w = tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5)))
+    av = sc.get("avoidance", {})
+    box = VoxelBox.around([w[0], w[2], w[4]], [w[1], w[3], w[5]], res)
+    return OctreeStage(
+        cell, cell.cameras, box, reach_model=kin.model, mode="conservative", rho=float(av.get("rho", 0.4)),
+        dist_mode=sc.get("mode", "hybrid"), alpha=float(av.get("alpha", 6.0)),
+    )  # fmt: skip
+
+
 def run_scenario(
     name: str,
     *,
@@ -301,6 +317,8 @@ def run_scenario(
     progress: bool = False,
     variants: bool = True,
     demo: bool = False,
+    backend: str = "depthspace",
+    octree_res: float = 0.05,
 ) -> dict[str, Any]:
     """Run a scenario; return its metrics (the object ``depthguard scenario NAME --json`` prints).
 
@@ -315,6 +333,8 @@ def run_scenario(
         variants: also run the file's ``[[variants]]`` (e.g. without the pivot, without the person) and
             report their metrics under ``"variants"``.
         demo: use the file's ``demo_duration`` and ``demo_resolution`` (``make demo``).
+        backend: ``"depthspace"`` (depth space / depth grid) or ``"octree"`` (SAPHARI §3 octree, conservative
+            mode, nodes of ``octree_res`` m over the scenario's workspace, C(t) from the arm's reachability).
     Returns:
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
@@ -334,6 +354,8 @@ def run_scenario(
         progress=progress,
         label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})",
         demo=demo,
+        backend=backend,
+        octree_res=octree_res,
     )
     result: dict[str, Any] = {
         "scenario": sc["name"],
@@ -365,6 +387,8 @@ def run_scenario(
                 cameras=cameras,
                 progress=progress,
                 label=f"{sc['name']} [{v['name']}]",
+                backend=backend,
+                octree_res=octree_res,
             )
             result["variants"][v["name"]] = compute_metrics(vlog, vtask, vcfg)
             runs[v["name"]] = (vlog, vtask)

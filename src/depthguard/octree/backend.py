@@ -1,0 +1,69 @@
+"""The octree distance backend: one object that fuses sensor frames and answers distance queries, with the
+same result type as the depth-space backend (:class:`depthguard.depthspace.PointDistances`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from depthguard.depthspace import PointDistances
+from depthguard.octree.distance import capsule_distances, sphere_distances
+from depthguard.octree.fusion import MODES, OctreeFrame, fuse, reach_mask
+from depthguard.octree.grid import VoxelBox, check_res
+from depthguard.validation import check_points
+
+__all__ = ["OctreeBackend", "box_around_points"]
+
+
+def box_around_points(centres: np.ndarray, radii: np.ndarray, rho: float, res: float) -> VoxelBox:
+    """The node box that holds every node within ρ of N spheres (N, 3) / (N,): all that a query can see."""
+    c, r = check_points(np.atleast_2d(np.asarray(centres, dtype=float)), np.atleast_1d(np.asarray(radii, float)))
+    reach = float(rho) + float(r.max(initial=0.0)) + res
+    return VoxelBox.around(c.min(axis=0) - reach, c.max(axis=0) + reach, check_res(res, "octree res"))
+
+
+class OctreeBackend:
+    """Fuse one frame of all sensors into an obstacle octree (:func:`depthguard.octree.fusion.fuse`) and query
+    distances from control spheres or link capsules (:mod:`depthguard.octree.distance`).
+
+    Args:
+        box: the node lattice (node size 0.02-0.1 m), e.g. a box around the robot's close range.
+        mode: ``"conservative"`` (unseen space is an obstacle) or ``"saphari"`` (unseen space is free).
+        invalid, fill_radius: the cameras' missing-depth policy (:func:`depthguard.depthspace.prepare_frame`).
+    """
+
+    def __init__(self, box: VoxelBox, mode: str = "conservative", invalid: str = "conservative", fill_radius: int = 4):
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        check_res(box.res, "octree res")
+        self.box = box
+        self.mode = mode
+        self.invalid = invalid
+        self.fill_radius = fill_radius
+        self.frame: OctreeFrame | None = None
+
+    def update(self, observations: list, reach=None) -> OctreeFrame:
+        """Fuse one frame. ``reach``: a :class:`~depthguard.octree.reach.ReachabilityGrid` (C(t)), a bool mask
+        over :attr:`box`, or None (the whole box counts)."""
+        mask = None
+        if reach is not None:
+            mask = reach if isinstance(reach, np.ndarray) else reach_mask(self.box, reach)
+        self.frame = fuse(self.box, observations, mask, self.mode, self.invalid, self.fill_radius)
+        return self.frame
+
+    @property
+    def ready(self) -> bool:
+        return self.frame is not None
+
+    def query(
+        self, centres: np.ndarray, radii: np.ndarray | float = 0.0, rho: float = 0.4, mode: str = "min"
+    ) -> PointDistances:
+        """Distances from N control spheres (see :func:`~depthguard.octree.distance.sphere_distances`)."""
+        if self.frame is None:
+            raise ValueError("OctreeBackend.query: call update() with a sensor frame first")
+        return sphere_distances(self.frame.occupied, self.box, centres, radii, rho=rho, mode=mode)
+
+    def query_capsules(self, a: np.ndarray, b: np.ndarray, radii: np.ndarray, rho: float = 0.4) -> PointDistances:
+        """Distances from L link capsules (see :func:`~depthguard.octree.distance.capsule_distances`)."""
+        if self.frame is None:
+            raise ValueError("OctreeBackend.query_capsules: call update() with a sensor frame first")
+        return capsule_distances(self.frame.occupied, self.box, a, b, radii, rho=rho)

@@ -1,0 +1,514 @@
+"""Per-sensor node sets V_i, P_i, O_i, R_i, F_i (SAPHARI D4.1.1 §3.2) for depth cameras and 2-D scanners.
+
+Instead of tracing every ray through the octree, each candidate node is projected into the sensor:
+
+* camera: the node's 8 corners give its pixel rectangle (the pixels whose cones meet the node) and its
+  depth range ``[z_lo, z_hi]``. The node is **occupied or occluded by obstacles** (O_i) when some pixel of
+  the rectangle is blocked at a depth ``<= z_hi`` (some ray through the node meets an obstacle before it
+  leaves the node); the same with robot pixels gives R_i. It is **in the field of view** (V_i) when the whole
+  rectangle lies in the image and ``[z_lo, z_hi]`` in ``[min_depth, max_depth]``; F_i = V_i \\ (O_i ∪ R_i):
+  every pixel that meets the node sees past it. P_i: nodes holding a measured (not hole-filled) obstacle point.
+* 2-D scanner: only nodes that the scan plane cuts; the beam sectors that meet the node's slice and its
+  planar range ``[r_lo, r_hi]`` play the part of the pixel rectangle and depth range.
+
+Nodes are visited top-down in blocks (the octree's inner nodes): min/max image pyramids bound the depths
+over a block's pixel rectangle, a block that every pixel sees past (or that every pixel sees blocked
+before it) is decided at once, and only nodes near a surface reach the leaves, where undecided nodes scan
+their pixels exactly. The sets are exact for the per-pixel-cone sensor model, with O_i and R_i never
+smaller than the rays say.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+__all__ = [
+    "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "scanner_sets",
+    "bin_points", "bin_depth_points", "combine", "mark_overlaps",
+]  # fmt: skip
+
+V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
+
+
+@nb.njit(cache=True, nogil=True)
+def min_pyramid(img):
+    """Min-pyramid of a (H, W) float32 image: (flat data, level offsets, level heights, level widths)."""
+    H, W = img.shape
+    hs = [H]
+    ws = [W]
+    while hs[-1] > 1 or ws[-1] > 1:
+        hs.append((hs[-1] + 1) // 2)
+        ws.append((ws[-1] + 1) // 2)
+    L = len(hs)
+    offs = np.zeros(L, np.int64)
+    tot = 0
+    for lv in range(L):
+        offs[lv] = tot
+        tot += hs[lv] * ws[lv]
+    data = np.empty(tot, np.float32)
+    for v in range(H):
+        for u in range(W):
+            data[v * W + u] = img[v, u]
+    for lv in range(1, L):
+        h0, w0, o0 = hs[lv - 1], ws[lv - 1], offs[lv - 1]
+        h1, w1, o1 = hs[lv], ws[lv], offs[lv]
+        for v in range(h1):
+            for u in range(w1):
+                m = np.inf
+                for dv in range(2):
+                    for du in range(2):
+                        vv, uu = 2 * v + dv, 2 * u + du
+                        if vv < h0 and uu < w0:
+                            x = data[o0 + vv * w0 + uu]
+                            if x < m:
+                                m = x
+                data[o1 + v * w1 + u] = m
+    return data, offs, np.array(hs, np.int64), np.array(ws, np.int64)
+
+
+@nb.njit(cache=True, nogil=True)
+def _any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, stack):
+    """Whether some pixel of img[v0:v1+1, u0:u1+1] is <= thr: descends the min-pyramid only into blocks
+    whose minimum is <= thr, so a negative answer costs a few lookups, not a scan."""
+    span = max(u1 - u0 + 1, v1 - v0 + 1)
+    top = 0
+    while (4 << top) < span and top + 1 < offs.size:
+        top += 1
+    n = 0
+    for bv in range(v0 >> top, (v1 >> top) + 1):
+        for bu in range(u0 >> top, (u1 >> top) + 1):
+            stack[n, 0], stack[n, 1], stack[n, 2] = top, bv, bu
+            n += 1
+    while n > 0:
+        n -= 1
+        lv, bv, bu = stack[n, 0], stack[n, 1], stack[n, 2]
+        if data[offs[lv] + bv * ws[lv] + bu] > thr:
+            continue
+        pv0, pu0 = bv << lv, bu << lv
+        pv1, pu1 = ((bv + 1) << lv) - 1, ((bu + 1) << lv) - 1
+        if pv0 >= v0 and pv1 <= v1 and pu0 >= u0 and pu1 <= u1:
+            return True  # the block lies inside the rectangle and holds a pixel <= thr
+        if lv == 0:
+            continue  # a single pixel outside the rectangle
+        for c in range(4):
+            cv, cu = 2 * bv + (c >> 1), 2 * bu + (c & 1)
+            if cv < hs[lv - 1] and cu < ws[lv - 1] and (cv << (lv - 1)) <= v1 and ((cv + 1) << (lv - 1)) - 1 >= v0 \
+                    and (cu << (lv - 1)) <= u1 and ((cu + 1) << (lv - 1)) - 1 >= u0:  # fmt: skip
+                stack[n, 0], stack[n, 1], stack[n, 2] = lv - 1, cv, cu
+                n += 1
+    return False
+
+
+@nb.njit(cache=True, nogil=True)
+def max_pyramid(img):
+    """Max-pyramid of a (H, W) float32 image, same layout as :func:`min_pyramid`."""
+    data, offs, hs, ws = min_pyramid(-img)
+    return -data, offs, hs, ws
+
+
+@nb.njit(cache=True, inline="always")
+def _rect_bounds(mn, mx, offs, hs, ws, u0, v0, u1, v1):
+    """(<= true min, >= true max) of a pixel rectangle from covering pyramid blocks (at most ~4 per side)."""
+    span = max(u1 - u0 + 1, v1 - v0 + 1)
+    lv = 0
+    while (4 << lv) < span and lv + 1 < offs.size:
+        lv += 1
+    w = ws[lv]
+    o = offs[lv]
+    lo = np.inf
+    hi = -np.inf
+    for bv in range(v0 >> lv, (v1 >> lv) + 1):
+        for bu in range(u0 >> lv, (u1 >> lv) + 1):
+            lo = min(lo, mn[o + bv * w + bu])
+            hi = max(hi, mx[o + bv * w + bu])
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def mask_pyramid(mask, levels):
+    """Any-True pyramid of a (nx, ny, nz) bool mask: flat uint8 data, offsets (levels+1,), shapes (levels+1, 3)."""
+    shp = np.empty((levels + 1, 3), np.int64)
+    shp[0, 0], shp[0, 1], shp[0, 2] = mask.shape
+    offs = np.zeros(levels + 1, np.int64)
+    tot = shp[0, 0] * shp[0, 1] * shp[0, 2]
+    for lv in range(1, levels + 1):
+        for d in range(3):
+            shp[lv, d] = (shp[lv - 1, d] + 1) // 2
+        offs[lv] = tot
+        tot += shp[lv, 0] * shp[lv, 1] * shp[lv, 2]
+    data = np.zeros(tot, np.uint8)
+    nx, ny, nz = mask.shape
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if mask[i, j, k]:
+                    data[(i * ny + j) * nz + k] = 1
+    for lv in range(1, levels + 1):
+        a0, a1, a2 = shp[lv - 1, 0], shp[lv - 1, 1], shp[lv - 1, 2]
+        b1, b2 = shp[lv, 1], shp[lv, 2]
+        o0, o1 = offs[lv - 1], offs[lv]
+        for i in range(a0):
+            for j in range(a1):
+                for k in range(a2):
+                    if data[o0 + (i * a1 + j) * a2 + k]:
+                        data[o1 + ((i // 2) * b1 + j // 2) * b2 + k // 2] = 1
+    return data, offs, shp
+
+
+@nb.njit(cache=True, inline="always")
+def _block_any(mp, lv, i, j, k):
+    data, offs, shp = mp
+    return data[offs[lv] + (i * shp[lv, 1] + j) * shp[lv, 2] + k] != 0
+
+
+@nb.njit(cache=True, inline="always")
+def _fill_block(flags, mask, lv, bi, bj, bk, val):
+    nx, ny, nz = flags.shape
+    s = 1 << lv
+    for i in range(bi * s, min((bi + 1) * s, nx)):
+        for j in range(bj * s, min((bj + 1) * s, ny)):
+            for k in range(bk * s, min((bk + 1) * s, nz)):
+                if mask[i, j, k]:
+                    flags[i, j, k] |= val
+
+
+@nb.njit(cache=True, nogil=True)
+def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, opyr, omax, rob, rpyr, flags, stats):
+    # omax: the min-pyramid of -obs (a negated max-pyramid), same layout as opyr
+    fx, fy, cx, cy = intr
+    od, oo, oh, ow = opyr
+    rd = rpyr[0]
+    shp = mp[2]
+    stack = np.empty((64 * (top + 1) * 8, 5), np.int64)
+    work = np.empty((4 * 64 + 64, 3), np.int64)
+    gmin = min(od[od.size - 1], rd[rd.size - 1])  # the pyramids' top: the images' minima
+    for ti in range(shp[top, 0]):
+        for tj in range(shp[top, 1]):
+            for tk in range(shp[top, 2]):
+                if not _block_any(mp, top, ti, tj, tk):
+                    continue
+                n = 1
+                stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3], stack[0, 4] = top, ti, tj, tk, 0
+                while n > 0:
+                    n -= 1
+                    lv, bi, bj, bk, state = stack[n, 0], stack[n, 1], stack[n, 2], stack[n, 3], stack[n, 4]
+                    size = (1 << lv) * res
+                    stats[lv] += 1
+                    zlo, zhi = np.inf, -np.inf
+                    pxl, pxh, pyl, pyh = np.inf, -np.inf, np.inf, -np.inf
+                    behind = False
+                    for c in range(8):
+                        x = origin[0] + bi * size + (c & 1) * size
+                        y = origin[1] + bj * size + ((c >> 1) & 1) * size
+                        z = origin[2] + bk * size + ((c >> 2) & 1) * size
+                        xc = Rc[0, 0] * x + Rc[0, 1] * y + Rc[0, 2] * z + tc[0]
+                        yc = Rc[1, 0] * x + Rc[1, 1] * y + Rc[1, 2] * z + tc[1]
+                        zc = Rc[2, 0] * x + Rc[2, 1] * y + Rc[2, 2] * z + tc[2]
+                        zlo = min(zlo, zc)
+                        zhi = max(zhi, zc)
+                        if zc <= 1e-6:
+                            behind = True
+                            continue
+                        px = fx * xc / zc + cx
+                        py = fy * yc / zc + cy
+                        pxl, pxh, pyl, pyh = min(pxl, px), max(pxh, px), min(pyl, py), max(pyh, py)
+                    if zhi <= 1e-6:
+                        continue  # wholly behind the camera: no information
+                    if behind:
+                        u0, v0, u1, v1 = 0, 0, W - 1, H - 1
+                        in_fov = False
+                    else:
+                        u0, u1 = int(math.floor(pxl)), int(math.floor(pxh))
+                        v0, v1 = int(math.floor(pyl)), int(math.floor(pyh))
+                        in_fov = u0 >= 0 and v0 >= 0 and u1 < W and v1 < H and zlo >= zlim[0] and zhi <= zlim[1]
+                        u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
+                        if u0 > u1 or v0 > v1:
+                            continue  # outside the image
+                    if zhi < gmin and zhi < zlim[0]:
+                        continue  # nearer than every reading and than the near limit: no flag here or below
+                    # state bits inherited from the parent block: 1 no O, 2 all O, 4 no R (they hold for children)
+                    no_o = (state & 1) != 0
+                    all_o = (state & 2) != 0
+                    no_r = (state & 4) != 0
+                    if lv > 0:
+                        if not (no_o or all_o):  # exact decisions through the pyramids
+                            no_o = not _any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                            if not no_o:  # every ray blocked before the block (no pixel beyond z_lo): occluded
+                                all_o = not _any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
+                        if not no_r:
+                            no_r = not _any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                        if no_r and (all_o or (no_o and in_fov)):
+                            val = 4 if all_o else 17  # O, or V|F
+                            if in_fov and all_o:
+                                val |= 1
+                            _fill_block(flags, mask, lv, bi, bj, bk, val)
+                            stats[8 + lv] += 1
+                            continue
+                        stats[
+                            16 + (1 if no_o else 0) + (2 if all_o else 0) + (4 if no_r else 0) + (8 if in_fov else 0)
+                        ] += 1
+                        s1 = lv - 1
+                        for c in range(8):
+                            ci, cj, ck = 2 * bi + (c & 1), 2 * bj + ((c >> 1) & 1), 2 * bk + ((c >> 2) & 1)
+                            if (
+                                ci < shp[s1, 0]
+                                and cj < shp[s1, 1]
+                                and ck < shp[s1, 2]
+                                and _block_any(mp, s1, ci, cj, ck)
+                            ):
+                                stack[n, 0], stack[n, 1], stack[n, 2], stack[n, 3] = s1, ci, cj, ck
+                                stack[n, 4] = (1 if no_o else 0) | (2 if all_o else 0) | (4 if no_r else 0)
+                                n += 1
+                        continue
+                    fl = 0
+                    if not no_o and (all_o or _any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
+                        fl |= 4
+                    if not no_r and _any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work):
+                        fl |= 8
+                    if in_fov:
+                        fl |= 1
+                        if fl == 1:
+                            fl |= 16
+                    flags[bi, bj, bk] |= fl
+
+
+def _levels(shape) -> int:
+    return max(0, min(4, int(math.ceil(math.log2(max(shape))))))
+
+
+def camera_sets(
+    mask: np.ndarray, box, camera, obstacle_depth: np.ndarray, robot_depth: np.ndarray, mp=None, stats=None
+):
+    """(nx, ny, nz) uint8 flags V, O, R, F of the nodes of ``mask`` (bool over ``box``) for one depth image.
+
+    Nodes are visited top-down in blocks of up to 16^3: a block whose pixels all see past it (or are all
+    blocked before it) is decided at once, so the cost follows the surfaces, not the volume.
+
+    Args:
+        obstacle_depth: (H, W) float32 depth at which each pixel is blocked by an obstacle (``inf`` = free;
+            missing pixels already set by the missing-depth policy, e.g. :func:`depthguard.depthspace.prepare_frame`).
+        robot_depth: (H, W) float32 depth at which each pixel is blocked by the robot, ``inf`` elsewhere.
+        mp: the mask's :func:`mask_pyramid` (computed when None).
+        stats: optional (32,) int64 counters: visits per level [0:8], blocks decided per level [8:16],
+            undecided blocks by (no O, all O, no R, in view) [16:32].
+    """
+    flags = np.zeros(box.shape, np.uint8)
+    top = _levels(box.shape)
+    if mp is None:
+        mp = mask_pyramid(mask, top)
+    obs = np.ascontiguousarray(obstacle_depth, dtype=np.float32)
+    rob = np.ascontiguousarray(robot_depth, dtype=np.float32)
+    opyr = min_pyramid(obs)
+    if stats is None:
+        stats = np.zeros(32, np.int64)
+    _camera_kernel(
+        mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
+        np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
+        (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
+        (camera.min_depth, camera.max_depth), obs, opyr, min_pyramid(-obs)[0], rob, min_pyramid(rob), flags, stats,
+    )  # fmt: skip
+    return flags
+
+
+@nb.njit(cache=True, nogil=True)
+def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob, flags):
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    h = 0.5 * math.sqrt(3.0) * res
+    ez = 0.5 * res * (abs(Rs[2, 0]) + abs(Rs[2, 1]) + abs(Rs[2, 2]))
+    # the nodes that the plane z_S = 0 can cut: restrict the k range when the plane is horizontal enough
+    for i in range(nx):
+        for j in range(ny):
+            x = origin[0] + (i + 0.5) * res
+            y = origin[1] + (j + 0.5) * res
+            kmin, kmax = 0, nz - 1
+            if abs(Rs[2, 2]) > 1e-3:  # solve z_S(k) = +-ez for the node-centre height
+                zs0 = Rs[2, 0] * x + Rs[2, 1] * y + ts[2]
+                za = (-ez - zs0) / Rs[2, 2]
+                zb = (ez - zs0) / Rs[2, 2]
+                kmin = max(0, int(math.floor((min(za, zb) - origin[2]) / res - 0.5)) - 1)
+                kmax = min(nz - 1, int(math.ceil((max(za, zb) - origin[2]) / res - 0.5)) + 1)
+            for k in range(kmin, kmax + 1):
+                if not mask[i, j, k]:
+                    continue
+                z = origin[2] + (k + 0.5) * res
+                xc = Rs[0, 0] * x + Rs[0, 1] * y + Rs[0, 2] * z + ts[0]
+                yc = Rs[1, 0] * x + Rs[1, 1] * y + Rs[1, 2] * z + ts[1]
+                zc = Rs[2, 0] * x + Rs[2, 1] * y + Rs[2, 2] * z + ts[2]
+                if abs(zc) > ez:
+                    continue  # the scan plane misses the node
+                rc = math.sqrt(xc * xc + yc * yc)
+                phic = math.atan2(yc, xc)
+                rhi = 0.0
+                lo_rel, hi_rel = 0.0, 0.0
+                for c in range(8):
+                    dx = ((c & 1) - 0.5) * res
+                    dy = (((c >> 1) & 1) - 0.5) * res
+                    dz = (((c >> 2) & 1) - 0.5) * res
+                    px = xc + Rs[0, 0] * dx + Rs[0, 1] * dy + Rs[0, 2] * dz
+                    py = yc + Rs[1, 0] * dx + Rs[1, 1] * dy + Rs[1, 2] * dz
+                    rhi = max(rhi, math.sqrt(px * px + py * py))
+                    rel = math.atan2(py, px) - phic
+                    if rel > math.pi:
+                        rel -= 2 * math.pi
+                    elif rel < -math.pi:
+                        rel += 2 * math.pi
+                    lo_rel, hi_rel = min(lo_rel, rel), max(hi_rel, rel)
+                rlo = max(0.0, rc - h)
+                if rc <= h:  # the node holds the scanner: every ray may meet it
+                    i0, i1 = 0, n - 1
+                    in_fov = False
+                else:
+                    i0 = int(math.ceil((phic + lo_rel - a0 - 0.5 * inc) / inc))
+                    i1 = int(math.floor((phic + hi_rel - a0 + 0.5 * inc) / inc))
+                    if i1 < 0:  # the angle wrapped past -pi
+                        i0 += int(round(2 * math.pi / inc))
+                        i1 += int(round(2 * math.pi / inc))
+                    in_fov = i0 >= 0 and i1 < n and rlo >= rlim[0] and rhi <= rlim[1]
+                    i0, i1 = max(i0, 0), min(i1, n - 1)
+                    if i0 > i1:
+                        continue
+                fl = 0
+                for r in range(i0, i1 + 1):
+                    if obs[r] <= rhi:
+                        fl |= 4
+                    if rob[r] <= rhi:
+                        fl |= 8
+                if in_fov:
+                    fl |= 1
+                    if fl == 1:
+                        fl |= 16
+                flags[i, j, k] |= fl
+
+
+def scanner_sets(mask: np.ndarray, box, scanner, obstacle_range: np.ndarray, robot_range: np.ndarray) -> np.ndarray:
+    """(nx, ny, nz) uint8 flags V, O, R, F of the nodes of ``mask`` for one scan (see the module docstring).
+
+    Args:
+        obstacle_range: (n_rays,) range at which each ray is blocked by an obstacle (``inf`` = free to
+            ``range_max``), e.g. from :func:`depthguard.octree.scanner.scan_obstacle_ranges`.
+        robot_range: (n_rays,) range at which each ray is blocked by the robot, ``inf`` elsewhere.
+    """
+    flags = np.zeros(box.shape, np.uint8)
+    _scanner_kernel(
+        mask, np.array(box.shape, np.int64), np.ascontiguousarray(box.origin, float), float(box.res),
+        np.ascontiguousarray(scanner.R), np.ascontiguousarray(scanner.t), scanner.angle_min,
+        scanner.angle_increment, scanner.n_rays, (scanner.range_min, scanner.range_max),
+        np.ascontiguousarray(obstacle_range, float), np.ascontiguousarray(robot_range, float), flags,
+    )  # fmt: skip
+    return flags
+
+
+@nb.njit(cache=True, nogil=True)
+def _bin(points, origin, res, mask, flags):
+    nx, ny, nz = mask.shape
+    for p in range(points.shape[0]):
+        i = int(math.floor((points[p, 0] - origin[0]) / res))
+        j = int(math.floor((points[p, 1] - origin[1]) / res))
+        k = int(math.floor((points[p, 2] - origin[2]) / res))
+        if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz and mask[i, j, k]:
+            flags[i, j, k] |= 2
+
+
+def bin_points(points: np.ndarray, box, mask: np.ndarray, flags: np.ndarray) -> None:
+    """Set the P bit of the nodes of ``mask`` holding any of the (K, 3) obstacle points."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(-1, 3))
+    _bin(pts, np.ascontiguousarray(box.origin, float), float(box.res), mask, flags)
+
+
+@nb.njit(cache=True, nogil=True)
+def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
+    fx, fy, cx, cy = intr
+    H, W = depth.shape
+    nx, ny, nz = mask.shape
+    for v in range(H):
+        yv = (v + 0.5 - cy) / fy
+        for u in range(W):
+            d = depth[v, u]
+            if robot[v, u] or not (d >= zlim[0] and d <= zlim[1]):
+                continue  # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
+            xc = (u + 0.5 - cx) / fx * d
+            yc = yv * d
+            x = Rt[0, 0] * xc + Rt[0, 1] * yc + Rt[0, 2] * d + pos[0]
+            y = Rt[1, 0] * xc + Rt[1, 1] * yc + Rt[1, 2] * d + pos[1]
+            z = Rt[2, 0] * xc + Rt[2, 1] * yc + Rt[2, 2] * d + pos[2]
+            i = int(math.floor((x - origin[0]) / res))
+            j = int(math.floor((y - origin[1]) / res))
+            k = int(math.floor((z - origin[2]) / res))
+            if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz and mask[i, j, k]:
+                flags[i, j, k] |= 2
+
+
+def bin_depth_points(camera, depth: np.ndarray, robot: np.ndarray, box, mask: np.ndarray, flags: np.ndarray) -> None:
+    """Set the P bit of the nodes of ``mask`` holding a measured, non-robot pixel of ``depth`` (H, W) metres."""
+    _bin_depth(
+        np.ascontiguousarray(depth, dtype=np.float32), np.ascontiguousarray(robot, dtype=np.bool_),
+        (camera.min_depth, camera.max_depth), (camera.fx, camera.fy, camera.cx, camera.cy),
+        np.ascontiguousarray(camera.R.T), np.ascontiguousarray(camera.position), np.ascontiguousarray(box.origin),
+        float(box.res), mask, flags,
+    )  # fmt: skip
+
+
+@nb.njit(cache=True, nogil=True)
+def combine(flags, mask, conservative, kind):
+    """Fusion of SAPHARI §3.2 over (S, nx, ny, nz) flags into ``kind`` (0 free, 1 occupied, 2 occluded, 3 unseen)."""
+    S = flags.shape[0]
+    nx, ny, nz = mask.shape
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if not mask[i, j, k]:
+                    kind[i, j, k] = 0
+                    continue
+                nf = 0
+                anyp = False
+                anyo = False
+                anyr = False
+                for s in range(S):
+                    f = flags[s, i, j, k]
+                    nf += (f >> 4) & 1
+                    anyp = anyp or (f & 2) != 0
+                    anyo = anyo or (f & 4) != 0
+                    anyr = anyr or (f & 8) != 0
+                if anyp:
+                    kind[i, j, k] = 1
+                    continue
+                occ = False
+                for s in range(S):
+                    f = flags[s, i, j, k]
+                    if (f & 4) != 0 and nf - ((f >> 4) & 1) == 0:  # O_i and no other sensor sees it free
+                        occ = True
+                if occ:
+                    kind[i, j, k] = 2
+                elif conservative and nf == 0 and not anyo and not anyr:
+                    kind[i, j, k] = 3
+                else:
+                    kind[i, j, k] = 0
+
+
+@nb.njit(cache=True, nogil=True)
+def mark_overlaps(src, src_origin, src_res, origin, res, shape, out):
+    """``out`` (dense bool over ``shape``) |= nodes overlapping any True cell of ``src`` (another lattice)."""
+    sx, sy, sz = src.shape
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    eps = 1e-9
+    for a in range(sx):
+        for b in range(sy):
+            for c in range(sz):
+                if not src[a, b, c]:
+                    continue
+                lo0 = src_origin[0] + a * src_res
+                lo1 = src_origin[1] + b * src_res
+                lo2 = src_origin[2] + c * src_res
+                i0 = max(0, int(math.floor((lo0 - origin[0]) / res - eps)))
+                i1 = min(nx - 1, int(math.ceil((lo0 + src_res - origin[0]) / res + eps)) - 1)
+                j0 = max(0, int(math.floor((lo1 - origin[1]) / res - eps)))
+                j1 = min(ny - 1, int(math.ceil((lo1 + src_res - origin[1]) / res + eps)) - 1)
+                k0 = max(0, int(math.floor((lo2 - origin[2]) / res - eps)))
+                k1 = min(nz - 1, int(math.ceil((lo2 + src_res - origin[2]) / res + eps)) - 1)
+                for i in range(i0, i1 + 1):
+                    for j in range(j0, j1 + 1):
+                        for k in range(k0, k1 + 1):
+                            out[i, j, k] = True

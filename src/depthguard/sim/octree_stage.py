@@ -1,0 +1,121 @@
+"""The octree distance backend as a stage of the simulated loop (:func:`depthguard.sim.loop.run_loop`): same
+interface as :class:`depthguard.sim.pipeline.DistanceStage` (``update(depths, masks)``, ``ready``,
+``query(centres, radii)``), plus the platform's laser scanners and the reachability grid C(t)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from depthguard.depthspace import PointDistances
+from depthguard.octree.backend import OctreeBackend
+from depthguard.octree.fusion import CameraObservation, ScanObservation, reach_mask
+from depthguard.octree.grid import VoxelBox
+from depthguard.octree.reach import ReachabilityGrid
+from depthguard.octree.scanner import scan_robot_rays
+from depthguard.robot.reach import robot_reachability
+
+__all__ = ["OctreeStage"]
+
+
+class OctreeStage:
+    """Frame stage (reachability, per-sensor sets, fusion) and distance stage (spheres to occupied nodes).
+
+    Args:
+        cell: the simulated cell (its ``data`` for the scans, ``q()`` for the robot state).
+        cameras: the depth cameras, world frame.
+        box: the octree's node box.
+        reach_model: the :class:`~depthguard.robot.model.RobotModel` whose reachability gives C(t), or None
+            (the whole box counts).
+        reach_q: ``q_arm -> q`` of ``reach_model`` (e.g. prepends the base coordinates); identity if None.
+        reach_offset: (3,) world position of ``reach_model``'s origin (its world frame shifted by it).
+        lasers: :class:`~depthguard.sim.laser.LaserSim` scanners.
+        scan_capsules: ``q_arm -> (a, b, r)`` robot capsules for the scanners' self-filter.
+        mode: ``"saphari"`` or ``"conservative"``.
+        rho, dist_mode, alpha: as :class:`~depthguard.sim.pipeline.DistanceStage`.
+        horizon, reach_res: reachability horizon (s) and cell size (m).
+        keep_every: keep a snapshot (octree, reachability) of every ``keep_every``-th frame for the recording.
+    """
+
+    def __init__(
+        self,
+        cell,
+        cameras,
+        box: VoxelBox,
+        reach_model=None,
+        reach_q=None,
+        reach_offset=(0.0, 0.0, 0.0),
+        lasers=(),
+        scan_capsules=None,
+        mode: str = "saphari",
+        rho: float = 0.4,
+        dist_mode: str = "hybrid",
+        alpha: float = 6.0,
+        horizon: float = 0.5,
+        reach_res: float = 0.09,
+        keep_every: int = 15,
+    ) -> None:
+        self.cell = cell
+        self.cameras = list(cameras)
+        self.backend = OctreeBackend(box, mode=mode)
+        self.reach_model = reach_model
+        self.reach_q = reach_q or (lambda q: q)
+        self.reach_offset = np.asarray(reach_offset, float)
+        self.lasers = list(lasers)
+        self.scan_capsules = scan_capsules
+        self.rho, self.dist_mode, self.alpha = float(rho), dist_mode, float(alpha)
+        self.horizon, self.reach_res = float(horizon), float(reach_res)
+        self.keep_every = int(keep_every)
+        self.times: dict[str, list[float]] = {k: [] for k in ("reachability", "laser", "scan_filter", "fusion")}
+        self.times["distance"] = []
+        self.snapshots: list[tuple[float, np.ndarray, ReachabilityGrid | None]] = []
+        self.counts: list[dict] = []
+        self._n = 0
+        self.reach: ReachabilityGrid | None = None
+
+    def _reachability(self, q: np.ndarray) -> ReachabilityGrid | None:
+        if self.reach_model is None:
+            return None
+        g = robot_reachability(self.reach_model, self.reach_q(q), horizon=self.horizon, res=self.reach_res)
+        box = VoxelBox(g.box.origin + self.reach_offset, g.box.res, g.box.shape)
+        return g._replace(box=box)
+
+    def update(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> None:
+        """Frame stage: one depth image and robot mask per camera; the scans are taken here."""
+        q = self.cell.q()
+        t0 = time.perf_counter()
+        self.reach = self._reachability(q)
+        t1 = time.perf_counter()
+        scans = [las.capture(self.cell.data) for las in self.lasers]
+        t2 = time.perf_counter()
+        obs = [CameraObservation(c, d, m) for c, d, m in zip(self.cameras, depths, masks, strict=True)]
+        if scans:
+            a, b, r = self.scan_capsules(q)
+            for las, s in zip(self.lasers, scans, strict=True):
+                obs.append(ScanObservation(las.scanner, s, scan_robot_rays(las.scanner, s, a, b, r)))
+        t3 = time.perf_counter()
+        mask = None if self.reach is None else reach_mask(self.backend.box, self.reach)
+        frame = self.backend.update(obs, mask)
+        t4 = time.perf_counter()
+        for k, v in zip(self.times, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=False):
+            self.times[k].append(v)
+        self.counts.append(frame.counts())
+        if self._n % self.keep_every == 0:
+            self.snapshots.append((float(self.cell.data.time), frame.kind.copy(), self.reach))
+        self._n += 1
+
+    @property
+    def ready(self) -> bool:
+        return self.backend.ready
+
+    def query(self, centres: np.ndarray, radii: np.ndarray) -> PointDistances:
+        """Distance stage: control spheres to the occupied nodes."""
+        t0 = time.perf_counter()
+        res = self.backend.query(centres, radii, rho=self.rho, mode=self.dist_mode)
+        self.times["distance"].append(time.perf_counter() - t0)
+        return res
+
+    def stage_ms(self) -> dict[str, float]:
+        """Median milliseconds per stage."""
+        return {k: round(1e3 * float(np.median(v)), 3) for k, v in self.times.items() if v}
