@@ -155,7 +155,7 @@ def test_live_publisher_decoded_as_rmw_zenoh_would():
 
 
 def test_subscription_drops_duplicates_reordered_and_unlisted():
-    zenoh = pytest.importorskip("zenoh")
+    pytest.importorskip("zenoh")
     from depthguard.io import ros2
     from depthguard.io.zenoh_transport import ZenohNode
 
