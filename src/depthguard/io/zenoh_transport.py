@@ -68,8 +68,8 @@ def session_config(listen: list[str], connect: list[str], tls: dict[str, str] | 
     c.insert_json5("listen/endpoints", json.dumps(list(listen)))
     c.insert_json5("connect/endpoints", json.dumps(list(connect)))
     c.insert_json5("scouting/multicast/enabled", "false")
-    c.insert_json5("connect/timeout_ms", json.dumps({"router": 0, "peer": 0, "client": 0}))
     c.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": False}))
+    c.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 1.5}")
     c.insert_json5("listen/exit_on_failure", json.dumps({"router": True, "peer": True, "client": True}))
     if tls:
         c.insert_json5("transport/link/tls", json.dumps(tls))
