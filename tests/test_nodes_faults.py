@@ -93,9 +93,7 @@ class StatusWatch:
         self.cell = cell
         self.events: list[tuple[float, str]] = []
         self.lock = threading.Lock()
-        self.node.subscribe(
-            Topics.of(cell).status, "depthguard_msgs/msg/ControllerStatus", self._on, check_order=False
-        )
+        self.node.subscribe(Topics.of(cell).status, "depthguard_msgs/msg/ControllerStatus", self._on, check_order=False)
 
     def _on(self, msg, att, recv_ns):
         with self.lock:

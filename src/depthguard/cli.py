@@ -136,6 +136,7 @@ EXTRA_BENCHES: dict[str, str] = {
     "octree": "depthguard.bench.octree:run_octree_benchmark",
     "proximity": "depthguard.bench.proximity:run_proximity_benchmark",
     "contact": "depthguard.bench.contact:run_contact_benchmark",
+    "net-latency": "depthguard.nodes.bench:run_net_latency_benchmark",
 }
 
 
