@@ -217,7 +217,8 @@ class LiveView:
         dm = "-" if dmin is None else ("inf" if not np.isfinite(dmin) else f"{dmin:.3f} m")
         self.md.content = (
             f"**DepthGuard** cell `{self.cell.name}`  \nstatus: **{st['status']}**  \nnearest: {dm}  \n"
-            f"frames {rates['frames']:.1f} Hz · distances {rates['queries']:.1f} Hz · commands {rates['commands']:.0f} Hz"
+            f"frames {rates['frames']:.1f} Hz · distances {rates['queries']:.1f} Hz"
+            f" · commands {rates['commands']:.0f} Hz"
         )
         self.draws += 1
 
