@@ -137,6 +137,7 @@ EXTRA_BENCHES: dict[str, str] = {
     "proximity": "depthguard.bench.proximity:run_proximity_benchmark",
     "contact": "depthguard.bench.contact:run_contact_benchmark",
     "net-latency": "depthguard.nodes.bench:run_net_latency_benchmark",
+    "view": "depthguard.viz.live_bench:run_view_benchmark",
 }
 
 
