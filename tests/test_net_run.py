@@ -1,0 +1,104 @@
+"""``run --transport zenoh`` publishes the runner's topics in the rmw_zenoh format; the cell file's [network]
+section is validated; ``depthguard node`` refuses unknown names."""
+
+from __future__ import annotations
+
+import collections
+import random
+import struct
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from depthguard.io.cellfile import read_cell
+
+ROOT = Path(__file__).resolve().parents[1]
+CELL = ROOT / "examples/cells/sim-hexagon.toml"
+IMAGE_HASH = "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47"
+JOINT_STATE_HASH = "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"
+
+
+def _cell(tmp_path: Path, extra: str) -> Path:
+    p = tmp_path / "cell.toml"
+    p.write_text(CELL.read_text() + "\n[network]\n" + extra)
+    return p
+
+
+def test_network_section_defaults_and_errors(tmp_path):
+    net = read_cell(CELL).network
+    assert net["host"] == "127.0.0.1" and net["connect"] == ["tcp/127.0.0.1:7447"] and net["domain"] == 0
+    with pytest.raises(ValueError, match="network.base_port"):
+        read_cell(_cell(tmp_path, "base_port = 7447\n"))
+    with pytest.raises(ValueError, match="not loopback"):
+        read_cell(_cell(tmp_path, 'host = "192.168.1.5"\n'))
+    with pytest.raises(ValueError, match="unknown key"):
+        read_cell(_cell(tmp_path, "listen_anywhere = true\n"))
+    with pytest.raises(ValueError, match="network.domain"):
+        read_cell(_cell(tmp_path, "domain = 300\n"))
+
+
+def test_node_rejects_unknown_name_and_router_port():
+    from depthguard.cli import main
+    from depthguard.io.zenoh_transport import session_config
+
+    assert main(["node", "camera9", "--cell", str(CELL), "--duration", "0"]) == 2
+    with pytest.raises(ValueError, match="never listens"):
+        session_config(["tcp/127.0.0.1:7447"], [])
+
+
+@pytest.mark.slow
+def test_run_transport_zenoh_publishes_images_and_joint_states(tmp_path):
+    zenoh = pytest.importorskip("zenoh")
+    from rosbags.typesys import Stores, get_typestore
+
+    from depthguard.io.zenoh_transport import session_config
+    from depthguard.nodes.runpub import ZenohRunPublisher
+    from depthguard.runner import open_source
+    from depthguard.runner.chain import Chain, load_cell_robot
+    from depthguard.runner.run import run_chain
+
+    base = random.randint(36000, 40000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    run_port = base + 6  # sim, camera0, camera1, distance, controller, monitor, run
+    model = load_cell_robot(cell)
+    src = open_source("sim:ral-hexagon", cell, model.joint_names, quick=True)
+    src.duration = 0.2
+    chain = Chain(cell, src.cameras, model)
+    raw = zenoh.open(session_config([], [f"tcp/127.0.0.1:{run_port}"]))
+    got: dict[str, list] = collections.defaultdict(list)
+    lock = threading.Lock()
+
+    def on(s):
+        with lock:
+            got[str(s.key_expr)].append((s.payload.to_bytes(), s.attachment.to_bytes()))
+
+    sub = raw.declare_subscriber("0/**", on)
+    try:
+        pub = ZenohRunPublisher(cell, chain)
+        t0 = time.time()
+        while not list(raw.info.peers_zid()) and time.time() - t0 < 20:
+            time.sleep(0.1)
+        time.sleep(0.5)
+        summary = run_chain(cell, src, chain, sinks=[pub])
+        time.sleep(1.0)
+    finally:
+        sub.undeclare()
+        raw.close()
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    img_key = f"0/camera0/depth/image_raw/sensor_msgs::msg::dds_::Image_/{IMAGE_HASH}"
+    js_key = f"0/joint_states/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
+    cmd_key = f"0/depthguard/joint_command/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
+    assert len(got[img_key]) == summary["frames"] > 0
+    assert len(got[js_key]) == summary["commands"] == len(got[cmd_key])
+    img = ts.deserialize_cdr(got[img_key][-1][0], "sensor_msgs/msg/Image")
+    assert (img.encoding, img.width, img.height) == ("32FC1", 160, 120)
+    depth = np.frombuffer(bytes(img.data), "<f4")
+    assert np.isfinite(depth).any()
+    js = ts.deserialize_cdr(got[js_key][-1][0], "sensor_msgs/msg/JointState")
+    assert list(js.name) == list(model.joint_names) and len(js.position) == 7
+    seqs = [struct.unpack("<q", a[:8])[0] for _, a in got[cmd_key]]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    assert all(len(a) == 33 for _, a in got[cmd_key])
