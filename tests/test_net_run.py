@@ -102,3 +102,54 @@ def test_run_transport_zenoh_publishes_images_and_joint_states(tmp_path):
     seqs = [struct.unpack("<q", a[:8])[0] for _, a in got[cmd_key]]
     assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
     assert all(len(a) == 33 for _, a in got[cmd_key])
+
+
+@pytest.mark.slow
+def test_view_node_draws_what_the_nodes_publish(tmp_path):
+    pytest.importorskip("zenoh")
+    pytest.importorskip("viser")
+    from depthguard.io import ros2
+    from depthguard.nodes.camera import mask_msg
+    from depthguard.nodes.common import StopFlag, Topics, open_node
+    from depthguard.viz.live import run_view_node
+
+    base = random.randint(44000, 48000)
+    path = _cell(tmp_path, f"base_port = {base}\nconnect = []\n")
+    cell = read_cell(path)
+    top = Topics.of(cell)
+    stop = StopFlag()
+    result: dict = {}
+    th = threading.Thread(
+        target=lambda: result.update(
+            run_view_node(str(path), port=random.randint(18900, 19500), duration=30, stop=stop)
+        )
+    )
+    th.start()
+    node = open_node(cell, "camera0")  # publishes as the camera nodes and the controller would
+    try:
+        pd = {c.name: node.publisher(top.depth[c.name], "sensor_msgs/msg/Image") for c in cell.cameras}
+        pm = {c.name: node.publisher(top.mask[c.name], "sensor_msgs/msg/Image") for c in cell.cameras}
+        pj = node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
+        pdist = node.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
+        pst = node.publisher(top.status, "depthguard_msgs/msg/ControllerStatus")
+        depth = np.full((120, 160), 2.0, np.float32)
+        mask = np.zeros((120, 160), bool)
+        mask[50:70, 70:90] = True
+        names = [f"j{i}" for i in range(1, 8)]
+        end = time.time() + 12
+        while time.time() < end:
+            now = time.time()
+            pj.publish(ros2.joint_state_msg(now, names, np.zeros(7)))
+            for c in cell.cameras:
+                pd[c.name].publish(ros2.image_msg(now, c.name, depth, "32FC1"))
+                pm[c.name].publish(mask_msg(now, c.name, mask))
+            pdist.publish(ros2.distances_msg(now, ["ee"], [[0, 0, 1]], [0.1], [0.2], [[1.0, 0, 0]], rho=0.4))
+            pst.publish(ros2.status_msg(now, "SCALED", 0.5))
+            time.sleep(0.1)
+        stop.set()
+        th.join(30)
+    finally:
+        stop.set()
+        node.close()
+    assert result["frames"] > 0 and result["distances"] > 0 and result["draws"] > 0
+    assert result["status"] == "SCALED"

@@ -245,9 +245,10 @@ def run_view_node(
     duration: float | None = None,
     domain: int | None = None,
     connect: list[str] | None = None,
-) -> None:
+    stop: Any = None,
+) -> dict[str, Any]:
     """The ``view`` node: the live view of a cell's nodes on Zenoh (prepared frames, masks, joint states,
-    distances, status)."""
+    distances, status). Returns what it saw: ``draws``, ``frames``, ``distances``, ``status``."""
     from depthguard.io import ros2
     from depthguard.io.cellfile import read_cell
     from depthguard.nodes.common import StopFlag, Topics, open_node
@@ -299,7 +300,7 @@ def run_view_node(
         node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n))
     node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist)
     node.subscribe(top.status, "depthguard_msgs/msg/ControllerStatus", lambda m, a, t: view.set_status(str(m.status)))
-    stop = StopFlag()
+    stop = stop if stop is not None else StopFlag()
     print(f"depthguard view: http://127.0.0.1:{port}", flush=True)
     t0 = time.time()
     try:
@@ -308,3 +309,9 @@ def run_view_node(
     finally:
         node.close()
         view.close()
+    return {
+        "draws": view.draws,
+        "frames": len(view.times["frames"]),
+        "distances": len(view.times["queries"]),
+        "status": view.state["status"],
+    }
