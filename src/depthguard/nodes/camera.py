@@ -11,6 +11,7 @@ queues them); a frame without joint states within 50 ms of its stamp is not publ
 from __future__ import annotations
 
 import threading
+import time
 from collections import deque
 
 import numpy as np
@@ -78,9 +79,6 @@ def run_camera_node(
     pub_d = node.publisher(top.depth[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
     pub_m = node.publisher(top.mask[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
     done = skipped = 0
-    t_start = None
-    import time
-
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
