@@ -188,3 +188,34 @@ def test_subscription_drops_duplicates_reordered_and_unlisted():
     finally:
         tx.close()
         rx.close()
+
+
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 3), st.integers(-5, 30), st.integers(0, 40), st.booleans()), min_size=1, max_size=40
+    )
+)
+def test_filter_never_passes_duplicates_reordered_or_stale(samples):
+    """Random interleavings of publishers, sequence numbers, stamps and corrupt payloads: what passes has
+    strictly increasing stamps and, per publisher, strictly increasing sequence numbers."""
+    from depthguard.io import ros2
+    from depthguard.io.zenoh_transport import SampleFilter
+
+    f = SampleFilter("sensor_msgs/msg/JointState")
+    passed = []
+    for pub, seq, stamp, corrupt in samples:
+        gid = bytes([pub]) * 16
+        cdr = ros2.serialize(ros2.joint_state_msg(float(stamp), ["a"], [0.0]), "sensor_msgs/msg/JointState")
+        got = f.accept(rz.encode_attachment(seq, 0, gid), cdr[:7] if corrupt else cdr)
+        if got is not None:
+            passed.append((pub, seq, ros2.to_seconds(got[0].header.stamp)))
+    stamps = [s for _, _, s in passed]
+    assert all(a < b for a, b in zip(stamps, stamps[1:], strict=False))
+    for p in {p for p, _, _ in passed}:
+        seqs = [s for q, s, _ in passed if q == p]
+        assert all(a < b for a, b in zip(seqs, seqs[1:], strict=False))
+    assert sum(f.dropped.values()) == len(samples) - len(passed)
+    # an allow-list with no way to name the publisher lets nothing through
+    g = SampleFilter("sensor_msgs/msg/JointState", who=lambda gid: None, allowed={"controller"})
+    assert g.accept(rz.encode_attachment(1, 0, b"\x00" * 16), cdr) is None
+    assert g.rejected_publishers == {"None"}

@@ -37,7 +37,7 @@ from depthguard.io.rmw_zenoh import (
     topic_keyexpr,
 )
 
-__all__ = ["ROUTER_ENDPOINT", "session_config", "ZenohNode", "RosPublisher", "Subscription"]
+__all__ = ["ROUTER_ENDPOINT", "session_config", "ZenohNode", "RosPublisher", "Subscription", "SampleFilter"]
 
 #: Where the ROS 2 Zenoh router (``ros2 run rmw_zenoh_cpp rmw_zenohd``) listens.
 ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -110,8 +110,66 @@ class RosPublisher:
         self._lv.undeclare()
 
 
+class SampleFilter:
+    """What a subscription lets through, without any Zenoh: ``accept(attachment, payload)`` returns the
+    decoded ``(message, attachment)`` or None, counting every drop by reason in :attr:`dropped`.
+
+    Args:
+        typename: the ROS type of the payload.
+        who: GID (16 bytes) -> publishing node name or None (the graph), used only with ``allowed``.
+        allowed: node names that may publish here (None = anyone).
+        check_order: drop messages whose header stamp is not newer than the last accepted one.
+    """
+
+    def __init__(
+        self,
+        typename: str,
+        who: Callable[[bytes], str | None] | None = None,
+        allowed: set[str] | None = None,
+        check_order: bool = True,
+    ) -> None:
+        self.typename, self.who, self.allowed, self.check_order = typename, who, allowed, check_order
+        self.last_seq: dict[bytes, int] = {}
+        self.last_stamp = -float("inf")
+        self.dropped: dict[str, int] = {}
+        self.rejected_publishers: set[str] = set()
+
+    def _drop(self, why: str) -> None:
+        self.dropped[why] = self.dropped.get(why, 0) + 1
+
+    def accept(self, attachment: bytes | None, payload: bytes) -> tuple[Any, Any] | None:
+        try:
+            att = decode_attachment(attachment if attachment is not None else b"")
+        except ValueError:
+            self._drop("bad attachment")
+            return None
+        if self.allowed is not None:
+            name = self.who(att.gid) if self.who is not None else None
+            if name not in self.allowed:
+                self._drop("publisher not allowed")
+                self.rejected_publishers.add(str(name))
+                return None
+        if att.seq <= self.last_seq.get(att.gid, -(2**63) - 1):
+            self._drop("duplicate or reordered sequence number")
+            return None
+        try:
+            msg = ros2.deserialize(payload, self.typename)
+        except Exception:  # noqa: BLE001 - any malformed payload is dropped, never raised into Zenoh
+            self._drop("malformed CDR")
+            return None
+        if self.check_order and hasattr(msg, "header"):
+            st = ros2.to_seconds(msg.header.stamp)
+            if not st > self.last_stamp:
+                self._drop("stale or reordered stamp")
+                return None
+            self.last_stamp = st
+        self.last_seq[att.gid] = att.seq
+        return msg, att
+
+
 class Subscription:
-    """One ROS 2 subscription; ``callback(msg, attachment, receive_ns)`` runs on Zenoh's thread."""
+    """One ROS 2 subscription; ``callback(msg, attachment, receive_ns)`` runs on Zenoh's thread for every
+    sample that :class:`SampleFilter` lets through."""
 
     def __init__(
         self,
@@ -123,51 +181,30 @@ class Subscription:
         allowed: set[str] | None,
         check_order: bool,
     ) -> None:
-        self.node, self.topic, self.typename = node, topic, typename
-        self.callback, self.allowed, self.check_order = callback, allowed, check_order
+        self.node, self.topic, self.typename, self.callback = node, topic, typename, callback
         self.key = topic_keyexpr(node.domain, topic, typename)
         tok = liveliness_token(node.domain, node.zid, node.nid, eid, "MS", node.name, topic=topic, typename=typename)
         self._lv = node.session.liveliness().declare_token(tok)
-        self.last_seq: dict[bytes, int] = {}
-        self.last_stamp = -float("inf")
+        self.filter = SampleFilter(typename, node.publisher_node, allowed, check_order)
         self.received = 0
-        self.dropped: dict[str, int] = {}
-        self.rejected_publishers: set[str] = set()
         self._sub = node.session.declare_subscriber(self.key, self._on_sample)
 
-    def _drop(self, why: str) -> None:
-        self.dropped[why] = self.dropped.get(why, 0) + 1
+    @property
+    def dropped(self) -> dict[str, int]:
+        return self.filter.dropped
+
+    @property
+    def rejected_publishers(self) -> set[str]:
+        return self.filter.rejected_publishers
 
     def _on_sample(self, sample) -> None:
         now = time.time_ns()
-        try:
-            att = decode_attachment(sample.attachment.to_bytes() if sample.attachment is not None else b"")
-        except ValueError:
-            self._drop("bad attachment")
+        att = sample.attachment.to_bytes() if sample.attachment is not None else None
+        got = self.filter.accept(att, sample.payload.to_bytes())
+        if got is None:
             return
-        if self.allowed is not None:
-            who = self.node.publisher_node(att.gid)
-            if who not in self.allowed:
-                self._drop("publisher not allowed")
-                self.rejected_publishers.add(str(who))
-                return
-        if att.seq <= self.last_seq.get(att.gid, -1):
-            self._drop("duplicate or reordered sequence number")
-            return
-        self.last_seq[att.gid] = att.seq
-        try:
-            msg = ros2.deserialize(sample.payload.to_bytes(), self.typename)
-        except Exception:  # noqa: BLE001 - any malformed payload is dropped, never raised into Zenoh
-            self._drop("malformed CDR")
-            return
-        if self.check_order and hasattr(msg, "header"):
-            st = ros2.to_seconds(msg.header.stamp)
-            if st <= self.last_stamp:
-                self._drop("stale or reordered stamp")
-                return
-            self.last_stamp = st
         self.received += 1
-        self.callback(msg, att, now)
+        self.callback(got[0], got[1], now)
 
     def close(self) -> None:
         self._sub.undeclare()
