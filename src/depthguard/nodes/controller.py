@@ -28,6 +28,35 @@ from depthguard.nodes.common import JsonLog, StopFlag, Topics, now_s, open_node
 __all__ = ["run_controller_node"]
 
 
+class _Inputs:
+    """The controller's newest inputs, written by the Zenoh callbacks under one lock."""
+
+    def __init__(self, n: int, N: int) -> None:
+        self.n, self.N = n, N
+        self.lock = threading.Lock()
+        self.st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None}
+        self.st.update(td=-np.inf, dpub=None)
+
+    def on_js(self, msg, att, recv_ns) -> None:
+        q, qd = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
+        if q.shape == (self.n,) and qd.shape == (self.n,):
+            with self.lock:
+                self.st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))
+
+    def on_task(self, msg, att, recv_ns) -> None:
+        with self.lock:
+            self.st["xd"] = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
+
+    def on_dist(self, msg, att, recv_ns) -> None:
+        if len(msg.points) != self.N:
+            return
+        d = np.array([p.distance for p in msg.points], float)
+        dirs = np.array([[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], float)
+        dirs = np.where(np.isfinite(d)[:, None], dirs, 0.0)
+        with self.lock:
+            self.st.update(d=d, dirs=dirs, td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
+
+
 def run_controller_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
@@ -46,28 +75,8 @@ def run_controller_node(
     N, n = points.n_points, len(model.joint_names)
     top = Topics.of(cell)
     node = open_node(cell, "controller", **kw)
-    lock = threading.Lock()
-    st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None, "td": -np.inf}
-    st["dpub"] = None
-
-    def on_js(msg, att, recv_ns):
-        q, qd = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
-        if q.shape == (n,) and qd.shape == (n,):
-            with lock:
-                st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))
-
-    def on_task(msg, att, recv_ns):
-        with lock:
-            st["xd"] = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
-
-    def on_dist(msg, att, recv_ns):
-        if len(msg.points) != N:
-            return
-        d = np.array([p.distance for p in msg.points], float)
-        dirs = np.array([[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], float)
-        dirs = np.where(np.isfinite(d)[:, None], dirs, 0.0)
-        with lock:
-            st.update(d=d, dirs=dirs, td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
+    inp = _Inputs(n, N)
+    on_js, on_task, on_dist, lock, st = inp.on_js, inp.on_task, inp.on_dist, inp.lock, inp.st
 
     allowed = set(cell.network.get("publishers", ["distance"])) if cell.network else None
     node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)

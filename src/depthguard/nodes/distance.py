@@ -32,6 +32,53 @@ def _mask_from_msg(msg) -> np.ndarray:
     return raw[: step * h].reshape(h, step)[:, :w] > 0
 
 
+class _FrameSets:
+    """Pairs each camera's prepared depth and mask by stamp; :attr:`ev` is set when every camera has one."""
+
+    def __init__(self, names: list[str], n_joints: int) -> None:
+        self.names, self.n_joints = names, n_joints
+        self.lock, self.ev = threading.Lock(), threading.Event()
+        self.depth: dict[str, dict] = {n: {} for n in names}
+        self.mask: dict[str, dict] = {n: {} for n in names}
+        self.ready: dict[str, tuple] = {}
+        self.joint: dict = {"q": None}
+
+    def _pair(self, n: str, t: float, pub: float) -> None:
+        depth, mask = self.depth[n], self.mask[n]
+        if t in depth and t in mask:
+            self.ready[n] = (t, depth.pop(t), mask.pop(t), pub)
+            for k in [k for k in depth if k < t]:
+                depth.pop(k)
+            for k in [k for k in mask if k < t]:
+                mask.pop(k)
+            if len(self.ready) == len(self.names):
+                self.ev.set()
+
+    def on_depth(self, n: str):
+        def cb(msg, att, recv_ns):
+            t = ros2.to_seconds(msg.header.stamp)
+            with self.lock:
+                self.depth[n][t] = ros2.image_to_depth(msg)
+                self._pair(n, t, att.stamp_ns * 1e-9)
+
+        return cb
+
+    def on_mask(self, n: str):
+        def cb(msg, att, recv_ns):
+            t = ros2.to_seconds(msg.header.stamp)
+            with self.lock:
+                self.mask[n][t] = _mask_from_msg(msg)
+                self._pair(n, t, att.stamp_ns * 1e-9)
+
+        return cb
+
+    def on_js(self, msg, att, recv_ns) -> None:
+        q = np.asarray(msg.position, float)
+        if q.shape == (self.n_joints,) and np.all(np.isfinite(q)):
+            with self.lock:
+                self.joint["q"] = q
+
+
 def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
@@ -51,46 +98,16 @@ def run_distance_node(
     names = [c.name for c in cell.cameras]
     top = Topics.of(cell)
     node = open_node(cell, "distance", **kw)
-    lock = threading.Lock()
-    ev = threading.Event()
-    depth: dict[str, dict] = {n: {} for n in names}
-    mask: dict[str, dict] = {n: {} for n in names}
-    ready: dict[str, tuple] = {}
-    joint: dict = {"q": None}
-
-    def pair(n: str, t: float, pub: float) -> None:
-        if t in depth[n] and t in mask[n]:
-            ready[n] = (t, depth[n].pop(t), mask[n].pop(t), pub)
-            for k in [k for k in depth[n] if k < t]:
-                depth[n].pop(k)
-            for k in [k for k in mask[n] if k < t]:
-                mask[n].pop(k)
-            if len(ready) == len(names):
-                ev.set()
-
-    def on_depth(n):
-        def cb(msg, att, recv_ns):
-            t = ros2.to_seconds(msg.header.stamp)
-            with lock:
-                depth[n][t] = ros2.image_to_depth(msg)
-                pair(n, t, att.stamp_ns * 1e-9)
-
-        return cb
-
-    def on_mask(n):
-        def cb(msg, att, recv_ns):
-            t = ros2.to_seconds(msg.header.stamp)
-            with lock:
-                mask[n][t] = _mask_from_msg(msg)
-                pair(n, t, att.stamp_ns * 1e-9)
-
-        return cb
-
-    def on_js(msg, att, recv_ns):
-        q = np.asarray(msg.position, float)
-        if q.shape == (len(model.joint_names),) and np.all(np.isfinite(q)):
-            with lock:
-                joint["q"] = q
+    fs = _FrameSets(names, len(model.joint_names))
+    lock, ev, ready, joint, on_js, on_depth, on_mask = (
+        fs.lock,
+        fs.ev,
+        fs.ready,
+        fs.joint,
+        fs.on_js,
+        fs.on_depth,
+        fs.on_mask,
+    )
 
     subs = [node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)]
     for n in names:
