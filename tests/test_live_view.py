@@ -84,7 +84,7 @@ def test_live_view_in_headless_chromium():
             cdp = page.context.new_cdp_session(page)
 
             def shot() -> np.ndarray:
-                time.sleep(3.0)
+                time.sleep(2.0)
                 return _png(cdp.send("Page.captureScreenshot", {"format": "png"})["data"])
 
             full = shot()

@@ -153,3 +153,71 @@ def test_view_node_draws_what_the_nodes_publish(tmp_path):
         node.close()
     assert result["frames"] > 0 and result["distances"] > 0 and result["draws"] > 0
     assert result["status"] == "SCALED"
+
+
+@pytest.mark.slow
+def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
+    """A ROS 2 camera driver on rmw_zenoh, written by hand (key expression by string formatting, CDR from a
+    fresh rosbags Jazzy store, attachment by ``struct``): the camera node self-filters its 16UC1 frames and
+    publishes the prepared depth (32FC1, same stamp, metres)."""
+    zenoh = pytest.importorskip("zenoh")
+    from rosbags.typesys import Stores, get_typestore
+
+    from depthguard.io.zenoh_transport import session_config
+    from depthguard.nodes.camera import run_camera_node
+    from depthguard.nodes.common import StopFlag
+
+    base = random.randint(48000, 52000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    drv = zenoh.open(session_config([f"tcp/127.0.0.1:{base}"], [f"tcp/127.0.0.1:{base + 1}"]))  # the 'sim' port
+    got = []
+    sub = drv.declare_subscriber(
+        f"0/depthguard/camera0/depth/sensor_msgs::msg::dds_::Image_/{IMAGE_HASH}",
+        lambda s: got.append(ts.deserialize_cdr(s.payload.to_bytes(), "sensor_msgs/msg/Image")),
+    )
+    stop = StopFlag()
+    result: dict = {}
+    th = threading.Thread(target=lambda: result.update(run_camera_node(cell, "camera0", duration=40, stop=stop)))
+    th.start()
+    gid = bytes(range(16))
+    mm = np.full((120, 160), 2500, np.uint16)  # 2.5 m everywhere
+    mm[:10] = 0  # no reading
+    try:
+        end, seq = time.time() + 30, 0
+        while time.time() < end and not got:
+            now = time.time()
+            sec, nsec = int(now), int((now % 1) * 1e9)
+            hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="c0")
+            js = T["sensor_msgs/msg/JointState"](
+                header=hdr,
+                name=[f"j{i}" for i in range(7)],
+                position=np.zeros(7),
+                velocity=np.zeros(7),
+                effort=np.zeros(0),
+            )
+            img = T["sensor_msgs/msg/Image"](
+                header=hdr, height=120, width=160, encoding="16UC1", is_bigendian=0, step=320,
+                data=np.frombuffer(mm.astype("<u2").tobytes(), np.uint8),
+            )  # fmt: skip
+            for topic, typ, msg in (("joint_states", "JointState", js), ("camera0/depth/image_raw", "Image", img)):
+                seq += 1
+                h = JOINT_STATE_HASH if typ == "JointState" else IMAGE_HASH
+                att = struct.pack("<qqB", seq, time.time_ns(), 16) + gid
+                drv.put(
+                    f"0/{topic}/sensor_msgs::msg::dds_::{typ}_/{h}",
+                    bytes(ts.serialize_cdr(msg, f"sensor_msgs/msg/{typ}")),
+                    attachment=att,
+                )
+            time.sleep(0.1)
+    finally:
+        stop.set()
+        th.join(30)
+        sub.undeclare()
+        drv.close()
+    assert got, f"the camera node published no prepared frame ({result})"
+    out = got[-1]
+    assert out.encoding == "32FC1" and (out.width, out.height) == (160, 120)
+    d = np.frombuffer(bytes(out.data), "<f4").reshape(120, 160)
+    assert np.all(np.isnan(d[:10])) and np.allclose(d[10:][np.isfinite(d[10:])], 2.5)
