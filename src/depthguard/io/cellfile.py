@@ -25,7 +25,13 @@ cell file are relative to the file's folder. Sections:
   ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool);
 * ``calibration = "FILE"`` (top level): extrinsics from ``depthguard calibrate`` override the cameras' own;
 * ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
-  (Float64MultiArray), ``distances``, ``status``, ``markers``.
+  (Float64MultiArray), ``distances``, ``status``, ``markers``;
+* ``[network]`` (nodes on Zenoh, see ``docs/nodes.md``): ``domain`` (ROS domain id), ``host`` (the address the
+  nodes listen on: ``127.0.0.1`` by default), ``base_port`` (node *k* listens on ``base_port + k``),
+  ``connect`` (extra endpoints, default the ROS 2 router ``tcp/127.0.0.1:7447``), ``publishers`` (node names
+  allowed to publish distances and joint commands; default: DepthGuard's own ``distance`` and
+  ``controller``), ``tls_root_ca``, ``tls_certificate``, ``tls_private_key`` (paths: Zenoh TLS for a network
+  endpoint; required when ``host`` is not a loopback address).
 """
 
 from __future__ import annotations
@@ -122,6 +128,7 @@ class CellFile:
     controller: dict[str, Any]
     topics: dict[str, str]
     raw: dict[str, Any] = field(repr=False, default_factory=dict)
+    network: dict[str, Any] = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------------------------------- the schema
@@ -209,8 +216,18 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "status": (str, "/depthguard/status"),
         "markers": (str, "/depthguard/markers"),
     },
+    "network": {
+        "domain": (int, 0),
+        "host": (str, "127.0.0.1"),
+        "base_port": (int, 7460),
+        "connect": (list, ["tcp/127.0.0.1:7447"]),
+        "publishers": (list, ["distance", "controller"]),
+        "tls_root_ca": (str, ""),
+        "tls_certificate": (str, ""),
+        "tls_private_key": (str, ""),
+    },
 }
-_TOP = {"cell", "robot", "cameras", "distance", "controller", "topics", "calibration"}
+_TOP = {"cell", "robot", "cameras", "distance", "controller", "topics", "calibration", "network"}
 _CHOICES = {
     ("distance", "backend"): ("depthspace", "octree"),
     ("distance", "mode"): ("min", "all", "hybrid"),
@@ -460,7 +477,33 @@ def read_cell(path: str | Path) -> CellFile:
     if not 0 < ctrl["velocity_scale"] <= 1:
         raise CellError(f"{src}: controller.velocity_scale must be in (0, 1], got {ctrl['velocity_scale']}")
     topics = _section(src, "topics", "topics", data.get("topics", {}))
-    return CellFile(src, cell["name"], cell["description"], _robot(src, data["robot"]), cams, dist, ctrl, topics, data)
+    net = _network(src, data.get("network", {}))
+    robot = _robot(src, data["robot"])
+    return CellFile(src, cell["name"], cell["description"], robot, cams, dist, ctrl, topics, data, net)
+
+
+def _network(src: Path, table: Any) -> dict[str, Any]:
+    net = _section(src, "network", "network", table)
+    if not 0 <= net["domain"] <= 232:
+        raise CellError(f"{src}: network.domain must be a ROS domain id in [0, 232], got {net['domain']}")
+    if not 1024 <= net["base_port"] <= 65000 or net["base_port"] == 7447:
+        raise CellError(f"{src}: network.base_port must be in [1024, 65000] and not 7447, got {net['base_port']}")
+    for key in ("connect", "publishers"):
+        if not all(isinstance(x, str) and x for x in net[key]):
+            raise CellError(f"{src}: network.{key} must be an array of non-empty strings")
+    tls = [net[k] for k in ("tls_root_ca", "tls_certificate", "tls_private_key")]
+    if net["host"] not in ("127.0.0.1", "localhost", "::1") and not all(tls):
+        raise CellError(
+            f"{src}: network.host {net['host']!r} is not loopback: give tls_root_ca, tls_certificate and"
+            " tls_private_key (Zenoh TLS) to open a network endpoint"
+        )
+    for k in ("tls_root_ca", "tls_certificate", "tls_private_key"):
+        if net[k]:
+            path = (src.parent / net[k]).resolve()
+            if not path.is_file():
+                raise CellError(f"{src}: network.{k} '{net[k]}' is not a file (looked at {path})")
+            net[k] = str(path)
+    return net
 
 
 def describe_cell(cell: CellFile) -> str:

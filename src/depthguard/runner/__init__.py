@@ -60,8 +60,16 @@ def run_cell(
     out_dir: str | Path | None = None,
     progress: bool = False,
     log: Any = None,
+    transport: str = "none",
+    zenoh_domain: int | None = None,
+    zenoh_connect: list[str] | None = None,
+    view: bool = False,
 ) -> dict[str, Any]:
-    """Run the chain of ``cell_path`` on ``source``; returns the summary (see :func:`run.run_chain`)."""
+    """Run the chain of ``cell_path`` on ``source``; returns the summary (see :func:`run.run_chain`).
+
+    ``transport="zenoh"`` also publishes the topics on Zenoh (:mod:`depthguard.nodes.runpub`; ROS domain
+    ``zenoh_domain``, endpoints ``zenoh_connect``); ``view`` serves the live view (:mod:`depthguard.viz.live`).
+    """
     from depthguard.runner.chain import Chain, load_cell_robot
     from depthguard.runner.run import run_chain
 
@@ -69,6 +77,21 @@ def run_cell(
     model = load_cell_robot(cell)
     src = open_source(source, cell, model.joint_names, quick=quick)
     chain = Chain(cell, src.cameras, model)
-    summary = run_chain(cell, src, chain, realtime=realtime, out_dir=out_dir, progress=progress, label=source, log=log)
+    if transport not in ("none", "zenoh"):
+        raise ValueError(f"--transport must be 'none' or 'zenoh', got {transport!r}")
+    sinks: list[Any] = []
+    if transport == "zenoh":
+        from depthguard.nodes.runpub import ZenohRunPublisher
+
+        sinks.append(ZenohRunPublisher(cell, chain, domain=zenoh_domain, connect=zenoh_connect))
+    if view:
+        from depthguard.viz.live import LiveView
+
+        sinks.append(LiveView(cell, model, chain.points, chain.cameras))
+    summary = run_chain(
+        cell, src, chain, realtime=realtime, out_dir=out_dir, progress=progress, label=source, log=log, sinks=sinks
+    )
     summary = {"cell": cell.name, "source": source, **summary}
+    if transport == "zenoh":
+        summary["zenoh_published"] = dict(sinks[0].count)
     return summary

@@ -134,8 +134,12 @@ def run_chain(
     progress: bool = False,
     label: str = "run",
     log: RunLog | None = None,
+    sinks: list[Any] | None = None,
 ) -> dict[str, Any]:
     """Drive ``chain`` with every tick of ``source``; record to ``out_dir/recording.mcap`` if given.
+
+    ``sinks``: more consumers with the recorder's hooks (``inputs``, ``masks``, ``query(t, res, cps)``,
+    ``command``, ``close``): the Zenoh publisher of ``--transport zenoh``, the live view of ``--view``.
 
     Returns the summary: ``frames``, ``commands``, ``distance_hz_median``, ``statuses`` (count per status
     name), ``duration_s`` (source time), ``wall_s``.
@@ -152,6 +156,7 @@ def run_chain(
     t_first = None
     last_marker = -np.inf
     bar = [-1]
+    sinks = list(sinks or [])
     try:
         for tick in source.ticks():
             t_first = tick.t if t_first is None else t_first
@@ -162,12 +167,16 @@ def run_chain(
             log.faults.update(f"{k}: {v}" for k, v in tick.faults.items())  # source faults (dropped stream...)
             if rec is not None:
                 rec.inputs(tick, tick.frames)
+            for s in sinks:
+                s.inputs(tick, tick.frames)
             if tick.frames is not None and tick.q is not None:
                 masks = chain.on_frames(tick.frames, tick.q, tick.t_frames)
                 log.frames += 1
                 log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
                 if rec is not None:
                     rec.masks(tick.t, masks)
+                for s in sinks:
+                    s.masks(tick.t, masks)
             if chain.ready and tick.q is not None and tick.t >= next_query - 1e-9:
                 next_query = tick.t + period if next_query == -np.inf else next_query + period
                 w0 = time.perf_counter()
@@ -175,6 +184,10 @@ def run_chain(
                 log.wall_query.append(time.perf_counter() - w0)
                 log.t_query.append(tick.t)
                 log.distances.append(np.asarray(res.distance, float).copy())
+                if sinks:
+                    cps = chain.points.evaluate(tick.q)
+                    for s in sinks:
+                        s.query(tick.t, res, cps)
                 if rec is not None:
                     cps = chain.points.evaluate(tick.q)
                     rec.query(tick.t, res, cps, markers=tick.t - last_marker >= 0.05)
@@ -187,11 +200,15 @@ def run_chain(
             log.status.append(out.status.name)
             if rec is not None:
                 rec.command(tick.t, out)
+            for s in sinks:
+                s.command(tick.t, out)
             if progress:
                 _progress(tick.t - t_first, getattr(source, "duration", 0.0), bar, label)
     finally:
         if rec is not None:
             rec.close()
+        for s in sinks:
+            s.close()
         source.close()
         if progress:
             sys.stderr.write("\n")

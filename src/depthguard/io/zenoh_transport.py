@@ -1,0 +1,302 @@
+"""ROS 2 publishers and subscribers on Zenoh in the ``rmw_zenoh`` format (:mod:`depthguard.io.rmw_zenoh`).
+
+A :class:`ZenohNode` is one Zenoh session in peer mode with the liveliness token of a ROS 2 node; its
+publishers declare ``MP`` tokens and put CDR payloads with the 33-byte attachment; its subscriptions declare
+``MS`` tokens, decode the payload with the Jazzy type store and drop what must not reach a safety stage:
+
+* **duplicates** (a sequence number already seen from the same publisher GID),
+* **reordered or stale samples** (a header stamp not newer than the last accepted one on that topic),
+* samples from publishers that are **not allowed** on the topic (see ``allowed`` in :meth:`subscribe`):
+  the publisher is identified by the GID of its attachment, matched to the liveliness tokens of the graph.
+
+Every drop is counted in :attr:`Subscription.dropped` with its reason.
+
+Network defaults (:func:`session_config`): peer mode, multicast scouting off, listening only on the
+loopback endpoints given, connecting to the ROS 2 Zenoh router at ``tcp/127.0.0.1:7447`` (never listening
+there) and to the other DepthGuard nodes; Zenoh keeps retrying endpoints that do not answer, so a node starts
+and runs when nothing listens.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from depthguard.io import ros2
+from depthguard.io.rmw_zenoh import (
+    QOS_DEFAULT,
+    QoS,
+    decode_attachment,
+    encode_attachment,
+    entity_gid,
+    liveliness_token,
+    parse_liveliness_token,
+    topic_keyexpr,
+)
+
+__all__ = ["ROUTER_ENDPOINT", "session_config", "ZenohNode", "RosPublisher", "Subscription", "SampleFilter"]
+
+#: Where the ROS 2 Zenoh router (``ros2 run rmw_zenoh_cpp rmw_zenohd``) listens.
+ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _zenoh():
+    try:
+        import zenoh
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise ImportError(f"Zenoh transport needs the 'net' extra: pip install 'depthguard[net]' ({exc})") from None
+    return zenoh
+
+
+def session_config(listen: list[str], connect: list[str], tls: dict[str, str] | None = None):
+    """A ``zenoh.Config``: peer mode, no multicast scouting, the given endpoints, background retries.
+
+    ``tls``: ``{"root_ca_certificate": path, "listen_certificate": path, "listen_private_key": path}`` for
+    ``tls/`` endpoints (Zenoh's TLS transport); endpoints on other hosts should use it.
+    """
+    zenoh = _zenoh()
+    for e in list(listen) + list(connect):
+        if not isinstance(e, str) or "/" not in e:
+            raise ValueError(f"Zenoh endpoint must look like 'tcp/127.0.0.1:7447', got {e!r}")
+    if ROUTER_ENDPOINT in listen:
+        raise ValueError(f"{ROUTER_ENDPOINT} is the ROS 2 router's port: DepthGuard never listens on it")
+    c = zenoh.Config()
+    c.insert_json5("mode", '"peer"')
+    c.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    c.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("connect/exit_on_failure", json.dumps({"router": False, "peer": False, "client": False}))
+    c.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 1.5}")
+    c.insert_json5("listen/exit_on_failure", json.dumps({"router": True, "peer": True, "client": True}))
+    if tls:
+        c.insert_json5("transport/link/tls", json.dumps(tls))
+    return c
+
+
+class RosPublisher:
+    """One ROS 2 publisher: CDR payload + attachment (sequence number, time stamp, GID)."""
+
+    def __init__(self, node: ZenohNode, topic: str, typename: str, qos: QoS, eid: int) -> None:
+        self.topic, self.typename = topic, typename
+        self.key = topic_keyexpr(node.domain, topic, typename)
+        self.token = liveliness_token(
+            node.domain, node.zid, node.nid, eid, "MP", node.name, topic=topic, typename=typename, qos=qos
+        )
+        self.gid = entity_gid(self.token)
+        self._lv = node.session.liveliness().declare_token(self.token)
+        zenoh = _zenoh()
+        rel = zenoh.Reliability.BEST_EFFORT if qos.reliability == 2 else zenoh.Reliability.RELIABLE
+        self._pub = node.session.declare_publisher(
+            self.key, reliability=rel, congestion_control=zenoh.CongestionControl.DROP
+        )
+        self.seq = 0
+
+    def publish(self, msg: Any, stamp_ns: int | None = None) -> int:
+        """Serialise ``msg`` and put it; returns the attachment's time stamp (ns since the epoch)."""
+        return self.put_cdr(ros2.serialize(msg, self.typename), stamp_ns)
+
+    def put_cdr(self, payload: bytes, stamp_ns: int | None = None, seq: int | None = None) -> int:
+        """Put ready CDR bytes (``seq``: override the sequence number, for fault tests)."""
+        self.seq += 1
+        ts = time.time_ns() if stamp_ns is None else int(stamp_ns)
+        self._pub.put(payload, attachment=encode_attachment(self.seq if seq is None else seq, ts, self.gid))
+        return ts
+
+    def close(self) -> None:
+        self._pub.undeclare()
+        self._lv.undeclare()
+
+
+class SampleFilter:
+    """What a subscription lets through, without any Zenoh: ``accept(attachment, payload)`` returns the
+    decoded ``(message, attachment)`` or None, counting every drop by reason in :attr:`dropped`.
+
+    Args:
+        typename: the ROS type of the payload.
+        who: GID (16 bytes) -> publishing node name or None (the graph), used only with ``allowed``.
+        allowed: node names that may publish here (None = anyone).
+        check_order: drop messages whose header stamp is not newer than the last accepted one.
+    """
+
+    def __init__(
+        self,
+        typename: str,
+        who: Callable[[bytes], str | None] | None = None,
+        allowed: set[str] | None = None,
+        check_order: bool = True,
+    ) -> None:
+        self.typename, self.who, self.allowed, self.check_order = typename, who, allowed, check_order
+        self.last_seq: dict[bytes, int] = {}
+        self.last_stamp = -float("inf")
+        self.dropped: dict[str, int] = {}
+        self.rejected_publishers: set[str] = set()
+
+    def _drop(self, why: str) -> None:
+        self.dropped[why] = self.dropped.get(why, 0) + 1
+
+    def accept(self, attachment: bytes | None, payload: bytes) -> tuple[Any, Any] | None:
+        try:
+            att = decode_attachment(attachment if attachment is not None else b"")
+        except ValueError:
+            self._drop("bad attachment")
+            return None
+        if self.allowed is not None:
+            name = self.who(att.gid) if self.who is not None else None
+            if name not in self.allowed:
+                self._drop("publisher not allowed")
+                self.rejected_publishers.add(str(name))
+                return None
+        if att.seq <= self.last_seq.get(att.gid, -(2**63) - 1):
+            self._drop("duplicate or reordered sequence number")
+            return None
+        try:
+            msg = ros2.deserialize(payload, self.typename)
+        except Exception:  # noqa: BLE001 - any malformed payload is dropped, never raised into Zenoh
+            self._drop("malformed CDR")
+            return None
+        if self.check_order and hasattr(msg, "header"):
+            st = ros2.to_seconds(msg.header.stamp)
+            if not st > self.last_stamp:
+                self._drop("stale or reordered stamp")
+                return None
+            self.last_stamp = st
+        self.last_seq[att.gid] = att.seq
+        return msg, att
+
+
+class Subscription:
+    """One ROS 2 subscription; ``callback(msg, attachment, receive_ns)`` runs on Zenoh's thread for every
+    sample that :class:`SampleFilter` lets through."""
+
+    def __init__(
+        self,
+        node: ZenohNode,
+        topic: str,
+        typename: str,
+        callback: Callable[[Any, Any, int], None],
+        eid: int,
+        allowed: set[str] | None,
+        check_order: bool,
+    ) -> None:
+        self.node, self.topic, self.typename, self.callback = node, topic, typename, callback
+        self.key = topic_keyexpr(node.domain, topic, typename)
+        tok = liveliness_token(node.domain, node.zid, node.nid, eid, "MS", node.name, topic=topic, typename=typename)
+        self._lv = node.session.liveliness().declare_token(tok)
+        self.filter = SampleFilter(typename, node.publisher_node, allowed, check_order)
+        self.received = 0
+        self._sub = node.session.declare_subscriber(self.key, self._on_sample)
+
+    @property
+    def dropped(self) -> dict[str, int]:
+        return self.filter.dropped
+
+    @property
+    def rejected_publishers(self) -> set[str]:
+        return self.filter.rejected_publishers
+
+    def _on_sample(self, sample) -> None:
+        now = time.time_ns()
+        att = sample.attachment.to_bytes() if sample.attachment is not None else None
+        got = self.filter.accept(att, sample.payload.to_bytes())
+        if got is None:
+            return
+        self.received += 1
+        self.callback(got[0], got[1], now)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+        self._lv.undeclare()
+
+
+class ZenohNode:
+    """A ROS 2 node on Zenoh: one session, its ``NN`` liveliness token, publishers and subscriptions.
+
+    Args:
+        name: node name (no ``/``).
+        domain: ROS domain id.
+        listen: endpoints to listen on (loopback by default); ``connect``: endpoints to connect to
+            (default: the ROS 2 router at ``tcp/127.0.0.1:7447``).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        domain: int = 0,
+        listen: list[str] | None = None,
+        connect: list[str] | None = None,
+        tls: dict[str, str] | None = None,
+    ) -> None:
+        zenoh = _zenoh()
+        self.name, self.domain = str(name), int(domain)
+        self.session = zenoh.open(session_config(listen or [], [ROUTER_ENDPOINT] if connect is None else connect, tls))
+        self.zid = str(self.session.info.zid())
+        self.nid = 0
+        self._eid = 0
+        self.token = liveliness_token(self.domain, self.zid, self.nid, self._next_eid(), "NN", self.name)
+        self._lv = self.session.liveliness().declare_token(self.token)
+        self._graph: dict[bytes, str] = {}
+        self._glock = threading.Lock()
+        self._graph_sub = self.session.liveliness().declare_subscriber(
+            f"@ros2_lv/{self.domain}/**", self._on_token, history=True
+        )
+        self.entities: list[Any] = []
+
+    def _next_eid(self) -> int:
+        e = self._eid
+        self._eid += 1
+        return e
+
+    def _on_token(self, sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            tok = parse_liveliness_token(key)
+        except ValueError:
+            return
+        if tok.kind != "MP":
+            return
+        with self._glock:
+            if sample.kind == _zenoh().SampleKind.DELETE:
+                self._graph.pop(entity_gid(key), None)
+            else:
+                self._graph[entity_gid(key)] = tok.node
+
+    def publisher_node(self, gid: bytes) -> str | None:
+        """Name of the node whose publisher has ``gid`` (from the graph's liveliness tokens), None if unknown."""
+        with self._glock:
+            return self._graph.get(bytes(gid))
+
+    def publisher(self, topic: str, typename: str, qos: QoS = QOS_DEFAULT) -> RosPublisher:
+        p = RosPublisher(self, topic, typename, qos, self._next_eid())
+        self.entities.append(p)
+        return p
+
+    def subscribe(
+        self,
+        topic: str,
+        typename: str,
+        callback: Callable[[Any, Any, int], None],
+        *,
+        allowed: set[str] | None = None,
+        check_order: bool = True,
+    ) -> Subscription:
+        """Subscribe; ``allowed``: node names that may publish on this topic (None = anyone)."""
+        s = Subscription(self, topic, typename, callback, self._next_eid(), allowed, check_order)
+        self.entities.append(s)
+        return s
+
+    def close(self) -> None:
+        for e in self.entities:
+            try:
+                e.close()
+            except Exception:  # noqa: BLE001 - closing a half-dead session must not raise
+                pass
+        try:
+            self._lv.undeclare()
+            self._graph_sub.undeclare()
+        except Exception:  # noqa: BLE001
+            pass
+        self.session.close()

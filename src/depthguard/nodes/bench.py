@@ -1,0 +1,170 @@
+"""``depthguard bench net-latency``: frame -> distances -> joint command latency across node processes.
+
+The ``ral-hexagon`` cell (``examples/cells/sim-hexagon.toml``: two 640x480 cameras at 30 Hz, hybrid mode,
+1 kHz controller): the ``distance`` and ``controller`` nodes run as their own processes on loopback; the
+time stamps of the rmw_zenoh attachments (publication times, one clock) come from their event logs:
+
+* ``frame_to_distances``: the prepared frame set (depth 32FC1 + robot mask, as the camera nodes publish it)
+  published -> the distance node published the distances computed from it (transport between two
+  processes, CDR decoding, fusion and queries);
+* ``distances_to_command``: distances published -> the controller node published the first joint command
+  that used them; ``frame_to_command``: both;
+* baseline: the distance stage's own compute time (fusion + queries) in the distance node, same run.
+
+The frames come from this process (rendered once from the simulated cell, self-filtered, then published at
+the cameras' rate with fresh stamps), so that the simulator's rendering does not load the machine.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from depthguard.bench.timing import machine_info
+
+__all__ = ["run_net_latency_benchmark"]
+
+_CELL = Path(__file__).resolve().parents[3] / "examples" / "cells" / "sim-hexagon.toml"
+
+
+def _stats(x: list[float]) -> dict[str, float | int | None]:
+    a = np.asarray(x, float) * 1e3
+    if a.size == 0:
+        return {"n": 0, "median_ms": None, "p99_ms": None}
+    return {"n": int(a.size), "median_ms": float(np.median(a)), "p99_ms": float(np.percentile(a, 99))}
+
+
+def _read(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+
+
+def _frames(quick: bool, cell, n_sets: int):
+    """``n_sets`` frame sets of the simulated ral-hexagon cell with their joint states and robot masks."""
+    from depthguard.robot.selffilter import self_filter
+    from depthguard.runner import open_source
+    from depthguard.runner.chain import load_cell_robot
+
+    model = load_cell_robot(cell)
+    src = open_source("sim:ral-hexagon", cell, model.joint_names, quick=quick)
+    out = []
+    for tick in src.ticks():
+        if tick.frames is not None:
+            masks = [
+                np.asarray(self_filter(c, d, tick.q, model)[0]) for c, d in zip(src.cameras, tick.frames, strict=True)
+            ]
+            out.append((tick.q.copy(), tick.frames, masks))
+            if len(out) >= n_sets:
+                break
+    src.close()
+    return model.joint_names, out
+
+
+def _publish(cell, names, sets, duration: float, stop_when) -> None:
+    """Publish the prepared frames (as the camera nodes do) at the cameras' rate and joint states at 500 Hz."""
+    from depthguard.io import ros2
+    from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
+    from depthguard.nodes.camera import mask_msg
+    from depthguard.nodes.common import Topics, open_node
+
+    top = Topics.of(cell)
+    node = open_node(cell, "sim")
+    pd = {c.name: node.publisher(top.depth[c.name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA) for c in cell.cameras}
+    pm = {c.name: node.publisher(top.mask[c.name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA) for c in cell.cameras}
+    pj = node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
+    period = 1.0 / float(cell.cameras[0].rate)
+    t0 = time.time()
+    k, next_frame = 0, t0 + 1.0
+    try:
+        while time.time() - t0 < duration and not stop_when():
+            q, frames, masks = sets[k % len(sets)]
+            now = time.time()
+            pj.publish(ros2.joint_state_msg(now, names, q, np.zeros_like(q)))
+            if now >= next_frame:
+                next_frame += period
+                for c, m in zip(cell.cameras, masks, strict=True):
+                    pm[c.name].publish(mask_msg(now, c.name, m))
+                for c, d in zip(cell.cameras, frames, strict=True):
+                    pd[c.name].publish(ros2.image_msg(now, c.name, d, "32FC1"))
+                k += 1
+            time.sleep(0.002)
+    finally:
+        node.close()
+
+
+def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = None) -> dict:
+    """Measure for 20 s (``quick``: 8 s, 160x120 images) once the distance node answers."""
+    from depthguard.io.cellfile import read_cell
+
+    src = Path(cell) if cell else _CELL
+    duration = 8.0 if quick else 20.0
+    tmp = Path(tempfile.mkdtemp(prefix="dg-net-"))
+    port = random.randint(31000, 36000)
+    cpath = tmp / "cell.toml"
+    cpath.write_text(src.read_text() + f"\n[network]\nbase_port = {port}\nconnect = []\n")
+    cellf = read_cell(cpath)
+    names, sets = _frames(quick, cellf, 6)
+    env = {**os.environ}
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[2]), env.get("PYTHONPATH", "")])
+    procs = []
+    nodes = ["distance", "controller"]
+    for n in nodes:
+        cmd = [sys.executable, "-m", "depthguard.cli", "node", n, "--cell", str(cpath), "--log", str(tmp / f"{n}.log")]
+        procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    marks: dict[str, float] = {}
+
+    def warmed() -> bool:
+        if "t" not in marks and len(_read(tmp / "distance.log")) >= 10:
+            marks["t"] = time.time()
+        return "t" in marks and time.time() - marks["t"] > duration
+
+    try:
+        _publish(cellf, names, sets, 180.0 + duration, warmed)
+    finally:
+        for p in procs:
+            p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    t_meas = marks.get("t", np.inf)
+    dist = [r for r in _read(tmp / "distance.log") if r.get("ev") == "distances" and r["pub"] >= t_meas]
+    cmds = [r for r in _read(tmp / "controller.log") if r.get("ev") == "command" and r["pub"] >= t_meas]
+    out = {
+        "benchmark": "net-latency",
+        "machine": machine_info(),
+        "parameters": {
+            "cell": str(src),
+            "images": "160x120" if quick else "640x480",
+            "cameras": 2,
+            "mode": cellf.distance["mode"],
+            "processes": ["frames (camera nodes' output, this process)", *nodes],
+            "transport": "zenoh peer-to-peer, tcp loopback",
+            "measured_s": duration,
+            "load_1min": os.getloadavg()[0],
+        },
+        "frame_to_distances": _stats([r["pub"] - r["frame_pub"] for r in dist]),
+        "distances_to_command": _stats([r["pub"] - r["dist_pub"] for r in cmds]),
+        "frame_to_command": _stats(_chain(dist, cmds)),
+        "baseline_distance_compute": _stats([r["compute"] for r in dist]),
+        "frame_sets": len(dist),
+    }
+    b = out["baseline_distance_compute"]["median_ms"]
+    p = out["frame_to_distances"]["median_ms"]
+    out["ratio_frame_to_distances_vs_compute"] = (p / b) if (p and b) else None
+    return out
+
+
+def _chain(dist: list[dict], cmds: list[dict]) -> list[float]:
+    by_pub = {round(r["pub"], 6): r["frame_pub"] for r in dist}
+    return [c["pub"] - by_pub[round(c["dist_pub"], 6)] for c in cmds if round(c["dist_pub"], 6) in by_pub]

@@ -1,0 +1,165 @@
+"""What every DepthGuard node shares: names, ports, topics, the Zenoh session of a cell, stopping cleanly.
+
+Node names of a cell (in this order; node *k* listens on ``network.base_port + k`` of ``network.host``):
+``sim``, one per camera (the camera's name), ``distance``, ``controller``, ``monitor``, ``run``, ``view``.
+Every node connects to all the others' ports and to ``network.connect`` (the ROS 2 router by default), so
+DepthGuard's nodes talk peer to peer on loopback without a router and a ROS 2 system sees them through it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from depthguard.camera import Camera
+from depthguard.io.cellfile import CellFile
+from depthguard.runner.bag import TASK_TOPIC
+
+__all__ = [
+    "node_names",
+    "open_node",
+    "Topics",
+    "camera_at_size",
+    "StopFlag",
+    "JsonLog",
+    "now_s",
+]
+
+_FIXED = ("distance", "controller", "monitor", "run", "view")
+
+
+def node_names(cell: CellFile) -> list[str]:
+    """All node names of ``cell`` in port order."""
+    return ["sim", *[c.name for c in cell.cameras], *_FIXED]
+
+
+def _endpoint(cell: CellFile, port: int) -> str:
+    net = cell.network
+    proto = "tls" if net.get("tls_certificate") else "tcp"
+    host = net.get("host", "127.0.0.1")
+    host = f"[{host}]" if ":" in host else host
+    return f"{proto}/{host}:{port}"
+
+
+def open_node(cell: CellFile, name: str, *, domain: int | None = None, connect: list[str] | None = None):
+    """The :class:`~depthguard.io.zenoh_transport.ZenohNode` of node ``name`` of ``cell``.
+
+    Args:
+        domain: ROS domain id (default: the cell file's ``network.domain``).
+        connect: extra endpoints (default: the cell file's ``network.connect``).
+    """
+    from depthguard.io.zenoh_transport import ZenohNode
+
+    names = node_names(cell)
+    if name not in names:
+        raise ValueError(f"node name must be one of {names}, got {name!r}")
+    net = cell.network or {"base_port": 7460, "connect": ["tcp/127.0.0.1:7447"], "domain": 0}
+    base = int(net["base_port"])
+    idx = names.index(name)
+    listen = [_endpoint(cell, base + idx)]
+    peers = [_endpoint(cell, base + k) for k in range(len(names)) if k != idx]
+    extra = list(net["connect"]) if connect is None else list(connect)
+    tls = None
+    if net.get("tls_certificate"):
+        tls = {
+            "root_ca_certificate": net["tls_root_ca"],
+            "listen_certificate": net["tls_certificate"],
+            "listen_private_key": net["tls_private_key"],
+            "connect_certificate": net["tls_certificate"],
+            "connect_private_key": net["tls_private_key"],
+            "enable_mtls": True,
+        }
+    dom = int(net.get("domain", 0)) if domain is None else int(domain)
+    return ZenohNode(name, domain=dom, listen=listen, connect=peers + extra, tls=tls)
+
+
+@dataclasses.dataclass(frozen=True)
+class Topics:
+    """The topics of a cell's nodes (see the README table)."""
+
+    joint_states: str
+    task: str
+    command: str
+    command_trajectory: str
+    command_array: str
+    distances: str
+    status: str
+    raw: dict[str, str]
+    depth: dict[str, str]
+    mask: dict[str, str]
+
+    @classmethod
+    def of(cls, cell: CellFile) -> Topics:
+        t = cell.topics
+        return cls(
+            joint_states=t["joint_states"],
+            task=TASK_TOPIC,
+            command="/depthguard/joint_command",
+            command_trajectory=t["command"],
+            command_array=t["command_array"],
+            distances=t["distances"],
+            status=t["status"],
+            raw={c.name: c.topic or f"/{c.name}/depth/image_raw" for c in cell.cameras},
+            depth={c.name: f"/depthguard/{c.name}/depth" for c in cell.cameras},
+            mask={c.name: f"/depthguard/{c.name}/robot_mask" for c in cell.cameras},
+        )
+
+
+def camera_at_size(camera: Camera, width: int, height: int) -> Camera:
+    """``camera`` at another image size with the same field of view (intrinsics scaled)."""
+    if (width, height) == (camera.width, camera.height):
+        return camera
+    sx, sy = width / camera.width, height / camera.height
+    if abs(sx - sy) > 1e-6:
+        raise ValueError(f"image {width}x{height} is not a scaled {camera.width}x{camera.height} image")
+    return dataclasses.replace(
+        camera, width=width, height=height, fx=camera.fx * sx, fy=camera.fy * sy, cx=camera.cx * sx, cy=camera.cy * sy
+    )
+
+
+class StopFlag:
+    """Set by SIGTERM / SIGINT (or :meth:`set`): nodes finish their loop, close their session and exit 0."""
+
+    def __init__(self) -> None:
+        self._ev = threading.Event()
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, lambda *_: self._ev.set())
+            signal.signal(signal.SIGINT, lambda *_: self._ev.set())
+
+    def set(self) -> None:
+        self._ev.set()
+
+    def __bool__(self) -> bool:
+        return self._ev.is_set()
+
+    def wait(self, s: float) -> bool:
+        return self._ev.wait(s)
+
+
+class JsonLog:
+    """JSON-lines log file (one object per line, flushed), or nothing when ``path`` is None."""
+
+    def __init__(self, path: str | Path | None) -> None:
+        self._f = open(path, "a", encoding="utf-8") if path else None  # noqa: SIM115
+        self._lock = threading.Lock()
+
+    def write(self, **rec: Any) -> None:
+        if self._f is None:
+            return
+        with self._lock:
+            self._f.write(json.dumps(rec, default=float) + "\n")
+            self._f.flush()
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.close()
+
+
+def now_s() -> float:
+    """Wall-clock time, s since the Unix epoch: the clock of every stamp between nodes."""
+    return time.time()

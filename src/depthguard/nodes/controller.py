@@ -1,0 +1,136 @@
+"""The controller node: the avoidance controller at the cell's control rate on Zenoh.
+
+Subscribes the joint states, the task velocity and the distances (these only from the nodes named in the
+cell file's ``network.publishers``); every period it runs one cycle of
+:class:`~depthguard.control.AvoidanceController` on the wall clock and publishes the joint command
+(``sensor_msgs/JointState`` on ``/depthguard/joint_command``, every cycle), the ros2_control forms
+(``std_msgs/Float64MultiArray`` velocities and ``trajectory_msgs/JointTrajectory``, every 10th cycle) and the
+controller status (every 10th cycle and on every change).
+
+Safety: the controller's own stale-data rules do the work. When distances stop (a camera or the distance
+node died, the network is partitioned) their stamp ages past ``distance_timeout`` and the controller brakes
+the arm jerk-limited (``STOP_STALE_DISTANCES``); the node keeps running and the arm resumes once fresh
+distances have been valid for ``resume_time``. Duplicated, reordered and stale samples never reach it
+(:mod:`depthguard.io.zenoh_transport`).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from depthguard.io import ros2
+from depthguard.io.cellfile import CellFile
+from depthguard.nodes.common import JsonLog, StopFlag, Topics, now_s, open_node
+
+__all__ = ["run_controller_node"]
+
+
+class _Inputs:
+    """The controller's newest inputs, written by the Zenoh callbacks under one lock."""
+
+    def __init__(self, n: int, N: int) -> None:
+        self.n, self.N = n, N
+        self.lock = threading.Lock()
+        self.st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None}
+        self.st.update(td=-np.inf, dpub=None)
+
+    def on_js(self, msg, att, recv_ns) -> None:
+        q, qd = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
+        if q.shape == (self.n,) and qd.shape == (self.n,):
+            with self.lock:
+                self.st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))
+
+    def on_task(self, msg, att, recv_ns) -> None:
+        with self.lock:
+            self.st["xd"] = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
+
+    def on_dist(self, msg, att, recv_ns) -> None:
+        if len(msg.points) != self.N:
+            return
+        d = np.array([p.distance for p in msg.points], float)
+        dirs = np.array([[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], float)
+        dirs = np.where(np.isfinite(d)[:, None], dirs, 0.0)
+        with self.lock:
+            self.st.update(d=d, dirs=dirs, td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
+
+
+def run_controller_node(
+    cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
+) -> dict:
+    """Run the controller node until ``duration`` s or SIGTERM; returns counters and cycle times."""
+    from depthguard.control.cycle import AvoidanceController, CycleInput
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.runner.chain import _controller_config, load_cell_robot
+
+    stop = stop if stop is not None else StopFlag()
+    jl = JsonLog(log)
+    model = load_cell_robot(cell)
+    preset = cell.robot.control_points
+    points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+    config = _controller_config(cell)
+    ctrl = AvoidanceController(points, config)
+    N, n = points.n_points, len(model.joint_names)
+    top = Topics.of(cell)
+    node = open_node(cell, "controller", **kw)
+    inp = _Inputs(n, N)
+    on_js, on_task, on_dist, lock, st = inp.on_js, inp.on_task, inp.on_dist, inp.lock, inp.st
+
+    allowed = set(cell.network.get("publishers", ["distance"])) if cell.network else None
+    node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
+    node.subscribe(top.task, "geometry_msgs/msg/Vector3Stamped", on_task)
+    sub_d = node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist, allowed=allowed)
+    pub_cmd = node.publisher(top.command, "sensor_msgs/msg/JointState")
+    pub_arr = node.publisher(top.command_array, "std_msgs/msg/Float64MultiArray")
+    pub_traj = node.publisher(top.command_trajectory, "trajectory_msgs/msg/JointTrajectory")
+    pub_st = node.publisher(top.status, "depthguard_msgs/msg/ControllerStatus")
+    names = list(model.joint_names)
+    dt = config.dt
+    cycles, last_status, last_dpub = 0, None, None
+    statuses: dict[str, int] = {}
+    cycle_wall: list[float] = []
+    t_start = now_s()
+    next_t = t_start
+    try:
+        while not stop and (duration is None or now_s() - t_start < duration):
+            w0 = time.perf_counter()
+            t = now_s()
+            with lock:
+                s = dict(st)
+            out = ctrl.step(CycleInput(t, s["q"], s["qd"], s["tj"], s["xd"], s["d"], s["dirs"], s["td"]))
+            p = pub_cmd.publish(ros2.joint_state_msg(t, names, out.q_cmd, out.qdot_cmd)) * 1e-9
+            name = out.status.name
+            statuses[name] = statuses.get(name, 0) + 1
+            if s["dpub"] is not None and s["dpub"] != last_dpub:
+                last_dpub = s["dpub"]
+                jl.write(ev="command", dist_pub=last_dpub, pub=p)
+            if cycles % 10 == 0 or name != last_status:
+                pub_st.publish(ros2.status_msg(t, name, out.scale))
+                jl.write(ev="status", t=t, status=name, qd_max=float(np.max(np.abs(out.qdot_cmd))))
+                last_status = name
+            if cycles % 10 == 0:
+                pub_arr.publish(ros2.float64_array_msg(out.qdot_cmd))
+                pub_traj.publish(ros2.joint_trajectory_msg(t, names, out.q_cmd, out.qdot_cmd, dt))
+            cycles += 1
+            cycle_wall.append(time.perf_counter() - w0)
+            next_t += dt
+            spare = next_t - now_s()
+            if spare > 0:
+                time.sleep(spare)
+            elif spare < -0.1:
+                next_t = now_s()  # fell far behind (overloaded machine): do not try to catch up
+    finally:
+        cw = np.asarray(cycle_wall) * 1e3
+        out_d = {
+            "cycles": cycles,
+            "statuses": statuses,
+            "cycle_ms_median": float(np.median(cw)) if cw.size else None,
+            "cycle_ms_p99": float(np.percentile(cw, 99)) if cw.size else None,
+            "dropped": dict(sub_d.dropped),
+            "rejected_publishers": sorted(sub_d.rejected_publishers),
+        }
+        node.close()
+        jl.close()
+    return out_d

@@ -1,0 +1,154 @@
+"""The distance node: fusion of the prepared frames and the distance queries (RA-L'16 §V-VI) on Zenoh.
+
+Subscribes every camera node's prepared depth and robot mask (paired by stamp) and the joint states. When
+every camera has delivered a frame since the last query, it updates the distance stage (depth space for one
+camera, depth grid for several) and queries the control spheres at the newest joint positions; the result
+goes out as ``depthguard_msgs/ControlPointDistances`` on the cell's ``distances`` topic, **stamped with the
+oldest frame's stamp** (the age of the data, which the controller's stale-data timeout checks).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from depthguard.io import ros2
+from depthguard.io.cellfile import CellFile
+from depthguard.nodes.common import JsonLog, StopFlag, Topics, camera_at_size, open_node
+
+__all__ = ["run_distance_node"]
+
+
+def _mask_from_msg(msg) -> np.ndarray:
+    if str(msg.encoding) != "mono8":
+        raise ValueError(f"robot mask must be a mono8 Image, got {msg.encoding!r}")
+    h, w = int(msg.height), int(msg.width)
+    raw = np.asarray(msg.data, np.uint8)
+    step = int(msg.step) or w
+    if raw.size < step * h:
+        raise ValueError(f"robot mask {w}x{h} holds {raw.size} bytes: too few")
+    return raw[: step * h].reshape(h, step)[:, :w] > 0
+
+
+class _FrameSets:
+    """Pairs each camera's prepared depth and mask by stamp; :attr:`ev` is set when every camera has one."""
+
+    def __init__(self, names: list[str], n_joints: int) -> None:
+        self.names, self.n_joints = names, n_joints
+        self.lock, self.ev = threading.Lock(), threading.Event()
+        self.depth: dict[str, dict] = {n: {} for n in names}
+        self.mask: dict[str, dict] = {n: {} for n in names}
+        self.ready: dict[str, tuple] = {}
+        self.joint: dict = {"q": None}
+
+    def _pair(self, n: str, t: float, pub: float) -> None:
+        depth, mask = self.depth[n], self.mask[n]
+        if t in depth and t in mask:
+            self.ready[n] = (t, depth.pop(t), mask.pop(t), pub)
+            for k in [k for k in depth if k < t]:
+                depth.pop(k)
+            for k in [k for k in mask if k < t]:
+                mask.pop(k)
+            if len(self.ready) == len(self.names):
+                self.ev.set()
+
+    def on_depth(self, n: str):
+        def cb(msg, att, recv_ns):
+            t = ros2.to_seconds(msg.header.stamp)
+            with self.lock:
+                self.depth[n][t] = ros2.image_to_depth(msg)
+                self._pair(n, t, att.stamp_ns * 1e-9)
+
+        return cb
+
+    def on_mask(self, n: str):
+        def cb(msg, att, recv_ns):
+            t = ros2.to_seconds(msg.header.stamp)
+            with self.lock:
+                self.mask[n][t] = _mask_from_msg(msg)
+                self._pair(n, t, att.stamp_ns * 1e-9)
+
+        return cb
+
+    def on_js(self, msg, att, recv_ns) -> None:
+        q = np.asarray(msg.position, float)
+        if q.shape == (self.n_joints,) and np.all(np.isfinite(q)):
+            with self.lock:
+                self.joint["q"] = q
+
+
+def run_distance_node(
+    cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
+) -> dict:
+    """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.runner.chain import load_cell_robot
+    from depthguard.sim.pipeline import DistanceStage
+
+    stop = stop if stop is not None else StopFlag()
+    jl = JsonLog(log)
+    model = load_cell_robot(cell)
+    preset = cell.robot.control_points
+    points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+    d = cell.distance
+    rho = float(d["rho"])
+    cams0 = [c.build() for c in cell.cameras]
+    names = [c.name for c in cell.cameras]
+    top = Topics.of(cell)
+    node = open_node(cell, "distance", **kw)
+    fs = _FrameSets(names, len(model.joint_names))
+    lock, ev, ready, joint, on_js, on_depth, on_mask = (
+        fs.lock,
+        fs.ev,
+        fs.ready,
+        fs.joint,
+        fs.on_js,
+        fs.on_depth,
+        fs.on_mask,
+    )
+
+    subs = [node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)]
+    for n in names:
+        subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n)))
+        subs.append(node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n)))
+    pub = node.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
+    stage = None
+    queries = 0
+    t_start = time.time()
+    try:
+        while not stop and (duration is None or time.time() - t_start < duration):
+            if not ev.wait(0.05):
+                continue
+            with lock:
+                ev.clear()
+                if len(ready) < len(names) or joint["q"] is None:
+                    continue
+                sets = [ready.pop(n) for n in names]
+                q = joint["q"].copy()
+            depths, masks = [s[1] for s in sets], [s[2] for s in sets]
+            if stage is None:
+                cams = [camera_at_size(c, dd.shape[1], dd.shape[0]) for c, dd in zip(cams0, depths, strict=True)]
+                stage = DistanceStage(
+                    cams, rho=rho, mode=d["mode"], alpha=float(cell.controller["alpha"]),
+                    workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]),
+                )  # fmt: skip
+            w0 = time.perf_counter()
+            stage.update(depths, masks)
+            cps = points.evaluate(q)
+            res = stage.query(cps.centres, cps.radii)
+            w1 = time.perf_counter()
+            t_data = min(s[0] for s in sets)
+            dist = np.asarray(res.distance, float)
+            dirs = np.asarray(res.direction, float)
+            near = np.asarray(getattr(res, "nearest", np.full((len(dist), 3), np.nan)), float)
+            msg = ros2.distances_msg(t_data, points.names, cps.centres, cps.radii, dist, dirs, near, rho=rho)
+            p = pub.publish(msg) * 1e-9
+            queries += 1
+            jl.write(ev="distances", stamp=t_data, frame_pub=max(s[3] for s in sets), pub=p, compute=w1 - w0)
+    finally:
+        out = {"queries": queries, "dropped": {s.topic: dict(s.dropped) for s in subs if s.dropped}}
+        node.close()
+        jl.close()
+    return out

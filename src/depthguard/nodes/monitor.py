@@ -1,0 +1,72 @@
+"""The monitor node: what the cell is doing, once a second, as one JSON line.
+
+Subscribes the controller status, the distances and the joint command; prints per second the latest status,
+the smallest distance, the message rates, which DepthGuard nodes are alive (their liveliness tokens) and
+how many samples the subscriptions dropped (duplicates, reordered or stale stamps, unlisted publishers).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+
+import numpy as np
+
+from depthguard.io.cellfile import CellFile
+from depthguard.io.rmw_zenoh import parse_liveliness_token
+from depthguard.nodes.common import StopFlag, Topics, open_node
+
+__all__ = ["run_monitor_node"]
+
+
+def run_monitor_node(
+    cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
+) -> dict:
+    """Run the monitor until ``duration`` s or SIGTERM; prints one JSON line per second to stdout."""
+    stop = stop if stop is not None else StopFlag()
+    top = Topics.of(cell)
+    node = open_node(cell, "monitor", **kw)
+    lock = threading.Lock()
+    count = {"status": 0, "distances": 0, "command": 0}
+    last: dict = {"status": None, "d_min": None}
+
+    def on_status(msg, att, recv_ns):
+        with lock:
+            count["status"] += 1
+            last["status"] = str(msg.status)
+
+    def on_dist(msg, att, recv_ns):
+        d = np.array([p.distance for p in msg.points], float)
+        with lock:
+            count["distances"] += 1
+            last["d_min"] = float(np.min(d)) if d.size else None
+
+    def on_cmd(msg, att, recv_ns):
+        with lock:
+            count["command"] += 1
+
+    subs = [
+        node.subscribe(top.status, "depthguard_msgs/msg/ControllerStatus", on_status),
+        node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist),
+        node.subscribe(top.command, "sensor_msgs/msg/JointState", on_cmd),
+    ]
+    t_start = time.time()
+    lines = 0
+    try:
+        while not stop and (duration is None or time.time() - t_start < duration):
+            stop.wait(1.0)
+            toks = [str(r.ok.key_expr) for r in node.session.liveliness().get(f"@ros2_lv/{node.domain}/**") if r.ok]
+            alive = sorted({parse_liveliness_token(k).node for k in toks if "/NN/" in k})
+            with lock:
+                rec = {"t": round(time.time(), 3), **last, "hz": dict(count), "nodes": alive}
+                for k in count:
+                    count[k] = 0
+            rec["dropped"] = {s.topic: dict(s.dropped) for s in subs if s.dropped}
+            sys.stdout.write(json.dumps(rec) + "\n")
+            sys.stdout.flush()
+            lines += 1
+    finally:
+        node.close()
+    return {"lines": lines}

@@ -1,0 +1,119 @@
+"""The ``sim`` node: the simulated cell as a robot driver and camera drivers would appear on ROS 2.
+
+It runs the scenario's MuJoCo cell on the wall clock and publishes what real drivers publish: the joint
+states (``sensor_msgs/JointState``, every physics catch-up step, at most the controller rate), each camera's
+raw depth image (``sensor_msgs/Image`` 32FC1, at the camera rate) and the task's desired end-effector
+velocity; it takes the joint command (``sensor_msgs/JointState`` on ``/depthguard/joint_command``) from the
+nodes allowed by the cell file.
+
+**Driver-side watchdog**: when no command has arrived for ``watchdog`` seconds (default 0.05 s), the driver
+holds the arm where it is (servo to the current position, zero velocity), as a ros2_control driver must do
+when DepthGuard dies; it resumes following commands as soon as they come back.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from depthguard.io import ros2
+from depthguard.io.cellfile import CellFile
+from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
+from depthguard.nodes.common import JsonLog, StopFlag, Topics, now_s, open_node
+
+__all__ = ["run_sim_node"]
+
+
+def run_sim_node(
+    cell: CellFile,
+    scenario: str,
+    *,
+    quick: bool = False,
+    duration: float | None = None,
+    watchdog: float = 0.05,
+    log: str | None = None,
+    stop: StopFlag | None = None,
+    **node_kw,
+) -> dict:
+    """Run until ``duration`` (s, wall clock; None = until SIGTERM). Returns counters."""
+    from depthguard.runner import open_source
+
+    stop = stop if stop is not None else StopFlag()
+    jl = JsonLog(log)
+    src = open_source(f"sim:{scenario}", cell, _names(cell), quick=quick)
+    sim, cams, names = src.cell, src.cams, list(src.joint_names)
+    top = Topics.of(cell)
+    node = open_node(cell, "sim", **node_kw)
+    lock = threading.Lock()
+    cmd: dict = {"q": None, "qd": None, "t": -np.inf}
+
+    def on_cmd(msg, att, recv_ns):
+        q = np.asarray(msg.position, float)
+        qd = np.asarray(msg.velocity, float)
+        if (
+            q.shape == (len(names),)
+            and qd.shape == (len(names),)
+            and np.all(np.isfinite(q))
+            and np.all(np.isfinite(qd))
+        ):
+            with lock:
+                cmd.update(q=q, qd=qd, t=recv_ns * 1e-9)
+
+    allowed = set(cell.network.get("publishers", ["controller"])) if cell.network else None
+    sub = node.subscribe(top.command, "sensor_msgs/msg/JointState", on_cmd, allowed=allowed)
+    pub_js = node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
+    pub_task = node.publisher(top.task, "geometry_msgs/msg/Vector3Stamped")
+    pub_img = {c.name: node.publisher(top.raw[c.name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA) for c in cell.cameras}
+    V = ros2.typestore().types["geometry_msgs/msg/Vector3"]
+    VS = ros2.typestore().types["geometry_msgs/msg/Vector3Stamped"]
+    dt = src.control_dt
+    frame_period = 1.0 / float(cell.cameras[0].rate)
+    t0 = now_s()
+    t_phys, next_frame, frames, held, n_js = 0.0, 0.0, 0, 0, 0
+    try:
+        while not stop and (duration is None or now_s() - t0 < duration):
+            wall = now_s()
+            t = wall - t0
+            with lock:
+                q_cmd, qd_cmd, t_cmd = cmd["q"], cmd["qd"], cmd["t"]
+            is_held = q_cmd is None or wall - t_cmd > watchdog
+            if is_held:
+                q_cmd, qd_cmd = sim.q(), np.zeros(len(names))
+                held += 1
+            n = int(min(max((t - t_phys) / dt, 1), 50))
+            sim.update_people(t)
+            sim.step(q_cmd, qd_cmd, n)
+            t_phys += n * dt
+            stamp = now_s()
+            q, qd = sim.q(), sim.qd()
+            pub_js.publish(ros2.joint_state_msg(stamp, names, q, qd))
+            n_js += 1
+            xd = src.task.velocity(src.kin.evaluate(q).centres[0])
+            pub_task.publish(VS(header=ros2.header(stamp, "world"), vector=V(x=xd[0], y=xd[1], z=xd[2])))
+            if t >= next_frame:
+                next_frame = max(next_frame + frame_period, t)
+                sim.forward()
+                ts = now_s()
+                for c, cam in zip(cell.cameras, cams, strict=True):
+                    depth = cam.capture(sim.data)
+                    pub_ns = pub_img[c.name].publish(ros2.image_msg(ts, c.frame_id or c.name, depth, "32FC1"))
+                    jl.write(ev="frame", camera=c.name, stamp=ts, pub=pub_ns * 1e-9)
+                frames += 1
+            jl.write(ev="js", t=stamp, qd_max=float(np.max(np.abs(qd))), held=bool(is_held))
+            spare = dt - (now_s() - wall)
+            if spare > 0:
+                time.sleep(spare)
+    finally:
+        out = {"frames": frames, "joint_states": n_js, "held_cycles": held, "dropped": dict(sub.dropped)}
+        node.close()
+        src.close()
+        jl.close()
+    return out
+
+
+def _names(cell: CellFile) -> tuple[str, ...]:
+    from depthguard.runner.chain import load_cell_robot
+
+    return load_cell_robot(cell).joint_names

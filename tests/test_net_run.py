@@ -1,0 +1,223 @@
+"""``run --transport zenoh`` publishes the runner's topics in the rmw_zenoh format; the cell file's [network]
+section is validated; ``depthguard node`` refuses unknown names."""
+
+from __future__ import annotations
+
+import collections
+import random
+import struct
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from depthguard.io.cellfile import read_cell
+
+ROOT = Path(__file__).resolve().parents[1]
+CELL = ROOT / "examples/cells/sim-hexagon.toml"
+IMAGE_HASH = "RIHS01_d31d41a9a4c4bc8eae9be757b0beed306564f7526c88ea6a4588fb9582527d47"
+JOINT_STATE_HASH = "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"
+
+
+def _cell(tmp_path: Path, extra: str) -> Path:
+    p = tmp_path / "cell.toml"
+    p.write_text(CELL.read_text() + "\n[network]\n" + extra)
+    return p
+
+
+def test_network_section_defaults_and_errors(tmp_path):
+    net = read_cell(CELL).network
+    assert net["host"] == "127.0.0.1" and net["connect"] == ["tcp/127.0.0.1:7447"] and net["domain"] == 0
+    with pytest.raises(ValueError, match="network.base_port"):
+        read_cell(_cell(tmp_path, "base_port = 7447\n"))
+    with pytest.raises(ValueError, match="not loopback"):
+        read_cell(_cell(tmp_path, 'host = "192.168.1.5"\n'))
+    with pytest.raises(ValueError, match="unknown key"):
+        read_cell(_cell(tmp_path, "listen_anywhere = true\n"))
+    with pytest.raises(ValueError, match="network.domain"):
+        read_cell(_cell(tmp_path, "domain = 300\n"))
+
+
+def test_node_rejects_unknown_name_and_router_port():
+    from depthguard.cli import main
+    from depthguard.io.zenoh_transport import session_config
+
+    assert main(["node", "camera9", "--cell", str(CELL), "--duration", "0"]) == 2
+    with pytest.raises(ValueError, match="never listens"):
+        session_config(["tcp/127.0.0.1:7447"], [])
+
+
+@pytest.mark.slow
+def test_run_transport_zenoh_publishes_images_and_joint_states(tmp_path):
+    zenoh = pytest.importorskip("zenoh")
+    from rosbags.typesys import Stores, get_typestore
+
+    from depthguard.io.zenoh_transport import session_config
+    from depthguard.nodes.runpub import ZenohRunPublisher
+    from depthguard.runner import open_source
+    from depthguard.runner.chain import Chain, load_cell_robot
+    from depthguard.runner.run import run_chain
+
+    base = random.randint(36000, 40000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    run_port = base + 6  # sim, camera0, camera1, distance, controller, monitor, run
+    model = load_cell_robot(cell)
+    src = open_source("sim:ral-hexagon", cell, model.joint_names, quick=True)
+    src.duration = 0.2
+    chain = Chain(cell, src.cameras, model)
+    raw = zenoh.open(session_config([], [f"tcp/127.0.0.1:{run_port}"]))
+    got: dict[str, list] = collections.defaultdict(list)
+    lock = threading.Lock()
+
+    def on(s):
+        with lock:
+            got[str(s.key_expr)].append((s.payload.to_bytes(), s.attachment.to_bytes()))
+
+    sub = raw.declare_subscriber("0/**", on)
+    try:
+        pub = ZenohRunPublisher(cell, chain)
+        t0 = time.time()
+        while not list(raw.info.peers_zid()) and time.time() - t0 < 20:
+            time.sleep(0.1)
+        time.sleep(0.5)
+        summary = run_chain(cell, src, chain, sinks=[pub])
+        time.sleep(1.0)
+    finally:
+        sub.undeclare()
+        raw.close()
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    img_key = f"0/camera0/depth/image_raw/sensor_msgs::msg::dds_::Image_/{IMAGE_HASH}"
+    js_key = f"0/joint_states/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
+    cmd_key = f"0/depthguard/joint_command/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
+    assert len(got[img_key]) == summary["frames"] > 0
+    assert len(got[js_key]) == summary["commands"] == len(got[cmd_key])
+    img = ts.deserialize_cdr(got[img_key][-1][0], "sensor_msgs/msg/Image")
+    assert (img.encoding, img.width, img.height) == ("32FC1", 160, 120)
+    depth = np.frombuffer(bytes(img.data), "<f4")
+    assert np.isfinite(depth).any()
+    js = ts.deserialize_cdr(got[js_key][-1][0], "sensor_msgs/msg/JointState")
+    assert list(js.name) == list(model.joint_names) and len(js.position) == 7
+    seqs = [struct.unpack("<q", a[:8])[0] for _, a in got[cmd_key]]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    assert all(len(a) == 33 for _, a in got[cmd_key])
+
+
+@pytest.mark.slow
+def test_view_node_draws_what_the_nodes_publish(tmp_path):
+    pytest.importorskip("zenoh")
+    pytest.importorskip("viser")
+    from depthguard.io import ros2
+    from depthguard.nodes.camera import mask_msg
+    from depthguard.nodes.common import StopFlag, Topics, open_node
+    from depthguard.viz.live import run_view_node
+
+    base = random.randint(44000, 48000)
+    path = _cell(tmp_path, f"base_port = {base}\nconnect = []\n")
+    cell = read_cell(path)
+    top = Topics.of(cell)
+    stop = StopFlag()
+    result: dict = {}
+    th = threading.Thread(
+        target=lambda: result.update(
+            run_view_node(str(path), port=random.randint(18900, 19500), duration=30, stop=stop)
+        )
+    )
+    th.start()
+    node = open_node(cell, "camera0")  # publishes as the camera nodes and the controller would
+    try:
+        pd = {c.name: node.publisher(top.depth[c.name], "sensor_msgs/msg/Image") for c in cell.cameras}
+        pm = {c.name: node.publisher(top.mask[c.name], "sensor_msgs/msg/Image") for c in cell.cameras}
+        pj = node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
+        pdist = node.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
+        pst = node.publisher(top.status, "depthguard_msgs/msg/ControllerStatus")
+        depth = np.full((120, 160), 2.0, np.float32)
+        mask = np.zeros((120, 160), bool)
+        mask[50:70, 70:90] = True
+        names = [f"j{i}" for i in range(1, 8)]
+        end = time.time() + 12
+        while time.time() < end:
+            now = time.time()
+            pj.publish(ros2.joint_state_msg(now, names, np.zeros(7)))
+            for c in cell.cameras:
+                pd[c.name].publish(ros2.image_msg(now, c.name, depth, "32FC1"))
+                pm[c.name].publish(mask_msg(now, c.name, mask))
+            pdist.publish(ros2.distances_msg(now, ["ee"], [[0, 0, 1]], [0.1], [0.2], [[1.0, 0, 0]], rho=0.4))
+            pst.publish(ros2.status_msg(now, "SCALED", 0.5))
+            time.sleep(0.1)
+        stop.set()
+        th.join(30)
+    finally:
+        stop.set()
+        node.close()
+    assert result["frames"] > 0 and result["distances"] > 0 and result["draws"] > 0
+    assert result["status"] == "SCALED"
+
+
+@pytest.mark.slow
+def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
+    """A ROS 2 camera driver on rmw_zenoh, written by hand (key expression by string formatting, CDR from a
+    fresh rosbags Jazzy store, attachment by ``struct``): the camera node self-filters its 16UC1 frames and
+    publishes the prepared depth (32FC1, same stamp, metres)."""
+    zenoh = pytest.importorskip("zenoh")
+    from rosbags.typesys import Stores, get_typestore
+
+    from depthguard.io.zenoh_transport import session_config
+    from depthguard.nodes.camera import run_camera_node
+    from depthguard.nodes.common import StopFlag
+
+    base = random.randint(48000, 52000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    T = ts.types
+    drv = zenoh.open(session_config([f"tcp/127.0.0.1:{base}"], [f"tcp/127.0.0.1:{base + 1}"]))  # the 'sim' port
+    got = []
+    sub = drv.declare_subscriber(
+        f"0/depthguard/camera0/depth/sensor_msgs::msg::dds_::Image_/{IMAGE_HASH}",
+        lambda s: got.append(ts.deserialize_cdr(s.payload.to_bytes(), "sensor_msgs/msg/Image")),
+    )
+    stop = StopFlag()
+    result: dict = {}
+    th = threading.Thread(target=lambda: result.update(run_camera_node(cell, "camera0", duration=40, stop=stop)))
+    th.start()
+    gid = bytes(range(16))
+    mm = np.full((120, 160), 2500, np.uint16)  # 2.5 m everywhere
+    mm[:10] = 0  # no reading
+    try:
+        end, seq = time.time() + 30, 0
+        while time.time() < end and not got:
+            now = time.time()
+            sec, nsec = int(now), int((now % 1) * 1e9)
+            hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="c0")
+            js = T["sensor_msgs/msg/JointState"](
+                header=hdr,
+                name=[f"j{i}" for i in range(7)],
+                position=np.zeros(7),
+                velocity=np.zeros(7),
+                effort=np.zeros(0),
+            )
+            img = T["sensor_msgs/msg/Image"](
+                header=hdr, height=120, width=160, encoding="16UC1", is_bigendian=0, step=320,
+                data=np.frombuffer(mm.astype("<u2").tobytes(), np.uint8),
+            )  # fmt: skip
+            for topic, typ, msg in (("joint_states", "JointState", js), ("camera0/depth/image_raw", "Image", img)):
+                seq += 1
+                h = JOINT_STATE_HASH if typ == "JointState" else IMAGE_HASH
+                att = struct.pack("<qqB", seq, time.time_ns(), 16) + gid
+                drv.put(
+                    f"0/{topic}/sensor_msgs::msg::dds_::{typ}_/{h}",
+                    bytes(ts.serialize_cdr(msg, f"sensor_msgs/msg/{typ}")),
+                    attachment=att,
+                )
+            time.sleep(0.1)
+    finally:
+        stop.set()
+        th.join(30)
+        sub.undeclare()
+        drv.close()
+    assert got, f"the camera node published no prepared frame ({result})"
+    out = got[-1]
+    assert out.encoding == "32FC1" and (out.width, out.height) == (160, 120)
+    d = np.frombuffer(bytes(out.data), "<f4").reshape(120, 160)
+    assert np.all(np.isnan(d[:10])) and np.allclose(d[10:][np.isfinite(d[10:])], 2.5)
