@@ -244,7 +244,12 @@ class DepthGridFusion:
         n = max(1, len(cameras) - 1)
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
-        self._votes = np.zeros((n, hm, wm), dtype=np.float32)
+        # three row blocks per secondary camera: the votes, then the robot windows' lo and hi (see
+        # _kernels.pixel_sees_past and update(windows=...)); no window: lo = +inf, hi = -inf
+        self._hm = hm
+        self._votes = np.zeros((n, 3 * hm, wm), dtype=np.float32)
+        self._votes[:, hm : 2 * hm] = np.inf
+        self._votes[:, 2 * hm :] = -np.inf
         self._pyr_meta, npyr = K.pyramid_layout(hm, wm)
         self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see _kernels)
         cam0 = cameras[0]
@@ -264,6 +269,7 @@ class DepthGridFusion:
         depths: list[np.ndarray],
         masks: list[np.ndarray | None] | None = None,
         invalid: str = "conservative",
+        windows: list[tuple[np.ndarray, np.ndarray] | None] | None = None,
     ) -> None:
         """Take one depth image per camera (per frame, camera rate).
 
@@ -272,6 +278,15 @@ class DepthGridFusion:
             masks: ``None`` or one entry per camera: ``None`` or an (H, W) bool robot mask (True = robot
                 pixel; the depth image holds the robot's depth there, so ``d_r`` is known).
             invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (DESIGN.md §4).
+            windows: ``None`` or one entry per camera (the principal camera's is ignored): ``None`` or
+                ``(lo, hi)``, two (H, W) depth images (m, camera k's ``z``; ``lo > hi`` or NaN = none):
+                along pixel (u, v) of camera k, the robot's own body (its capsules inflated by the
+                self-filter's margin) fills ``[lo, hi]`` (:func:`depthguard.robot.interior.robot_windows`).
+                Camera k then also clears a cell at a pixel whose reading lies in front of the cell when
+                the cell's far depth ``d_end`` lies in ``[lo, hi]``: the robot's body holds no obstacle
+                (the self-filter's margin limit), even where a box hides it from camera k. The cleared
+                part of the cell lies within one cell diameter (Δd and a principal pixel footprint) of
+                that body.
         """
         if invalid not in INVALID_POLICIES:
             raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
@@ -282,6 +297,20 @@ class DepthGridFusion:
         if len(masks) != len(self.cameras):
             raise ValueError(f"masks: got {len(masks)} entries for {len(self.cameras)} cameras")
         conservative = invalid == "conservative"
+        if windows is not None and len(windows) != len(self.cameras):
+            raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
+        hm = self._hm
+        self._votes[:, hm : 2 * hm] = np.inf
+        self._votes[:, 2 * hm :] = -np.inf
+        for k in range(1, len(self.cameras)):
+            if windows is None or windows[k] is None:
+                continue
+            cam = self.cameras[k]
+            lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float64)
+            hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float64)
+            ok = np.isfinite(lo) & np.isfinite(hi) & (lo <= hi)
+            self._votes[k - 1, hm : hm + cam.height, : cam.width] = np.where(ok, lo, np.inf)
+            self._votes[k - 1, 2 * hm : 2 * hm + cam.height, : cam.width] = np.where(ok, hi, -np.inf)
         for k, (cam, depth, mask) in enumerate(zip(self.cameras, depths, masks, strict=True)):
             d = np.ascontiguousarray(cam.check_image(depth, "depth"), dtype=np.float32)
             has_mask = mask is not None
@@ -314,7 +343,7 @@ class DepthGridFusion:
                 )
         self._tmin = tile_min(self._start, TILE)
         self._tmax = K.tile_max_start(self._start, self._kind, TILE)
-        K.build_pyramid(self._votes, self._pyr_meta, self._pyr)
+        K.build_pyramid(self._votes[:, :hm], self._pyr_meta, self._pyr)
         self._invalid = invalid
         self._ready = True
 

@@ -18,10 +18,13 @@ from depthguard.control.cycle import AvoidanceController, ControllerConfig, Cycl
 from depthguard.depthgrid import DepthGridFusion
 from depthguard.depthspace import PointDistances, prepare_frame, query_distances
 from depthguard.robot.control_points import ControlPointSet
+from depthguard.robot.interior import principal_robot_pixels, robot_windows
 from depthguard.robot.model import load_lwr4
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
 
 __all__ = ["Kinematics", "self_filter", "DistanceStage", "Controller", "PointDistances"]
+
+SELF_FILTER_MARGIN = 0.03  # m, the self-filter's default capsule inflation (robot.selffilter)
 
 
 class CPState(NamedTuple):
@@ -164,10 +167,25 @@ class DistanceStage:
         if len(self.cameras) > 1:
             self.fusion = DepthGridFusion(self.cameras, dd=dd, workspace=workspace)
 
-    def update(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> None:
-        """Frame stage: take one depth image and robot mask per camera."""
+    def update(self, depths: list[np.ndarray], masks: list[np.ndarray], q: np.ndarray | None = None, kin=None) -> None:
+        """Frame stage: take one depth image and robot mask per camera.
+
+        With several cameras and the measured joints ``q`` and the model ``kin``, the principal camera's
+        robot pixels are corrected from the robot's capsules first
+        (:func:`depthguard.robot.interior.principal_robot_pixels`): case iv starts where a ray leaves the
+        robot's inflated capsules, and a missing pixel whose ray misses the robot is a hole, not robot.
+        """
         if self.fusion is not None:
-            self.fusion.update(depths, masks)
+            if q is not None and kin is not None:
+                a, b, r = kin.capsules(q)
+                d0, m0 = principal_robot_pixels(
+                    self.cameras[0], depths[0], masks[0], a, b, r, margin=SELF_FILTER_MARGIN
+                )
+                depths, masks = [d0, *depths[1:]], [m0, *masks[1:]]
+                windows = [None] + [robot_windows(c, a, b, r, margin=SELF_FILTER_MARGIN) for c in self.cameras[1:]]
+            else:
+                windows = None
+            self.fusion.update(depths, masks, windows=windows)
         else:
             self.frames = [prepare_frame(self.cameras[0], depths[0], masks[0])]
 
@@ -180,3 +198,20 @@ class DistanceStage:
         if self.fusion is not None:
             return self.fusion.query(centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
         return query_distances(self.frames[0], centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
+
+    def tolerance(self, centres: np.ndarray, noise_coeff: float = 0.0) -> np.ndarray:
+        """Declared tolerance (N,) m of :meth:`query` at ``centres`` (N, 3): how far an evaluated distance
+        may exceed the true clearance. Fusion: :meth:`DepthGridFusion.tolerance`; one camera: one pixel
+        footprint at ``d_p + ρ``. Plus three standard deviations of the depth noise ``noise_coeff z²``
+        (m⁻¹) at ``d_p + ρ`` in each camera."""
+        c = np.atleast_2d(np.asarray(centres, float))
+        if self.fusion is not None:
+            tol = self.fusion.tolerance(c, rho=self.rho)
+        else:
+            cam = self.cameras[0]
+            tol = (np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + self.rho) / min(cam.fx, cam.fy)
+        noise = np.zeros(len(c))
+        for cam in self.cameras:
+            z = np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + self.rho
+            noise = np.maximum(noise, 3.0 * noise_coeff * z * z)
+        return tol + noise
