@@ -154,8 +154,11 @@ def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conserva
             else:
                 best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
                 if best < np.inf:
+                    # a filled hole is not a measured surface: nothing before the nearest neighbouring
+                    # depth (the filling assumption), unknown from there on, so the other cameras may
+                    # clear its cells (a surface cell is occupied without a vote)
                     start[v, u] = best
-                    kind[v, u] = K.KIND_SURFACE
+                    kind[v, u] = K.KIND_UNKNOWN
                 else:
                     start[v, u] = near_limit
                     kind[v, u] = K.KIND_UNKNOWN

@@ -80,8 +80,21 @@ def _capsule_chord(x, y, A, B, r):
     return s_in, s_out
 
 
+@njit(cache=True, inline="always")
+def _exit_from(s, ins, outs):
+    """Extend depth ``s`` through every chord ``[ins[k], outs[k]]`` that contains it (their union)."""
+    grown = True
+    while grown:
+        grown = False
+        for k in range(ins.shape[0]):
+            if ins[k] <= s and outs[k] > s:
+                s = outs[k]
+                grown = True
+    return s
+
+
 @njit(cache=True)
-def _principal_kernel(depth, mask, A, B, R, margin, fx, fy, cx, cy, out_depth, out_mask):
+def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy, out_depth, out_mask):
     H, W = depth.shape
     n = A.shape[0]
     ins = np.empty(n)
@@ -95,28 +108,41 @@ def _principal_kernel(depth, mask, A, B, R, margin, fx, fy, cx, cy, out_depth, o
                 continue
             x = (u + 0.5 - cx) / fx
             y = (v + 0.5 - cy) / fy
-            if not (d > 0.0 and d < np.inf):
-                # no reading: robot only if the ray meets the capsules themselves (not just the margin)
-                hit = False
+            if d > 0.0 and d < np.inf:
                 for k in range(n):
-                    a, b = _capsule_chord(x, y, A[k], B[k], R[k])
-                    if a <= b and b > 0.0:
-                        hit = True
-                        break
-                if not hit:
-                    out_mask[v, u] = False  # a hole next to the robot: filled like any other hole
+                    ins[k], outs[k] = _capsule_chord(x, y, A[k], B[k], R[k] + margin)
+                out_depth[v, u] = _exit_from(d, ins, outs)
                 continue
+            # no reading: robot only if the ray meets the capsules themselves (not just the margin)
+            entry = np.inf
+            for k in range(n):
+                a, b = _capsule_chord(x, y, A[k], B[k], R[k])
+                if a <= b and b > 0.0:
+                    entry = min(entry, a)
+            if entry == np.inf:
+                out_mask[v, u] = False  # a hole next to the robot: filled like any other hole
+                continue
+            # a robot pixel without a reading (a depth edge on the robot): by the hole-filling rule
+            # nothing lies in front of the nearest valid surface around it; if no valid non-robot
+            # neighbour is nearer than the inflated robot along this ray, the nearest surface is the
+            # robot, and case iv starts where the ray leaves the inflated robot
+            best = np.inf  # nearest valid non-robot depth around (an obstacle, or the background)
+            valid = False
+            for vv in range(max(0, v - fill_radius), min(H, v + fill_radius + 1)):
+                for uu in range(max(0, u - fill_radius), min(W, u + fill_radius + 1)):
+                    dv = depth[vv, uu]
+                    if dv > 0.0 and dv < np.inf:
+                        valid = True
+                        if not mask[vv, uu] and dv < best:
+                            best = dv
             for k in range(n):
                 ins[k], outs[k] = _capsule_chord(x, y, A[k], B[k], R[k] + margin)
-            s = d
-            grown = True
-            while grown:  # extend through every inflated chord that overlaps [.., s]
-                grown = False
-                for k in range(n):
-                    if ins[k] <= s and outs[k] > s:
-                        s = outs[k]
-                        grown = True
-            out_depth[v, u] = s
+            s_in = np.inf
+            for k in range(n):
+                if ins[k] <= outs[k]:
+                    s_in = min(s_in, ins[k])
+            if valid and best >= s_in:
+                out_depth[v, u] = _exit_from(s_in, ins, outs)
 
 
 def principal_robot_pixels(
@@ -127,6 +153,7 @@ def principal_robot_pixels(
     b: np.ndarray,
     radius: np.ndarray,
     margin: float = 0.03,
+    fill_radius: int = 4,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The principal camera's depth image and robot mask as the fusion should take them.
 
@@ -136,13 +163,19 @@ def principal_robot_pixels(
         mask: (H, W) bool robot mask (the self-filter's).
         a, b: (L, 3) world capsule ends (m); radius: (L,) m (:meth:`RobotModel.link_capsules`).
         margin: the self-filter's inflation of every capsule, m.
+        fill_radius: the hole-filling radius of the fusion, pixels.
     Returns:
         ``(depth', mask')``: ``depth'`` is ``depth`` except at robot pixels with a reading ``d_r`` inside
         an inflated capsule, where it is the depth at which the pixel-centre ray leaves the union of the
         inflated capsules it crosses from ``d_r`` on without a gap (case iv then starts there);
         ``mask'`` is ``mask`` except at robot pixels without a reading whose ray misses every capsule
         (it only crosses the margin, or the self-filter's padding): those are holes next to the robot,
-        not robot pixels (the hole-filling policy then applies to them, as to every other hole).
+        not robot pixels (the hole-filling policy then applies to them, as to every other hole). A robot
+        pixel without a reading whose ray meets a capsule, with valid neighbours within ``fill_radius``
+        pixels of which no non-robot one lies nearer than the inflated robot along its ray, gets
+        the depth where the ray leaves the inflated robot (the hole-filling rule: nothing lies in front of
+        the nearest surface around it); otherwise it stays a robot pixel without a reading (searched from
+        the near limit).
     """
     if not (np.isfinite(margin) and margin >= 0):
         raise ValueError(f"margin must be a finite number of metres >= 0, got {margin!r}")
@@ -155,7 +188,9 @@ def principal_robot_pixels(
         raise ValueError(f"capsules: a and b must be (L, 3) and radius (L,), got {A.shape}, {B.shape}, {R.shape}")
     out_d = np.empty(camera.shape, dtype=np.float32)
     out_m = np.empty(camera.shape, dtype=np.bool_)
-    _principal_kernel(d, m, A, B, R, float(margin), camera.fx, camera.fy, camera.cx, camera.cy, out_d, out_m)
+    _principal_kernel(
+        d, m, A, B, R, float(margin), int(fill_radius), camera.fx, camera.fy, camera.cx, camera.cy, out_d, out_m
+    )
     return out_d, out_m
 
 
