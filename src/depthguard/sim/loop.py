@@ -22,7 +22,7 @@ import numpy as np
 
 from depthguard.sim.cell import Cell
 from depthguard.sim.depthcam import KinectSim
-from depthguard.sim.pipeline import Controller, DistanceStage, Kinematics, self_filter
+from depthguard.sim.pipeline import Controller, DistanceStage, Kinematics, filter_margin, self_filter
 from depthguard.sim.pointtruth import PointClearance
 from depthguard.sim.truth import TrueClearance
 
@@ -207,8 +207,12 @@ def run_loop(
             w0 = time.perf_counter()
             depths = [c.capture(cell.data) for c in cams]
             w1 = time.perf_counter()
-            masks = [self_filter(c.camera, dimg, q_meas, kin)[0] for c, dimg in zip(cams, depths, strict=True)]
-            stage.update(depths, masks, q_meas, kin)
+            margins = [filter_margin(c.camera, q_meas, kin, getattr(c, "noise_coeff", 0.0)) for c in cams]
+            masks = [
+                self_filter(c.camera, dimg, q_meas, kin, margin=m)[0]
+                for c, dimg, m in zip(cams, depths, margins, strict=True)
+            ]
+            stage.update(depths, masks, q_meas, kin, margins)
             w2 = time.perf_counter()
             snap = ptruth.snapshot(cell.data)  # the obstacles as this frame saw them (metrics only)
             log.wall_camera.append(w1 - w0)

@@ -22,9 +22,25 @@ from depthguard.robot.interior import principal_robot_pixels, robot_windows
 from depthguard.robot.model import load_lwr4
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
 
-__all__ = ["Kinematics", "self_filter", "DistanceStage", "Controller", "PointDistances"]
+__all__ = ["Kinematics", "self_filter", "filter_margin", "DistanceStage", "Controller", "PointDistances"]
 
 SELF_FILTER_MARGIN = 0.03  # m, the self-filter's default capsule inflation (robot.selffilter)
+NOISE_SIGMAS = 5.0  # the margin also covers this many standard deviations of the depth noise at the robot
+
+
+def filter_margin(camera: Camera, q: np.ndarray, kin: Kinematics, noise_coeff: float = 0.0) -> float:
+    """Self-filter margin (m) for ``camera``: the default 3 cm, or more where the depth noise is larger.
+
+    A robot surface point measured more than the margin in front of its capsule is kept as an obstacle,
+    and every such point lies inside a control sphere: a phantom contact. With axial noise of standard
+    deviation ``noise_coeff z²`` (Kinect v1: 1.4 mm at 1 m, 11 mm at 2.8 m) and tens of thousands of robot
+    pixels per frame, 4-sigma outliers happen every few frames; the margin covers ``NOISE_SIGMAS`` sigmas
+    at the robot's farthest depth in this camera (the capsule ends plus radius).
+    """
+    a, b, r = kin.capsules(q)
+    z = np.maximum(camera.world_to_camera(a)[:, 2], camera.world_to_camera(b)[:, 2]) + r
+    zmax = float(np.max(z)) if len(z) else 0.0
+    return max(SELF_FILTER_MARGIN, NOISE_SIGMAS * float(noise_coeff) * zmax * zmax)
 
 
 class CPState(NamedTuple):
@@ -68,13 +84,17 @@ class Kinematics:
 
 
 def self_filter(
-    camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics, pad: float = 0.02
+    camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics, pad: float = 0.02, margin: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Robot pixels of a depth image from the controller's model: ``(mask (H, W) bool, robot_depth (H, W))``.
 
-    ``pad`` is kept for the callers' signature; the robot package's self-filter uses its own margin.
+    ``pad`` is kept for the callers' signature; ``margin`` (m, default: the self-filter's 3 cm) inflates the
+    capsules (see :func:`filter_margin`).
     """
-    res = _robot_self_filter(camera, depth, q, kin.model)
+    if margin is None:
+        res = _robot_self_filter(camera, depth, q, kin.model)
+    else:
+        res = _robot_self_filter(camera, depth, q, kin.model, margin=float(margin))
     return res[0], res[1]
 
 
@@ -167,22 +187,33 @@ class DistanceStage:
         if len(self.cameras) > 1:
             self.fusion = DepthGridFusion(self.cameras, dd=dd, workspace=workspace)
 
-    def update(self, depths: list[np.ndarray], masks: list[np.ndarray], q: np.ndarray | None = None, kin=None) -> None:
+    def update(
+        self,
+        depths: list[np.ndarray],
+        masks: list[np.ndarray],
+        q: np.ndarray | None = None,
+        kin=None,
+        margins: list[float] | None = None,
+    ) -> None:
         """Frame stage: take one depth image and robot mask per camera.
 
         With several cameras and the measured joints ``q`` and the model ``kin``, the principal camera's
         robot pixels are corrected from the robot's capsules first
         (:func:`depthguard.robot.interior.principal_robot_pixels`): case iv starts where a ray leaves the
-        robot's inflated capsules, and a missing pixel whose ray misses the robot is a hole, not robot.
+        robot's inflated capsules, and a missing pixel whose ray misses the robot is a hole, not robot;
+        the secondary cameras get their robot windows (``robot_windows``): the robot's own body, even
+        where something in front of it hides it, holds no obstacle. ``margins`` (m, one per camera) are
+        the self-filter margins the masks were made with (default 3 cm each, :func:`filter_margin`).
         """
         if self.fusion is not None:
             if q is not None and kin is not None:
                 a, b, r = kin.capsules(q)
-                d0, m0 = principal_robot_pixels(
-                    self.cameras[0], depths[0], masks[0], a, b, r, margin=SELF_FILTER_MARGIN
-                )
+                ms = list(margins) if margins is not None else [SELF_FILTER_MARGIN] * len(self.cameras)
+                d0, m0 = principal_robot_pixels(self.cameras[0], depths[0], masks[0], a, b, r, margin=ms[0])
                 depths, masks = [d0, *depths[1:]], [m0, *masks[1:]]
-                windows = [None] + [robot_windows(c, a, b, r, margin=SELF_FILTER_MARGIN) for c in self.cameras[1:]]
+                windows = [None] + [
+                    robot_windows(c, a, b, r, margin=m) for c, m in zip(self.cameras[1:], ms[1:], strict=True)
+                ]
             else:
                 windows = None
             self.fusion.update(depths, masks, windows=windows)
