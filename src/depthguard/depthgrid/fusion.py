@@ -49,7 +49,10 @@ depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test 
 surface camera k sees (``d_start <= d_o^k <= d_end``); ``tests/test_depthgrid_fusion.py`` shows such a
 case. A missing/unknown pixel of camera k never clears a cell; a cell that is not involved for camera k
 (partly outside its image or behind it) gets no vote from k. A cell is occupied when no involved camera
-clears it, so with one camera the result is the single-camera result.
+clears it, so with one camera the result is the single-camera result. Robot windows (``update(windows=)``,
+optional): a pixel of camera k whose reading lies in front of the cell still passes when the cell's far
+depth lies in the stretch of that pixel's ray filled by the robot's own (inflated) body
+(``_kernels.pixel_sees_past``): a box in front of the arm does not make the arm's body an obstacle.
 
 Robot pixels. In the principal camera: case iv. In a secondary camera a robot pixel never confirms an
 obstacle (DESIGN.md §4: the robot is not an obstacle to itself), so it counts as seeing past (default,
@@ -58,6 +61,11 @@ documented limit of the method (RA-L'16 §VI: occlusions cannot be removed in ge
 ``robot_occludes=True`` a secondary robot pixel counts as an obstacle at the robot's depth: it never
 clears what lies behind the robot, which is safe but keeps phantom obstacles right behind the robot links
 (every control sphere then touches them), so it is not the default.
+
+Filled holes. A missing principal pixel within ``fill_radius`` of valid non-robot pixels is unknown from
+the nearest of their depths (nothing lies before it, by the filling rule), not a measured surface: the
+other cameras may clear its cells, which removes phantom surfaces in the air where the fill took a nearer
+neighbour's depth (along the robot's silhouette, for instance).
 
 Cells the principal camera measured. The cell that contains the principal camera's measured surface
 ``d_o`` is occupied without a vote (the paper asks the other cameras for it too): a measured surface is
