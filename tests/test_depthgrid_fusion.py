@@ -267,19 +267,19 @@ def test_frame_preparation_matches_prepare_frame(invalid):
     f1 = prepare_frame(cams[1], depths[1], masks[1], invalid=invalid, fill_radius=3)
     near = np.float32(cams[0].min_depth)
     missing0 = ~np.isfinite(depths[0]) | (depths[0] <= 0)
-    unknown0 = missing0 & (f0.obstacle_depth == near) & (invalid == "conservative")
     robot_start = np.where(np.isfinite(f0.robot_depth), f0.robot_depth, near if invalid == "conservative" else np.inf)
     start = np.where(f0.robot_mask, robot_start, f0.obstacle_depth)
     kind = np.where(
         f0.robot_mask,
         np.where(np.isfinite(robot_start), K.KIND_ROBOT, K.KIND_NONE),
-        np.where(np.isinf(f0.obstacle_depth), K.KIND_NONE, np.where(unknown0, K.KIND_UNKNOWN, K.KIND_SURFACE)),
+        # a filled hole is unknown from its fill depth, like an unfillable hole from the near limit
+        np.where(np.isinf(f0.obstacle_depth), K.KIND_NONE, np.where(missing0, K.KIND_UNKNOWN, K.KIND_SURFACE)),
     )
     assert np.array_equal(fusion._start, start.astype(np.float32))
     assert np.array_equal(fusion._kind, kind)
     missing1 = ~np.isfinite(depths[1]) | (depths[1] <= 0)
     votes = np.where(missing1 & (f1.obstacle_depth == near), 0.0, f1.obstacle_depth)
-    assert np.array_equal(fusion._votes[0], votes.astype(np.float32))
+    assert np.array_equal(fusion._votes[0, : cams[1].height], votes.astype(np.float32))
     assert (kind == K.KIND_UNKNOWN).sum() > 0 if invalid == "conservative" else True
 
 

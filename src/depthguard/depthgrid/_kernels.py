@@ -110,14 +110,30 @@ def unpack(w):
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
+def pixel_sees_past(k, pv, pu, dend, votes):
+    """Pixel (pu, pv) of camera k does not hold an obstacle before ``dend``: its vote depth exceeds
+    ``dend``, or ``dend`` lies in the pixel's robot window (``lo <= dend <= hi``: the part of any cell
+    that ends at ``dend`` and that this pixel sees lies inside the robot's inflated capsules).
+
+    ``votes`` holds three row blocks of equal height (see ``DepthGridFusion``): the votes, then ``lo``
+    (+inf where the pixel has no window), then ``hi`` (-inf where none).
+    """
+    if votes[k, pv, pu] > dend:
+        return True
+    hm = votes.shape[1] // 3
+    return votes[k, hm + pv, pu] <= dend and dend <= votes[k, 2 * hm + pv, pu]
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
 def footprint_sees_past(k, u0, v0, du, dv, q, votes):
-    """True when camera k calls the cell free: every covered pixel's vote depth exceeds ``d_end``."""
+    """True when camera k calls the cell free: every covered pixel sees past ``d_end``
+    (:func:`pixel_sees_past`)."""
     if u0 < 0:
         return False  # not involved: no vote
     dend = q * DEND_SCALE
     for pv in range(v0, v0 + dv + 1):
         for pu in range(u0, u0 + du + 1):
-            if not votes[k, pv, pu] > dend:
+            if not pixel_sees_past(k, pv, pu, dend, votes):
                 return False
     return True
 
@@ -147,7 +163,9 @@ def centre_sees_past(k, u, v, d1, d2, centre_rays, cams, votes):
     pv = cams[k, 4] * (dm * centre_rays[k, v, u, 1] + cams[k, 1]) * iz + cams[k, 6]
     if not (pu >= 0.0 and pv >= 0.0 and pu < cams[k, 7] and pv < cams[k, 8]):
         return False
-    return votes[k, int(pv), int(pu)] > Z
+    # the vote, or the top of the pixel's robot window (pixel_sees_past needs hi >= d_end > Z)
+    hm = votes.shape[1] // 3
+    return votes[k, int(pv), int(pu)] > Z or votes[k, 2 * hm + int(pv), int(pu)] > Z
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")

@@ -49,7 +49,10 @@ depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test 
 surface camera k sees (``d_start <= d_o^k <= d_end``); ``tests/test_depthgrid_fusion.py`` shows such a
 case. A missing/unknown pixel of camera k never clears a cell; a cell that is not involved for camera k
 (partly outside its image or behind it) gets no vote from k. A cell is occupied when no involved camera
-clears it, so with one camera the result is the single-camera result.
+clears it, so with one camera the result is the single-camera result. Robot windows (``update(windows=)``,
+optional): a pixel of camera k whose reading lies in front of the cell still passes when the cell's far
+depth lies in the stretch of that pixel's ray filled by the robot's own (inflated) body
+(``_kernels.pixel_sees_past``): a box in front of the arm does not make the arm's body an obstacle.
 
 Robot pixels. In the principal camera: case iv. In a secondary camera a robot pixel never confirms an
 obstacle (DESIGN.md §4: the robot is not an obstacle to itself), so it counts as seeing past (default,
@@ -58,6 +61,11 @@ documented limit of the method (RA-L'16 §VI: occlusions cannot be removed in ge
 ``robot_occludes=True`` a secondary robot pixel counts as an obstacle at the robot's depth: it never
 clears what lies behind the robot, which is safe but keeps phantom obstacles right behind the robot links
 (every control sphere then touches them), so it is not the default.
+
+Filled holes. A missing principal pixel within ``fill_radius`` of valid non-robot pixels is unknown from
+the nearest of their depths (nothing lies before it, by the filling rule), not a measured surface: the
+other cameras may clear its cells, which removes phantom surfaces in the air where the fill took a nearer
+neighbour's depth (along the robot's silhouette, for instance).
 
 Cells the principal camera measured. The cell that contains the principal camera's measured surface
 ``d_o`` is occupied without a vote (the paper asks the other cameras for it too): a measured surface is
@@ -154,8 +162,11 @@ def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conserva
             else:
                 best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
                 if best < np.inf:
+                    # a filled hole is not a measured surface: nothing before the nearest neighbouring
+                    # depth (the filling assumption), unknown from there on, so the other cameras may
+                    # clear its cells (a surface cell is occupied without a vote)
                     start[v, u] = best
-                    kind[v, u] = K.KIND_SURFACE
+                    kind[v, u] = K.KIND_UNKNOWN
                 else:
                     start[v, u] = near_limit
                     kind[v, u] = K.KIND_UNKNOWN
@@ -244,7 +255,12 @@ class DepthGridFusion:
         n = max(1, len(cameras) - 1)
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
-        self._votes = np.zeros((n, hm, wm), dtype=np.float32)
+        # three row blocks per secondary camera: the votes, then the robot windows' lo and hi (see
+        # _kernels.pixel_sees_past and update(windows=...)); no window: lo = +inf, hi = -inf
+        self._hm = hm
+        self._votes = np.zeros((n, 3 * hm, wm), dtype=np.float32)
+        self._votes[:, hm : 2 * hm] = np.inf
+        self._votes[:, 2 * hm :] = -np.inf
         self._pyr_meta, npyr = K.pyramid_layout(hm, wm)
         self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see _kernels)
         cam0 = cameras[0]
@@ -264,6 +280,7 @@ class DepthGridFusion:
         depths: list[np.ndarray],
         masks: list[np.ndarray | None] | None = None,
         invalid: str = "conservative",
+        windows: list[tuple[np.ndarray, np.ndarray] | None] | None = None,
     ) -> None:
         """Take one depth image per camera (per frame, camera rate).
 
@@ -272,6 +289,15 @@ class DepthGridFusion:
             masks: ``None`` or one entry per camera: ``None`` or an (H, W) bool robot mask (True = robot
                 pixel; the depth image holds the robot's depth there, so ``d_r`` is known).
             invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (DESIGN.md §4).
+            windows: ``None`` or one entry per camera (the principal camera's is ignored): ``None`` or
+                ``(lo, hi)``, two (H, W) depth images (m, camera k's ``z``; ``lo > hi`` or NaN = none):
+                along pixel (u, v) of camera k, the robot's own body (its capsules inflated by the
+                self-filter's margin) fills ``[lo, hi]`` (:func:`depthguard.robot.interior.robot_windows`).
+                Camera k then also clears a cell at a pixel whose reading lies in front of the cell when
+                the cell's far depth ``d_end`` lies in ``[lo, hi]``: the robot's body holds no obstacle
+                (the self-filter's margin limit), even where a box hides it from camera k. The cleared
+                part of the cell lies within one cell diameter (Δd and a principal pixel footprint) of
+                that body.
         """
         if invalid not in INVALID_POLICIES:
             raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
@@ -282,6 +308,20 @@ class DepthGridFusion:
         if len(masks) != len(self.cameras):
             raise ValueError(f"masks: got {len(masks)} entries for {len(self.cameras)} cameras")
         conservative = invalid == "conservative"
+        if windows is not None and len(windows) != len(self.cameras):
+            raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
+        hm = self._hm
+        self._votes[:, hm : 2 * hm] = np.inf
+        self._votes[:, 2 * hm :] = -np.inf
+        for k in range(1, len(self.cameras)):
+            if windows is None or windows[k] is None:
+                continue
+            cam = self.cameras[k]
+            lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float64)
+            hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float64)
+            ok = np.isfinite(lo) & np.isfinite(hi) & (lo <= hi)
+            self._votes[k - 1, hm : hm + cam.height, : cam.width] = np.where(ok, lo, np.inf)
+            self._votes[k - 1, 2 * hm : 2 * hm + cam.height, : cam.width] = np.where(ok, hi, -np.inf)
         for k, (cam, depth, mask) in enumerate(zip(self.cameras, depths, masks, strict=True)):
             d = np.ascontiguousarray(cam.check_image(depth, "depth"), dtype=np.float32)
             has_mask = mask is not None
@@ -314,7 +354,7 @@ class DepthGridFusion:
                 )
         self._tmin = tile_min(self._start, TILE)
         self._tmax = K.tile_max_start(self._start, self._kind, TILE)
-        K.build_pyramid(self._votes, self._pyr_meta, self._pyr)
+        K.build_pyramid(self._votes[:, :hm], self._pyr_meta, self._pyr)
         self._invalid = invalid
         self._ready = True
 

@@ -22,7 +22,8 @@ import numpy as np
 
 from depthguard.sim.cell import Cell
 from depthguard.sim.depthcam import KinectSim
-from depthguard.sim.pipeline import Controller, DistanceStage, Kinematics, self_filter
+from depthguard.sim.pipeline import Controller, DistanceStage, Kinematics, filter_margin, self_filter
+from depthguard.sim.pointtruth import PointClearance
 from depthguard.sim.truth import TrueClearance
 
 __all__ = ["Task", "LoopConfig", "SimLog", "run_loop"]
@@ -121,6 +122,12 @@ class SimLog:
     wall_camera: list = field(default_factory=list)
     t_distance: list = field(default_factory=list)
     frames: list = field(default_factory=list)  # (t, [uint16 mm depth per camera]) for the recorder
+    # every distance-stage call: evaluated distance, synchronous true clearance and declared tolerance per
+    # control point, flattened (see depthguard.sim.accuracy)
+    acc_t: list = field(default_factory=list)
+    acc_eval: list = field(default_factory=list)
+    acc_true: list = field(default_factory=list)
+    acc_tol: list = field(default_factory=list)
     nearest_obstacle: dict = field(default_factory=dict)
     links: list = field(default_factory=list)
     point_names: tuple = ()
@@ -174,6 +181,9 @@ def run_loop(
 
         pivot = PivotFilter(dv_max=cfg.dv_max, c=cfg.pivot_c)
     truth = TrueClearance(cell)
+    ptruth = PointClearance(cell)
+    snap = ptruth.snapshot(cell.data)
+    noise = max((getattr(c, "noise_coeff", 0.0) for c in cams), default=0.0)
     log = SimLog(links=truth.links, point_names=tuple(kin.names))
     n_steps = int(round(cfg.duration / cfg.control_dt))
     frame_every = cfg.frame_period
@@ -197,9 +207,14 @@ def run_loop(
             w0 = time.perf_counter()
             depths = [c.capture(cell.data) for c in cams]
             w1 = time.perf_counter()
-            masks = [self_filter(c.camera, dimg, q_meas, kin) for c, dimg in zip(cams, depths, strict=True)]
-            stage.update(depths, masks)
+            margins = [filter_margin(c.camera, q_meas, kin, getattr(c, "noise_coeff", 0.0)) for c in cams]
+            masks = [
+                self_filter(c.camera, dimg, q_meas, kin, margin=m)
+                for c, dimg, m in zip(cams, depths, margins, strict=True)
+            ]
+            stage.update(depths, masks, q_meas, kin, margins)
             w2 = time.perf_counter()
+            snap = ptruth.snapshot(cell.data)  # the obstacles as this frame saw them (metrics only)
             log.wall_camera.append(w1 - w0)
             log.wall_frame.append(w2 - w1)
             every = record_frames_every if depths[0].shape[1] <= 320 else 2 * record_frames_every
@@ -223,6 +238,11 @@ def run_loop(
             log.wall_distance.append(time.perf_counter() - w0)
             log.t_distance.append(t)
             latest = (t, res, V, dirs)
+            # metrics only: the synchronous truth for these spheres (depthguard.sim.accuracy)
+            log.acc_t.append(t)
+            log.acc_eval.extend(np.asarray(res.distance, float))
+            log.acc_true.extend(ptruth.evaluate(cp.centres, cp.radii, snap)[0])
+            log.acc_tol.extend(stage.tolerance(cp.centres, noise))
         # ---------------------------------------------------------------- control stage (1 kHz)
         w0 = time.perf_counter()
         cp = kin.evaluate(q_meas)

@@ -16,10 +16,29 @@ from depthguard.control.cycle import AvoidanceController, ControllerConfig, Cycl
 from depthguard.depthgrid import DepthGridFusion
 from depthguard.depthspace import PointDistances, prepare_frame, query_distances
 from depthguard.robot.control_points import ControlPointSet, ControlPointState
+from depthguard.robot.interior import principal_robot_pixels, robot_windows
 from depthguard.robot.robots import load_robot
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
 
-__all__ = ["Kinematics", "self_filter", "DistanceStage", "Controller", "PointDistances"]
+__all__ = ["Kinematics", "self_filter", "filter_margin", "DistanceStage", "Controller", "PointDistances"]
+
+SELF_FILTER_MARGIN = 0.03  # m, the self-filter's default capsule inflation (robot.selffilter)
+NOISE_SIGMAS = 5.0  # the margin also covers this many standard deviations of the depth noise at the robot
+
+
+def filter_margin(camera: Camera, q: np.ndarray, kin: Kinematics, noise_coeff: float = 0.0) -> float:
+    """Self-filter margin (m) for ``camera``: the default 3 cm, or more where the depth noise is larger.
+
+    A robot surface point measured more than the margin in front of its capsule is kept as an obstacle,
+    and every such point lies inside a control sphere: a phantom contact. With axial noise of standard
+    deviation ``noise_coeff z²`` (Kinect v1: 1.4 mm at 1 m, 11 mm at 2.8 m) and tens of thousands of robot
+    pixels per frame, 4-sigma outliers happen every few frames; the margin covers ``NOISE_SIGMAS`` sigmas
+    at the robot's farthest depth in this camera (the capsule ends plus radius).
+    """
+    a, b, r = kin.model.link_capsules(q)
+    z = np.maximum(camera.world_to_camera(a)[:, 2], camera.world_to_camera(b)[:, 2]) + r
+    zmax = float(np.max(z)) if len(z) else 0.0
+    return max(SELF_FILTER_MARGIN, NOISE_SIGMAS * float(noise_coeff) * zmax * zmax)
 
 
 class Kinematics:
@@ -52,9 +71,14 @@ class Kinematics:
         return self.points.evaluate(q)
 
 
-def self_filter(camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics) -> np.ndarray:
-    """Robot pixels (H, W) bool of a depth image, from the controller's model at the measured ``q``."""
-    return _robot_self_filter(camera, depth, q, kin.model).mask
+def self_filter(
+    camera: Camera, depth: np.ndarray, q: np.ndarray, kin: Kinematics, margin: float | None = None
+) -> np.ndarray:
+    """Robot pixels (H, W) bool of a depth image, from the controller's model at the measured ``q``;
+    ``margin`` (m, default: the self-filter's 3 cm) inflates the geometry (see :func:`filter_margin`)."""
+    if margin is None:
+        return _robot_self_filter(camera, depth, q, kin.model).mask
+    return _robot_self_filter(camera, depth, q, kin.model, margin=float(margin)).mask
 
 
 class Controller:
@@ -147,10 +171,36 @@ class DistanceStage:
         if len(self.cameras) > 1:
             self.fusion = DepthGridFusion(self.cameras, dd=dd, workspace=workspace)
 
-    def update(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> None:
-        """Frame stage: take one depth image and robot mask per camera."""
+    def update(
+        self,
+        depths: list[np.ndarray],
+        masks: list[np.ndarray],
+        q: np.ndarray | None = None,
+        kin=None,
+        margins: list[float] | None = None,
+    ) -> None:
+        """Frame stage: take one depth image and robot mask per camera.
+
+        With several cameras and the measured joints ``q`` and the model ``kin``, the principal camera's
+        robot pixels are corrected from the robot's capsules first
+        (:func:`depthguard.robot.interior.principal_robot_pixels`): case iv starts where a ray leaves the
+        robot's inflated capsules, and a missing pixel whose ray misses the robot is a hole, not robot;
+        the secondary cameras get their robot windows (``robot_windows``): the robot's own body, even
+        where something in front of it hides it, holds no obstacle. ``margins`` (m, one per camera) are
+        the self-filter margins the masks were made with (default 3 cm each, :func:`filter_margin`).
+        """
         if self.fusion is not None:
-            self.fusion.update(depths, masks)
+            if q is not None and kin is not None:
+                a, b, r = kin.model.link_capsules(q)
+                ms = list(margins) if margins is not None else [SELF_FILTER_MARGIN] * len(self.cameras)
+                d0, m0 = principal_robot_pixels(self.cameras[0], depths[0], masks[0], a, b, r, margin=ms[0])
+                depths, masks = [d0, *depths[1:]], [m0, *masks[1:]]
+                windows = [None] + [
+                    robot_windows(c, a, b, r, margin=m) for c, m in zip(self.cameras[1:], ms[1:], strict=True)
+                ]
+            else:
+                windows = None
+            self.fusion.update(depths, masks, windows=windows)
         else:
             self.frames = [prepare_frame(self.cameras[0], depths[0], masks[0])]
         self._updated = True
@@ -165,3 +215,20 @@ class DistanceStage:
         if self.fusion is not None:
             return self.fusion.query(centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
         return query_distances(self.frames[0], centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
+
+    def tolerance(self, centres: np.ndarray, noise_coeff: float = 0.0) -> np.ndarray:
+        """Declared tolerance (N,) m of :meth:`query` at ``centres`` (N, 3): how far an evaluated distance
+        may exceed the true clearance. Fusion: :meth:`DepthGridFusion.tolerance`; one camera: one pixel
+        footprint at ``d_p + ρ``. Plus three standard deviations of the depth noise ``noise_coeff z²``
+        (m⁻¹) at ``d_p + ρ`` in each camera."""
+        c = np.atleast_2d(np.asarray(centres, float))
+        if self.fusion is not None:
+            tol = self.fusion.tolerance(c, rho=self.rho)
+        else:
+            cam = self.cameras[0]
+            tol = (np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + self.rho) / min(cam.fx, cam.fy)
+        noise = np.zeros(len(c))
+        for cam in self.cameras:
+            z = np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + self.rho
+            noise = np.maximum(noise, 3.0 * noise_coeff * z * z)
+        return tol + noise

@@ -17,7 +17,9 @@ Metrics (ground truth from ``mj_geomDistance``, never seen by the pipeline):
   back within 3 cm at the end);
 * ``distance_hz_median`` / ``distance_hz_p99``: wall-clock rate of the distance stage, ``1 / t`` for the
   median and the 99th-percentile call time ``t`` (control points + distances + repulsion);
-* ``control_ms_p99``: 99th-percentile wall time of one control cycle; frame-stage timings likewise.
+* ``control_ms_p99``: 99th-percentile wall time of one control cycle; frame-stage timings likewise;
+* ``max_over_report``, ``median_under_report``, ``time_at_zero_s``, ``declared_tolerance``: evaluated
+  against true distances per control point and distance-stage call (:mod:`depthguard.sim.accuracy`).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from depthguard.sim.accuracy import accuracy_metrics
 
 __all__ = ["list_scenarios", "load_scenario", "run_scenario", "compute_metrics"]
 
@@ -230,6 +234,7 @@ def compute_metrics(log, task, cfg) -> dict[str, Any]:
         "wall_seconds": round(log.wall_total, 2),
         "collided_with": dict(log.nearest_obstacle),
     }
+    out.update(accuracy_metrics(log, cfg.rho, cfg.distance_period))
     return out
 
 
@@ -401,7 +406,7 @@ def run_scenario(
         try:
             from depthguard.viz.plots import plot_run
 
-            files.update(plot_run(out, runs, sc["name"]))
+            files.update(plot_run(out, runs, sc["name"], float(sc.get("avoidance", {}).get("rho", 0.4))))
         except ImportError as exc:  # matplotlib missing
             result["plots_error"] = f"plots skipped: {exc} (pip install depthguard[viz])"
         try:

@@ -4,7 +4,10 @@
   (green arrows), for the run and its variants (ICRA'12 Figs. 11, 13, 14; the elbow's path too);
 * ``distances.png``: evaluated minimum distance and true minimum clearance over time (RA-L'16 Fig. 15);
 * ``distance_rate.png``: instantaneous and average wall-clock frequency of the distance stage
-  (ICRA'12 Fig. 16).
+  (ICRA'12 Fig. 16);
+* ``under_report.png``: true clearance minus evaluated distance per control point over time (where the
+  truth is below ρ; negative = over-report), with the time spent at a phantom zero shaded
+  (:mod:`depthguard.sim.accuracy`).
 """
 
 from __future__ import annotations
@@ -25,8 +28,8 @@ def _mpl():
     return plt
 
 
-def plot_run(out_dir: str | Path, runs: dict, title: str) -> dict[str, str]:
-    """Write the three plots for ``runs`` = {name: (SimLog, Task)} ("main" first). Returns {plot: path}."""
+def plot_run(out_dir: str | Path, runs: dict, title: str, rho: float = 0.4) -> dict[str, str]:
+    """Write the plots for ``runs`` = {name: (SimLog, Task)} ("main" first). Returns {plot: path}."""
     plt = _mpl()
     out = Path(out_dir)
     files: dict[str, str] = {}
@@ -136,4 +139,40 @@ def plot_run(out_dir: str | Path, runs: dict, title: str) -> dict[str, str]:
     fig.savefig(p, dpi=110)
     plt.close(fig)
     files["distance_rate"] = str(p)
+    if getattr(runs["main"][0], "acc_t", None):
+        files["under_report"] = str(plot_under_report(out / "under_report.png", runs["main"][0], title, rho))
     return files
+
+
+def plot_under_report(path: str | Path, log, title: str, rho: float = 0.4) -> Path:
+    """Under-report (true clearance minus evaluated distance) of every control point over time."""
+    from depthguard.sim.accuracy import under_report_series
+
+    plt = _mpl()
+    t, under, at_zero = under_report_series(log, rho)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for k, name in enumerate(log.point_names):
+        ax.plot(t, under[:, k], lw=1.2 if k == 0 else 0.6, color="tab:blue" if k == 0 else None, label=name)
+    if at_zero.any():
+        dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+        ax.fill_between(
+            t,
+            0,
+            1,
+            where=at_zero,
+            step="post",
+            color="tab:red",
+            alpha=0.15,
+            transform=ax.get_xaxis_transform(),
+            label=f"phantom zero ({at_zero.sum() * dt:.2f} s)",
+        )
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xlabel("simulated time [s]")
+    ax.set_ylabel("true clearance - evaluated distance [m]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=6, loc="upper right", ncol=2)
+    ax.set_title(f"{title}: under-report per control point (true clearance < ρ; below 0 = over-report)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

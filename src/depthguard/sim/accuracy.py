@@ -1,0 +1,89 @@
+"""How close the evaluated distances stay to the truth: over-report, under-report and time at zero.
+
+For every distance-stage call (every ``distance_period`` of simulated time) and every control point, the
+loop logs the evaluated distance ``e`` (m, from the sphere's surface; ``inf`` when nothing lies within
+ρ), the true clearance ``c`` of the same sphere to the nearest non-robot geom (people, boxes, table,
+walls, floor; :class:`depthguard.sim.pointtruth.PointClearance`, coal) and the declared tolerance
+``tol`` of that evaluation. The truth is *synchronous*: the obstacles as they were when the frame that
+the call used was captured, the sphere where the call put it; the camera's frame latency (up to 33 ms of
+a moving person) is a different error, handled by the controller's margins, and is left out here.
+
+Over the samples with ``c < ρ`` (``e`` taken as ``min(e, ρ)``, "nothing within ρ" claims at least ρ):
+
+* ``max_over_report`` = max(e - c) (m): how much the evaluation claims beyond the truth; the safety
+  contract is ``e - c <= tol`` for every sample (``over_report_within_tolerance``);
+* ``median_under_report`` = median(c - e) (m): how conservative the evaluation is, typically;
+* ``time_at_zero_s``: simulated seconds during which some control point is evaluated at
+  ``e <= 0.005`` m while its true clearance is ``c > 0.05`` m (a phantom contact: a speed-and-
+  separation monitor would stop the robot for nothing).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ZERO_EVAL", "ZERO_TRUE", "accuracy_metrics", "under_report_series"]
+
+ZERO_EVAL = 0.005  # m: an evaluated distance at or below this counts as "at zero"
+ZERO_TRUE = 0.05  # m: ... while the true clearance exceeds this
+
+
+def _arrays(log) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    t = np.asarray(log.acc_t, float)
+    n = len(log.point_names)
+    e = np.asarray(log.acc_eval, float).reshape(len(t), n)
+    c = np.asarray(log.acc_true, float).reshape(len(t), n)
+    tol = np.asarray(log.acc_tol, float).reshape(len(t), n)
+    return t, e, c, tol
+
+
+def under_report_series(log, rho: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(t (T,), under (T, N), at_zero (T,) bool)``: ``c - min(e, ρ)`` per call and point (NaN where
+    ``c >= ρ``), and whether some point is at zero while its truth exceeds 5 cm."""
+    t, e, c, _ = _arrays(log)
+    em = np.minimum(e, rho)
+    under = np.where(c < rho, c - em, np.nan)
+    at_zero = np.any((e <= ZERO_EVAL) & (c > ZERO_TRUE), axis=1) if len(t) else np.zeros(0, bool)
+    return t, under, at_zero
+
+
+def accuracy_metrics(log, rho: float, period: float) -> dict[str, Any]:
+    """The comparison of evaluated and true distances of one run (see the module docstring).
+
+    Args:
+        log: a :class:`depthguard.sim.loop.SimLog` with its ``acc_*`` rows.
+        rho: radius of surveillance ρ, m.
+        period: simulated seconds between distance-stage calls.
+    Returns:
+        ``max_over_report``, ``median_under_report``, ``time_at_zero_s``, ``declared_tolerance`` (the
+        largest tolerance over the compared samples), ``over_report_within_tolerance``,
+        ``accuracy_samples`` and, per control point, ``accuracy_per_point`` (max over-report, median
+        under-report, time at zero).
+    """
+    t, e, c, tol = _arrays(log)
+    names = list(log.point_names)
+    near = c < rho
+    em = np.minimum(e, rho)
+    over = em - c
+    zero = (e <= ZERO_EVAL) & (c > ZERO_TRUE)
+    out: dict[str, Any] = {
+        "max_over_report": float(np.max(over[near])) if near.any() else None,
+        "median_under_report": float(np.median(-over[near])) if near.any() else None,
+        "time_at_zero_s": round(float(np.sum(np.any(zero, axis=1)) * period), 4),
+        "declared_tolerance": float(np.max(tol[near])) if near.any() else None,
+        "over_report_within_tolerance": bool(np.all(over[near] <= tol[near])),
+        "accuracy_samples": int(near.sum()),
+        "accuracy_truth": "synchronous: obstacles at the frame's capture, spheres at the call (coal)",
+    }
+    per = {}
+    for k, name in enumerate(names):
+        m = near[:, k]
+        per[name] = {
+            "max_over_report": float(np.max(over[m, k])) if m.any() else None,
+            "median_under_report": float(np.median(-over[m, k])) if m.any() else None,
+            "time_at_zero_s": round(float(np.sum(zero[:, k]) * period), 4),
+        }
+    out["accuracy_per_point"] = per
+    return out

@@ -1,0 +1,160 @@
+"""The robot's own body in the fusion (depthguard.robot.interior): chords, principal pixels, windows.
+
+Ground truth: capsule membership of sampled ray points (brute force), the analytic scenes of
+:mod:`depthguard.scene`, and the fusion's own lower-bound contract on a hidden obstacle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from depthguard.camera import Camera, look_at
+from depthguard.depthgrid import DepthGridFusion
+from depthguard.robot.interior import _capsule_chord, principal_robot_pixels, robot_windows
+from depthguard.scene import Capsule, HalfSpace, Scene, Sphere, render_depth
+
+WORKSPACE = (-1.5, 1.5, -1.5, 1.5, -0.5, 1.5)
+WALLS = (
+    HalfSpace(np.array([-2.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])),
+    HalfSpace(np.array([0.0, -2.0, 0.0]), np.array([0.0, 1.0, 0.0])),
+    HalfSpace(np.array([0.0, 0.0, -0.5]), np.array([0.0, 0.0, 1.0])),
+)
+MARGIN = 0.03
+
+
+def camera(eye, target, w=160, h=120, f=131.25) -> Camera:
+    R, t = look_at(np.asarray(eye, float), np.asarray(target, float))
+    return Camera(width=w, height=h, fx=f, fy=f, cx=w / 2, cy=h / 2, R=R, t=t, min_depth=0.3, max_depth=6.0)
+
+
+def _inside(p, a, b, r):
+    ab = b - a
+    s = np.clip((p - a) @ ab / max(ab @ ab, 1e-18), 0.0, 1.0)
+    return np.linalg.norm(p - (a + s[:, None] * ab), axis=1) <= r
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(-0.3, 0.3),
+    st.floats(-0.3, 0.3),
+    st.lists(st.floats(-0.25, 0.25), min_size=6, max_size=6),
+    st.floats(0.02, 0.15),
+)
+def test_capsule_chord_matches_sampled_membership(x, y, ends, r):
+    a = np.array([ends[0], ends[1], 1.5 + ends[2]])
+    b = np.array([ends[3], ends[4], 1.5 + ends[5]])
+    s = np.linspace(0.5, 2.5, 40001)
+    pts = s[:, None] * np.array([x, y, 1.0])
+    inside = _inside(pts, a, b, r)
+    s_in, s_out = _capsule_chord(x, y, a, b, r)
+    if not inside.any():
+        # the ray may graze the capsule between samples: then the chord is tiny
+        assert not (s_in <= s_out) or s_out - s_in < 1e-3
+        return
+    step = s[1] - s[0]
+    assert s_in == pytest.approx(s[inside][0], abs=step * 1.01)
+    assert s_out == pytest.approx(s[inside][-1], abs=step * 1.01)
+
+
+def _robot_scene():
+    """Principal camera on +x, second camera on +y; a capsule 'link' at the origin, z = 1."""
+    cams = [camera([2.0, 0.0, 1.0], [0.0, 0.0, 1.0]), camera([0.0, 2.0, 1.2], [0.0, 0.0, 0.9])]
+    a, b, r = np.array([[0.0, -0.15, 1.0]]), np.array([[0.0, 0.15, 1.0]]), np.array([0.08])
+    link = Capsule(a[0], b[0], float(r[0]))
+    return cams, link, a, b, r
+
+
+def test_principal_robot_pixels_start_where_the_ray_leaves_the_robot():
+    cams, link, a, b, r = _robot_scene()
+    cam = cams[0]
+    depth = render_depth(cam, Scene((link, *WALLS))).astype(np.float32)
+    robot = render_depth(cam, Scene((link,)))
+    mask = np.isfinite(robot)
+    d2, m2 = principal_robot_pixels(cam, depth, mask, a, b, r, margin=MARGIN)
+    assert np.array_equal(d2[~mask], depth[~mask], equal_nan=True)
+    # along the optical axis the ray leaves the inflated link at x = -(r + margin), depth 2 + r + margin
+    v, u = cam.height // 2, cam.width // 2
+    assert d2[v, u] == pytest.approx(2.0 + 0.08 + MARGIN, abs=2e-3)
+    assert np.all(d2[mask] >= depth[mask])
+    # a missing pixel inside the robot stays robot; a missing pixel next to it (margin only) is a hole
+    inflated = np.isfinite(render_depth(cam, Scene((Capsule(a[0], b[0], 0.08 + MARGIN),))))
+    band = inflated & ~mask
+    assert band.any()
+    holes = np.where(band | mask, np.nan, depth).astype(np.float32)
+    holes[v, u] = np.nan
+    _, m3 = principal_robot_pixels(cam, holes, band | mask, a, b, r, margin=MARGIN)
+    assert m3[v, u]
+    assert not m3[band].any()
+
+
+def test_robot_windows_hold_the_inflated_chord():
+    cams, link, a, b, r = _robot_scene()
+    cam = cams[1]
+    lo, hi = robot_windows(cam, a, b, r, margin=MARGIN)
+    hit = np.isfinite(render_depth(cam, Scene((Capsule(a[0], b[0], 0.08 + MARGIN),))))
+    assert np.array_equal(np.isfinite(lo), hit)
+    ray = cam.pixel_ray_directions()[60, 80]
+    s_in, s_out = _capsule_chord(ray[0], ray[1], cam.world_to_camera(a)[0], cam.world_to_camera(b)[0], 0.08 + MARGIN)
+    assert lo[60, 80] == pytest.approx(s_in, abs=1e-5)
+    assert hi[60, 80] == pytest.approx(s_out, abs=1e-5)
+    with pytest.raises(ValueError, match="margin"):
+        robot_windows(cam, a, b, r, margin=-1.0)
+
+
+def _fusion_inputs(cams, link, a, b, r, others):
+    full = Scene((link, *others, *WALLS))
+    depths, masks = [], []
+    for c in cams:
+        d = render_depth(c, full).astype(np.float32)
+        rob = render_depth(c, Scene((link,)))
+        masks.append(np.isfinite(rob) & (rob <= d + 1e-6))
+        depths.append(d)
+    d0, m0 = principal_robot_pixels(cams[0], depths[0], masks[0], a, b, r, margin=MARGIN)
+    windows = [None] + [robot_windows(c, a, b, r, margin=MARGIN) for c in cams[1:]]
+    return depths, masks, [d0, *depths[1:]], [m0, *masks[1:]], windows
+
+
+def test_the_robots_body_hidden_by_a_box_is_not_an_obstacle():
+    """A box hides the link from the second camera: the cells behind the link's visible surface (its own
+    body) are unseen by both cameras. Without the corrections they are an obstacle 0.1 m from a point
+    in front of the link; with them the nearest unseen space lies behind the inflated link."""
+    cams, link, a, b, r = _robot_scene()
+    box = Sphere(np.array([0.0, 0.55, 1.05]), 0.15)  # between the second camera and the link
+    depths, masks, d2, m2, windows = _fusion_inputs(cams, link, a, b, r, (box,))
+    P = np.array([[0.25, 0.0, 1.0]])
+    plain = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    plain.update(depths, masks)
+    assert plain.query(P, 0.0, rho=0.4, mode="min").distance[0] < 0.2  # the link's own body
+    fixed = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    fixed.update(d2, m2, windows=windows)
+    got = fixed.query(P, 0.0, rho=0.4, mode="min").distance[0]
+    # still a lower bound of the distance to the box and to the space behind the inflated link
+    bound = min(float(Scene((box,)).distance(P)[0]), 0.25 + 0.08 + MARGIN)
+    assert got >= 0.25 + 0.08 - 0.02
+    assert got <= bound + fixed.tolerance(P)[0] or not np.isfinite(got)
+
+
+def test_a_hand_hidden_behind_the_link_is_still_found():
+    """The corrections must not hide an obstacle behind the link that the second camera sees."""
+    cams, link, a, b, r = _robot_scene()
+    hand = Sphere(np.array([-0.3, 0.0, 1.0]), 0.08)  # behind the link from the principal camera
+    depths, masks, d2, m2, windows = _fusion_inputs(cams, link, a, b, r, (hand,))
+    P = np.array([[0.0, 0.0, 1.0]])
+    truth = float(Scene((hand,)).distance(P)[0])
+    fixed = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    fixed.update(d2, m2, windows=windows)
+    got = fixed.query(P, 0.0, rho=0.4, mode="min").distance[0]
+    assert truth - fixed.tolerance(P)[0] <= got <= truth + fixed.tolerance(P)[0]
+
+
+def test_windows_shape_is_checked():
+    cams, link, a, b, r = _robot_scene()
+    fusion = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    d = [np.full(c.shape, 3.0, np.float32) for c in cams]
+    with pytest.raises(ValueError, match="windows"):
+        fusion.update(d, None, windows=[None])
+    with pytest.raises(ValueError, match=r"windows\[1\]"):
+        fusion.update(d, None, windows=[None, (np.zeros((3, 3)), np.zeros((3, 3)))])
