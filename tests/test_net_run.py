@@ -221,3 +221,35 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
     assert out.encoding == "32FC1" and (out.width, out.height) == (160, 120)
     d = np.frombuffer(bytes(out.data), "<f4").reshape(120, 160)
     assert np.all(np.isnan(d[:10])) and np.allclose(d[10:][np.isfinite(d[10:])], 2.5)
+
+
+@pytest.mark.slow
+def test_monitor_node_reports_status_rates_and_nodes(tmp_path, capsys):
+    pytest.importorskip("zenoh")
+    from depthguard.io import ros2
+    from depthguard.nodes.common import StopFlag, Topics, open_node
+    from depthguard.nodes.monitor import run_monitor_node
+
+    base = random.randint(52000, 56000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    stop = StopFlag()
+    th = threading.Thread(target=lambda: run_monitor_node(cell, duration=20, stop=stop))
+    th.start()
+    node = open_node(cell, "controller")
+    try:
+        pst = node.publisher(Topics.of(cell).status, "depthguard_msgs/msg/ControllerStatus")
+        end = time.time() + 5
+        while time.time() < end:
+            pst.publish(ros2.status_msg(time.time(), "STOP_STALE_DISTANCES", 0.0))
+            time.sleep(0.05)
+    finally:
+        stop.set()
+        th.join(20)
+        node.close()
+    import json
+
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert lines, "the monitor printed nothing"
+    last = [x for x in lines if x["status"] is not None][-1]
+    assert last["status"] == "STOP_STALE_DISTANCES" and last["hz"]["status"] >= 5
+    assert "controller" in last["nodes"] and "monitor" in last["nodes"]
