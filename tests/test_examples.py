@@ -28,7 +28,11 @@ def _run(name: str) -> list[str]:
 
 def test_every_example_is_checked_here():
     names = sorted(p.name for p in EXAMPLES.glob("[0-9][0-9]_*.py"))
-    assert names == ["01_single_camera_distance.py", "02_avoidance_loop.py"], "add a test for the new example"
+    assert names == [
+        "01_single_camera_distance.py",
+        "02_avoidance_loop.py",
+        "12_proximity_nsb.py",
+    ], "add a test for the new example"
 
 
 @pytest.mark.slow
@@ -101,3 +105,30 @@ def test_02_avoidance_loop_output():
     assert float(final[1]) < 0.05
     assert 0.0 < float(final[2]) <= truth0.min() + 1e-3
     assert all(float(m[5]) > 0.0 for m in rows)
+
+
+@pytest.mark.slow
+def test_12_proximity_nsb_output():
+    """The base backs off the kerb (the front sensor's range grows, the spring energy falls) while the end
+    effector stays within 3 cm; the skin levels step up one at a time on lines whose code is the reflected
+    binary Gray code of the level (computed here as level ^ (level >> 1)), one bit per step."""
+    lines = _run("12_proximity_nsb.py")
+    nsb = re.compile(
+        rf"t = ({NUM}) s  d2 = ({NUM}) m  sigma = ({NUM}) m\^2  lambda = ({NUM})  base x = ({NUM}) m  ee error = ({NUM}) mm"
+    )
+    rows = [[float(x) for x in m.groups()] for m in map(nsb.fullmatch, lines) if m]
+    assert len(rows) >= 5
+    d2, sigma, base_x, ee = (np.array([r[i] for r in rows]) for i in (1, 2, 4, 5))
+    assert np.all(np.diff(d2) >= -1e-9) and d2[-1] > d2[0]
+    assert np.all(np.diff(sigma) <= 1e-12) and sigma[-1] < sigma[0]
+    assert base_x[-1] < -0.01 and np.all(ee < 30.0)
+    lvl = re.compile(r"\s*(\d+)\s+(\d+\.\d)\s+(\d)\s+([01]{3})")
+    steps = [m.groups() for m in map(lvl.fullmatch, lines) if m]
+    levels = [int(s[2]) for s in steps]
+    assert levels == list(range(levels[0], levels[0] + len(levels))) and levels[-1] == 7
+    for _, dist, level, code in steps:
+        assert code == format(int(level) ^ (int(level) >> 1), "03b")
+    codes = [int(s[3], 2) for s in steps]
+    assert all(bin(a ^ b).count("1") == 1 for a, b in zip(codes, codes[1:], strict=False))
+    dists = [float(s[1]) for s in steps]
+    assert dists == sorted(dists, reverse=True)
