@@ -47,7 +47,9 @@ lies entirely in front of camera k and inside its image and *every* pixel of its
 depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test ``d_o^k < d_start^k``
 (obstacle confirmed only in front of the cell's near depth) would clear a cell that contains the very
 surface camera k sees (``d_start <= d_o^k <= d_end``); ``tests/test_depthgrid_fusion.py`` shows such a
-case. A missing/unknown pixel of camera k never clears a cell; a cell that is not involved for camera k
+case. A missing pixel of camera k never clears a cell, whether or not valid pixels lie near it (it is
+never filled: a small dark object with no reading in front of a far background must not clear the cell
+it occupies); a cell that is not involved for camera k
 (partly outside its image or behind it) gets no vote from k. A cell is occupied when no involved camera
 clears it, so with one camera the result is the single-camera result.
 
@@ -162,8 +164,13 @@ def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conserva
 
 
 @nb.njit(cache=True)
-def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_occludes, margin, out):
-    """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``)."""
+def _prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, margin, out):
+    """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``).
+
+    A missing pixel is never filled here: it votes 0 (it clears nothing), so that a small dark object with
+    no reading in front of a far background cannot clear the cell it occupies. Hole filling is for the
+    principal camera only (where a filled pixel is an obstacle, never free space).
+    """
     H, W = depth.shape
     missing = np.empty((H, W), dtype=np.bool_)
     for v in range(H):
@@ -183,8 +190,7 @@ def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_
             elif not conservative:
                 out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
             else:
-                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
-                out[v, u] = best - margin if best < np.inf else 0.0  # unknown: never clears a cell
+                out[v, u] = 0.0  # missing: never clears a cell, filled or not
 
 
 class DepthGridFusion:
@@ -198,8 +204,9 @@ class DepthGridFusion:
             number of depth cells (§VIII); ``None``: the principal camera's ``[min_depth, max_depth]``.
         map_mode: ``"onthefly"`` (default) or ``"stored"`` (:class:`GridMap`; identical answers).
         cache_dir: disk cache of a stored map (``None``: ``~/.cache/depthguard/depthgrid``; ``False``: off).
-        fill_radius: hole-filling radius in pixels; the images are prepared exactly as
-            :func:`depthguard.depthspace.prepare_frame` does (DESIGN.md §4), in one pass per camera.
+        fill_radius: hole-filling radius in pixels of the principal camera, whose image is prepared
+            exactly as :func:`depthguard.depthspace.prepare_frame` does (``docs/conventions.md``); 0: every
+            hole is unknown. Missing pixels of the secondary cameras are never filled (they clear nothing).
         robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
         vote_margin: a secondary camera clears a cell only if it measures at least this much (metres)
             beyond the cell's far depth; 0 (default) as in the paper, about twice the depth noise of the
@@ -306,7 +313,6 @@ class DepthGridFusion:
                     d,
                     robot,
                     has_mask,
-                    self.fill_radius,
                     conservative,
                     self.robot_occludes,
                     np.float32(self.vote_margin),
