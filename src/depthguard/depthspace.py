@@ -56,6 +56,8 @@ __all__ = [
 ]
 
 TILE = 16
+# fast-math without the no-NaN / no-inf assumptions: +inf marks "nothing" in the depth images and tile minima
+FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 MODES = ("min", "all", "hybrid")
 INVALID_POLICIES = ("conservative", "ignore")
 DISTANCE_MODELS = ("frustum", "icra", "ral16")
@@ -228,7 +230,7 @@ def prepare_frame(
 
 
 # ---------------------------------------------------------------------------------------------- query stage
-@nb.njit(cache=True, inline="always", fastmath=True, error_model="numpy")
+@nb.njit(cache=True, inline="always", fastmath=FASTMATH, error_model="numpy")
 def _ray_point_distance(px, py, pz, a, b, d_start):
     """Nearest point at depth >= d_start on the ray s (a, b, 1): returns (dx, dy, dz, s)."""
     s = (px * a + py * b + pz) / (a * a + b * b + 1.0)
@@ -237,7 +239,7 @@ def _ray_point_distance(px, py, pz, a, b, d_start):
     return px - s * a, py - s * b, pz - s, s
 
 
-@nb.njit(cache=True, fastmath=True, error_model="numpy")
+@nb.njit(cache=True, fastmath=FASTMATH, error_model="numpy")
 def _query_one(obs, tmin, tile, fx, fy, cx, cy, Pc, radius, rho, mode, model, alpha, near_limit, unseen, out):
     """Distance query for one point; writes out[0:8] = best, dir(3), nearest(3), count (camera frame)."""
     H, W = obs.shape
