@@ -340,7 +340,7 @@ def test_fused_distances_helper_and_errors():
 
 def test_voxel_baseline_agrees_on_the_shadow_scene():
     """The voxel baseline (bench) sees the same fused free space: the shadow is cleared there too."""
-    from depthguard.depthgrid.voxel import VoxelFusion
+    from depthguard.bench.voxel import VoxelFusion
 
     cams = two_cameras()
     P = np.array([[0.0, 0.0, 1.0]])

@@ -28,7 +28,7 @@ import numpy as np
 from depthguard.bench.scenes import arm_chain_points, bench_cameras, noisy_depth, person_scene
 from depthguard.bench.timing import machine_info, time_calls
 from depthguard.depthgrid import DepthGridFusion
-from depthguard.depthgrid.voxel import VoxelFusion
+from depthguard.bench.voxel import VoxelFusion
 
 __all__ = ["run_grid_benchmark", "WORKSPACE"]
 

@@ -42,7 +42,7 @@ unchanged (``tests/test_depthgrid_search.py`` compares the column search with a 
 the query with and without the chunk tests, with a blocker in front of the principal camera and robot
 masks).
 
-The vote (DESIGN.md §4, conservative). Secondary camera k clears (calls free) a cell only when the cell
+The vote (docs/conventions.md, conservative). Secondary camera k clears (calls free) a cell only when the cell
 lies entirely in front of camera k and inside its image and *every* pixel of its footprint measures a
 depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test ``d_o^k < d_start^k``
 (obstacle confirmed only in front of the cell's near depth) would clear a cell that contains the very
@@ -54,7 +54,7 @@ it occupies); a cell that is not involved for camera k
 clears it, so with one camera the result is the single-camera result.
 
 Robot pixels. In the principal camera: case iv. In a secondary camera a robot pixel never confirms an
-obstacle (DESIGN.md §4: the robot is not an obstacle to itself), so it counts as seeing past (default,
+obstacle (docs/conventions.md: the robot is not an obstacle to itself), so it counts as seeing past (default,
 ``robot_occludes=False``): space hidden by the robot from *every* other camera is treated as free, the
 documented limit of the method (RA-L'16 §VI: occlusions cannot be removed in general). With
 ``robot_occludes=True`` a secondary robot pixel counts as an obstacle at the robot's depth: it never
@@ -78,7 +78,7 @@ distance up to ``Δd`` plus the sampling of one ray per pixel (one pixel footpri
 the coarsest secondary camera at the point's depth), plus the cameras' own depth noise; it never falls
 more than one cell length plus the frustum slack below the distance to the space that no camera has
 seen. Space outside the principal camera's field of view or nearer than its near limit counts as an
-obstacle (DESIGN.md §5.2), as for one camera: the principal camera must see the whole space of interest
+obstacle (docs/conventions.md), as for one camera: the principal camera must see the whole space of interest
 (RA-L'16 §I, assumption 1).
 
 Speed (2 Kinect-like cameras, 640x480, 345 depth cells, 9 spheres, ρ = 0.4, one thread of a shared 2-core
@@ -114,7 +114,7 @@ __all__ = ["DepthGridFusion", "fused_distances"]
 
 @nb.njit(cache=True, inline="always")
 def _filled(depth, missing, robot, has_mask, v, u, r):
-    """DESIGN.md §4 hole filling, as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
+    """Hole filling (``docs/conventions.md``), as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
     non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
     H, W = depth.shape
     best = np.inf
@@ -184,7 +184,7 @@ def _prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, mar
                 if robot_occludes:
                     out[v, u] = 0.0 if missing[v, u] else d - margin
                 else:
-                    out[v, u] = np.inf  # the robot never confirms an obstacle (DESIGN.md §4)
+                    out[v, u] = np.inf  # the robot never confirms an obstacle (docs/conventions.md)
             elif not missing[v, u]:
                 out[v, u] = d - margin
             elif not conservative:
@@ -207,7 +207,7 @@ class DepthGridFusion:
         fill_radius: hole-filling radius in pixels of the principal camera, whose image is prepared
             exactly as :func:`depthguard.depthspace.prepare_frame` does (``docs/conventions.md``); 0: every
             hole is unknown. Missing pixels of the secondary cameras are never filled (they clear nothing).
-        robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
+        robot_occludes: see the module docstring (default ``False``, as docs/conventions.md).
         vote_margin: a secondary camera clears a cell only if it measures at least this much (metres)
             beyond the cell's far depth; 0 (default) as in the paper, about twice the depth noise of the
             secondary cameras for extra safety against noisy readings behind a surface.
@@ -278,7 +278,7 @@ class DepthGridFusion:
             depths: one (H, W) depth image per camera, ``z_C`` in metres; 0, NaN and inf mean no reading.
             masks: ``None`` or one entry per camera: ``None`` or an (H, W) bool robot mask (True = robot
                 pixel; the depth image holds the robot's depth there, so ``d_r`` is known).
-            invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (DESIGN.md §4).
+            invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (docs/conventions.md).
         """
         if invalid not in INVALID_POLICIES:
             raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
