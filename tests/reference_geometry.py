@@ -216,7 +216,10 @@ def unseen_distance(cam: Camera, Pc: np.ndarray) -> float:
     """Exact distance from Pc (camera frame) to the unseen space: outside the viewing pyramid (the image
     rectangle ``[0, W] x [0, H]``) or nearer than ``min_depth``; 0 inside it."""
     c = [np.array([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0]) for u, v in ((0, 0), (cam.width, 0))]
-    c += [np.array([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0]) for u, v in ((cam.width, cam.height), (0, cam.height))]
+    c += [
+        np.array([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0])
+        for u, v in ((cam.width, cam.height), (0, cam.height))
+    ]
     inside = np.mean(c, axis=0)
     best = max(float(Pc[2]) - cam.min_depth, 0.0)
     for i in range(4):

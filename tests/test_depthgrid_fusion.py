@@ -195,10 +195,12 @@ def test_vote_needs_d_end_not_d_start():
     conservative_clears = bool(np.all(seen > fp["d_end"]))
     assert not paper_confirms  # the paper would call the cell free ...
     assert not conservative_clears  # ... the d_end test does not
-    from depthguard.depthgrid import _kernels as K
+    from depthguard.depthgrid.records import Grid
+    from depthguard.depthgrid.votes import cell_occupied
 
     g_ = fusion.grid
-    occupied = K.cell_occupied(u, v, g, g_.d_min, g_.dd, *fusion.map.kernel_args(), fusion._votes, True)
+    grid = Grid(g_.d_min, g_.dd, g_.n_cells)
+    occupied = cell_occupied(u, v, g, grid, fusion.map.kernel_args(), fusion._votes, True)
     assert occupied  # and neither does the kernel
     res = fusion.query(P, 0.0, mode="min")
     assert res.distance[0] < 0.21
@@ -274,7 +276,7 @@ def test_missing_pixels_of_a_secondary_camera_never_clear_a_cell():
 @pytest.mark.parametrize("invalid", ["conservative", "ignore"])
 def test_frame_preparation_matches_prepare_frame(invalid):
     """update() prepares each image in one pass; it must agree with depthspace.prepare_frame."""
-    from depthguard.depthgrid import _kernels as K
+    from depthguard.depthgrid import records as K
 
     rng = np.random.default_rng(5)
     cams = two_cameras()

@@ -296,7 +296,7 @@ def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out):
         hits = unseen_space(hits, px, py, pz, radius, intr, qp)
     u0, u1, v0, v1 = surveillance_box(px, py, pz, reff, intr)
     if u0 <= u1 and v0 <= v1:
-        t_u0, t_v0, ntu, ntiles = tile_lower_bounds(tmin, px, py, pz, reff, u0, u1, v0, v1, intr, qp.tile, lbs)
+        t_u0, t_v0, ntu, ntiles = tile_lower_bounds(tmin, px, py, pz, reff, (u0, u1, v0, v1), intr, qp.tile, lbs)
         for kk in range(ntiles):
             if qp.mode == 0:  # nearest tile first; stop when no tile can be nearer (ICRA'12 shrinking region)
                 k = nearest_tile(lbs, ntiles)

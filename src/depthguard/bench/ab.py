@@ -33,15 +33,16 @@ def load_old(rev: str):
     subprocess.run(["tar", "-x", "-C", str(tmp)], input=tar.stdout, check=True)
     pkg = tmp / "depthguard_ab_old"
     (tmp / "src" / "depthguard").rename(pkg)
-    pat = re.compile(r"\bdepthguard(?=[.\s])")
+    # only the distance modules are taken from the old revision; cameras, scenes etc. stay shared
+    pat = re.compile(r"\bdepthguard(?=\.(depthspace|depthgrid|kernels)\b)")
     for f in pkg.rglob("*.py"):
         text = f.read_text()
         lines = [
             pat.sub("depthguard_ab_old", ln) if re.match(r"\s*(from|import)\s", ln) else ln for ln in text.splitlines()
         ]
         f.write_text("\n".join(lines) + "\n")
+    (pkg / "__init__.py").write_text("")
     sys.path.insert(0, str(tmp))
-    import depthguard_ab_old  # noqa: F401
 
     return pkg
 

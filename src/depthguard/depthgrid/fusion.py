@@ -17,30 +17,15 @@ iv.  (§VII) a robot pixel at ``d_r``: nothing lies before ``d_r``; the cells fr
      (otherwise every control sphere would touch the phantom space right behind its own link). A robot
      pixel without a reading is searched from the near limit.
 
-The search along a column visits cells by their depth gap to the point of the ray nearest P and stops at
-the first occupied cell or where the frustum bound reaches the current limit (ρ, or in ``"min"`` mode
-the best distance so far; tiles of 16x16 pixels are pruned by their own bound, nearest tile first in
-``"min"`` mode). Free space is skipped in blocks: first an 8-cell block shared by the whole tile (one
-footprint test for 256 columns), then an 8-cell and a 2-cell block of the column, then single cells. A
-cleared block contains each of its cells' footprints and far depths, so the answers are exactly those
-of the cell-by-cell search.
-
-Shadows (a person between the principal camera and the robot makes almost every pixel near the robot a
-case-iii pixel). Before its columns, each tile tries its whole *depth chunk* at once: the cells that any
-of its column searches can reach (ray points within the search bound T of P, so within a window of the
-tile-centre ray, and no nearer than the tile's smallest start depth), as one frustum piece per secondary
-camera; if that fails, its two halves. When every cell of the chunk is cleared, a column can only find
-its first segment (the cell of a measured surface, occupied without a vote, or the unseen space before
-``d_min``), and a robot column nothing, so robot columns are skipped; and when moreover the tile has no
-case-ii pixel (no surface beyond P) and a lower bound of the distance to its first segments exceeds T,
-the whole tile is skipped without visiting its pixels (only for such tiles are the chunk's blocks
-decided eagerly, one by one after a failed half; elsewhere they stay lazy, which is cheaper where
-obstacles are near). Runs of cleared tile blocks are crossed in one step. The footprint tests of blocks
-and chunks read the votes through a per-frame min pyramid (``_kernels.rect_sees_past``), which answers
-exactly as the pixel loop. All of this only skips cells that the per-cell rule clears, so the answers are
-unchanged (``tests/test_depthgrid_search.py`` compares the column search with a cell-by-cell search, and
-the query with and without the chunk tests, with a blocker in front of the principal camera and robot
-masks).
+Where the code is (one concept per module): :mod:`~depthguard.depthgrid.query` (the per-sphere, per-tile,
+per-pixel walk with the cases above), :mod:`~depthguard.depthgrid.column` (case iii/iv column search,
+nearest segment first, free space skipped in blocks), :mod:`~depthguard.depthgrid.chunks` (per-tile depth
+chunks decided at once, whole tiles skipped in shadows), :mod:`~depthguard.depthgrid.votes` (the votes of
+the secondary cameras on cells and blocks), :mod:`~depthguard.depthgrid.pyramid` (min pyramid of the vote
+images), :mod:`~depthguard.depthgrid.footprint` (cell footprints, the stored map), and, shared with the
+single-camera query, :mod:`depthguard.kernels` (region of surveillance, unseen space, aggregation). Block
+and chunk skipping only skip cells that the per-cell rule clears, so the answers are those of the
+cell-by-cell search (``tests/test_depthgrid_search.py``).
 
 The vote (docs/conventions.md, conservative). Secondary camera k clears (calls free) a cell only when the cell
 lies entirely in front of camera k and inside its image and *every* pixel of its footprint measures a
@@ -91,13 +76,16 @@ obstacle within ρ costs 0.15-0.7 ms (2-5 ms before). See BENCHMARKS.md.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthgrid import _kernels as K
+from depthguard.depthgrid.chunks import tile_max_start
+from depthguard.depthgrid.frames import prepare_principal, prepare_secondary
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
+from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout
+from depthguard.depthgrid.query import query_many, query_many_parallel
+from depthguard.depthgrid.records import Grid, Principal, Votes
 from depthguard.depthspace import (
     INVALID_POLICIES,
     MODES,
@@ -106,91 +94,12 @@ from depthguard.depthspace import (
     prepare_frame,
     query_distances,
     tile_min,
+    to_world,
 )
+from depthguard.kernels.records import intrinsics, query_params
 from depthguard.validation import check_points
 
 __all__ = ["DepthGridFusion", "fused_distances"]
-
-
-@nb.njit(cache=True, inline="always")
-def _filled(depth, missing, robot, has_mask, v, u, r):
-    """Hole filling (``docs/conventions.md``), as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
-    non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
-    H, W = depth.shape
-    best = np.inf
-    for vv in range(max(0, v - r), min(H, v + r + 1)):
-        for uu in range(max(0, u - r), min(W, u + r + 1)):
-            if not missing[vv, uu] and not (has_mask and robot[vv, uu]) and depth[vv, uu] < best:
-                best = depth[vv, uu]
-    return best
-
-
-@nb.njit(cache=True)
-def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
-    """One pass over the principal image: start depth and kind of every pixel (see ``_kernels``)."""
-    H, W = depth.shape
-    missing = np.empty((H, W), dtype=np.bool_)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            missing[v, u] = not (d > 0.0 and d < np.inf)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            if has_mask and robot[v, u]:
-                if not missing[v, u]:
-                    start[v, u] = d  # case iv: the robot at d_r
-                    kind[v, u] = K.KIND_ROBOT
-                elif conservative:
-                    start[v, u] = near_limit  # a robot pixel without a reading: unknown from the near limit
-                    kind[v, u] = K.KIND_ROBOT
-                else:
-                    start[v, u] = np.inf
-                    kind[v, u] = K.KIND_NONE
-            elif not missing[v, u]:
-                start[v, u] = d
-                kind[v, u] = K.KIND_SURFACE
-            elif not conservative:
-                start[v, u] = np.inf
-                kind[v, u] = K.KIND_NONE
-            else:
-                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
-                if best < np.inf:
-                    start[v, u] = best
-                    kind[v, u] = K.KIND_SURFACE
-                else:
-                    start[v, u] = near_limit
-                    kind[v, u] = K.KIND_UNKNOWN
-
-
-@nb.njit(cache=True)
-def _prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, margin, out):
-    """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``).
-
-    A missing pixel is never filled here: it votes 0 (it clears nothing), so that a small dark object with
-    no reading in front of a far background cannot clear the cell it occupies. Hole filling is for the
-    principal camera only (where a filled pixel is an obstacle, never free space).
-    """
-    H, W = depth.shape
-    missing = np.empty((H, W), dtype=np.bool_)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            missing[v, u] = not (d > 0.0 and d < np.inf)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            if has_mask and robot[v, u]:
-                if robot_occludes:
-                    out[v, u] = 0.0 if missing[v, u] else d - margin
-                else:
-                    out[v, u] = np.inf  # the robot never confirms an obstacle (docs/conventions.md)
-            elif not missing[v, u]:
-                out[v, u] = d - margin
-            elif not conservative:
-                out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
-            else:
-                out[v, u] = 0.0  # missing: never clears a cell, filled or not
 
 
 class DepthGridFusion:
@@ -252,13 +161,13 @@ class DepthGridFusion:
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
         self._votes = np.zeros((n, hm, wm), dtype=np.float32)
-        self._pyr_meta, npyr = K.pyramid_layout(hm, wm)
-        self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see _kernels)
+        self._pyr_meta, npyr = pyramid_layout(hm, wm)
+        self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see depthgrid.pyramid)
         cam0 = cameras[0]
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
         self._tmin = tile_min(self._start, TILE)
-        self._tmax = K.tile_max_start(self._start, self._kind, TILE)
+        self._tmax = tile_max_start(self._start, self._kind, TILE)
         self._chunks = True  # per-tile chunk tests (False: the plain block-by-block search, for tests)
         self._invalid = "conservative"
         self._ready = False
@@ -298,7 +207,7 @@ class DepthGridFusion:
                 else np.zeros((1, 1), dtype=np.bool_)
             )
             if k == 0:
-                _prepare_principal(
+                prepare_principal(
                     d,
                     robot,
                     has_mask,
@@ -309,7 +218,7 @@ class DepthGridFusion:
                     self._kind,
                 )
             else:
-                _prepare_secondary(
+                prepare_secondary(
                     d,
                     robot,
                     has_mask,
@@ -319,8 +228,8 @@ class DepthGridFusion:
                     self._votes[k - 1, : cam.height, : cam.width],
                 )
         self._tmin = tile_min(self._start, TILE)
-        self._tmax = K.tile_max_start(self._start, self._kind, TILE)
-        K.build_pyramid(self._votes, self._pyr_meta, self._pyr)
+        self._tmax = tile_max_start(self._start, self._kind, TILE)
+        build_pyramid(self._votes, self._pyr_meta, self._pyr)
         self._invalid = invalid
         self._ready = True
 
@@ -356,42 +265,23 @@ class DepthGridFusion:
         c, r = check_points(c, r)
         cam = self.cameras[0]
         g = self.grid
-        kernel = K.query_many if self.parallel else K.query_many_serial
+        kernel = query_many_parallel if self.parallel else query_many
         raw = kernel(
             np.ascontiguousarray(cam.R),
             np.ascontiguousarray(cam.t),
             np.ascontiguousarray(c),
             np.ascontiguousarray(r),
-            float(rho),
-            MODES.index(mode),
-            float(alpha),
-            self._start,
-            self._kind,
-            self._tmin,
-            self._tmax,
-            TILE,
+            query_params(rho, MODES.index(mode), alpha, self._invalid == "conservative", TILE),
+            intrinsics(cam),
+            Principal(self._start, self._kind, self._tmin, self._tmax),
+            Grid(float(g.d_min), float(g.dd), int(g.n_cells)),
+            self.map.kernel_args(),
+            Votes(self._votes, self._pyr, self._pyr_meta),
             self._chunks,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            float(cam.min_depth),
-            self._invalid == "conservative",
-            g.d_min,
-            g.dd,
-            g.n_cells,
-            *self.map.kernel_args(),
-            self._votes,
-            self._pyr,
-            self._pyr_meta,
         )
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)
-        found = raw[:, 0] < rho + r
-        dist = np.where(found, np.maximum(raw[:, 0] - r, 0.0), np.inf)
-        direction = np.where(found[:, None], cam.vector_to_world(raw[:, 1:4]), np.nan)
-        nearest = np.where(found[:, None], cam.camera_to_world(np.nan_to_num(raw[:, 4:7])), np.nan)
-        return PointDistances(dist, direction, nearest, raw[:, 7].astype(np.int64))
+        return to_world(cam, raw, r, rho)
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
         """Declared tolerance (metres) of the fused distance at each of N centres: Δd + pixel footprints.

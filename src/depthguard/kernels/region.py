@@ -97,13 +97,14 @@ def surveillance_box(px, py, pz, reff, intr):
 
 
 @nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
-def tile_lower_bounds(tmin, px, py, pz, reff, u0, u1, v0, v1, intr, tile, lbs):
-    """Fill ``lbs[k]`` for the tiles ``k`` over the box (row-major from tile ``(t_v0, t_u0)``).
+def tile_lower_bounds(tmin, px, py, pz, reff, box, intr, tile, lbs):
+    """Fill ``lbs[k]`` for the tiles ``k`` over ``box`` = ``(u0, u1, v0, v1)`` (row-major from ``(t_v0, t_u0)``).
 
     Returns ``(t_u0, t_v0, ntu, ntiles)``: tile ``k`` is ``(t_v0 + k // ntu, t_u0 + k % ntu)``.
     """
     W = intr.width
     H = intr.height
+    u0, u1, v0, v1 = box
     t_u0, t_u1 = u0 // tile, u1 // tile
     t_v0, t_v1 = v0 // tile, v1 // tile
     ntu = t_u1 - t_u0 + 1
