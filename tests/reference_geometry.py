@@ -94,6 +94,37 @@ def depthspace_exact(cam: Camera, obstacle_depth: np.ndarray, Pc: np.ndarray, re
 
 
 # ------------------------------------------------------------------------------------------ depth grid
+def _rect_min(img: np.ndarray, v0, v1, u0, u1, mask) -> np.ndarray:
+    """Minimum of ``img`` over each inclusive rectangle (where ``mask``; +inf elsewhere): a 2-D sparse table
+    (the minimum over every 2^i x 2^j block), four overlapping blocks per rectangle."""
+    H, W = img.shape
+    table = {}
+    rows = [img.astype(float)]
+    for _ in range(1, int(np.log2(H)) + 1):
+        r = rows[-1]
+        k = 1 << (len(rows) - 1)
+        rows.append(np.minimum(r[:-k], r[k:]))
+    for i, r in enumerate(rows):
+        cols = [r]
+        for _ in range(1, int(np.log2(W)) + 1):
+            c = cols[-1]
+            k = 1 << (len(cols) - 1)
+            cols.append(np.minimum(c[:, :-k], c[:, k:]))
+        for j, c in enumerate(cols):
+            table[i, j] = c
+    out = np.full(len(v0), np.inf)
+    idx = np.nonzero(mask)[0]
+    kv = np.floor(np.log2(v1[idx] - v0[idx] + 1)).astype(int)
+    ku = np.floor(np.log2(u1[idx] - u0[idx] + 1)).astype(int)
+    for i, j in set(zip(kv.tolist(), ku.tolist(), strict=True)):
+        m = idx[(kv == i) & (ku == j)]
+        t = table[i, j]
+        va, vb = v0[m], v1[m] - (1 << i) + 1
+        ua, ub = u0[m], u1[m] - (1 << j) + 1
+        out[m] = np.minimum.reduce([t[va, ua], t[vb, ua], t[va, ub], t[vb, ub]])
+    return out
+
+
 def _clears(cam0: Camera, cam: Camera, votes, u, v, d1, d2, eps: float, quantise: bool):
     """Whether secondary camera ``cam`` clears principal cells (u, v, [d1, d2]) and whether it is involved.
 
@@ -124,13 +155,8 @@ def _clears(cam0: Camera, cam: Camera, votes, u, v, d1, d2, eps: float, quantise
     far = Z.max(0)
     if quantise:
         far = np.ceil(far / DEND_QUANTUM) * DEND_QUANTUM + 1e-9
-    clear = involved.copy()
-    for j in range(int((iv1 - iv0)[involved].max(initial=0)) + 1):
-        for i in range(int((iu1 - iu0)[involved].max(initial=0)) + 1):
-            m = involved & (iv0 + j <= iv1) & (iu0 + i <= iu1)
-            vals = np.full(n, np.inf)
-            vals[m] = votes[(iv0 + j)[m], (iu0 + i)[m]]
-            clear &= ~m | (vals > far)
+    lo = _rect_min(votes, iv0, iv1, iu0, iu1, involved)
+    clear = involved & (lo > far)
     return clear, involved
 
 
@@ -172,35 +198,37 @@ def grid_exact(cams, votes, start, kind, d_min, dd, n_cells, Pc, reach, strict: 
     # grid cells of the candidate pixels within the depth window
     g_lo = max(0, int(math.floor((max(pz, 0.0) - reach - 2 * dd - d_min) / dd)))
     g_hi = min(n_cells - 1, int(math.floor((pz + reach + 2 * dd - d_min) / dd)))
-    rows = []
-    for i, (vv, uu) in enumerate(zip(vs, us, strict=True)):
-        s0, k = float(start[vv, uu]), kind[vv, uu]
-        if k == "surface" and s0 >= pz:
-            continue
-        g_start = int(math.floor((s0 - d_min) / dd)) if s0 >= d_min else -1
-        for g in range(max(g_lo, g_start, 0), g_hi + 1):
-            rows.append((i, g, g == g_start and k == "surface", k == "robot"))
-    if rows:
-        R = np.array([(r[0], r[1]) for r in rows])
-        measured = np.array([r[2] for r in rows])
-        robot = np.array([r[3] for r in rows])
-        uu, vv = us[R[:, 0]], vs[R[:, 0]]
-        d1 = d_min + R[:, 1] * dd
-        d2 = d1 + dd
-        cleared = np.zeros(len(R), bool)
-        involved = np.zeros(len(R), bool)
+    s0s = start[vs, us].astype(float)
+    kinds = kind[vs, us]
+    g_st = np.where(s0s >= d_min, np.floor((s0s - d_min) / dd), -1).astype(int)
+    G = np.arange(g_lo, g_hi + 1)
+    sel = (G[None, :] >= g_st[:, None]) & ~((kinds == "surface") & (s0s >= pz))[:, None]
+    pix, gi = np.nonzero(sel)
+    g = G[gi]
+    d1 = d_min + g * dd
+    d2 = d1 + dd
+    lo_c = np.maximum(d1, s0s[pix])
+    pv, pu = vs[pix], us[pix]
+    # only cells whose bounding box comes within reach matter (a lower bound of their exact distance)
+    near = _aabb_lower_bound(Pc, a0[pv, pu], a1[pv, pu], b0[pv, pu], b1[pv, pu], lo_c, d2) < reach
+    pix, g, d1, d2, lo_c, pv, pu = pix[near], g[near], d1[near], d2[near], lo_c[near], pv[near], pu[near]
+    if len(pix):
+        measured = (g == g_st[pix]) & (kinds[pix] == "surface")
+        robot = kinds[pix] == "robot"
+        cleared = np.zeros(len(pix), bool)
+        involved = np.zeros(len(pix), bool)
         eps = 1e-9 if strict else -1e-9
         for cam, vote in zip(cams[1:], votes, strict=True):
-            c_, _ = _clears(cam0, cam, vote, uu, vv, d1, d2, eps, quantise=strict)
+            c_, _ = _clears(cam0, cam, vote, pu, pv, d1, d2, eps, quantise=strict)
             # involvement makes a robot cell occupied: the strict reference involves more cameras
-            _, inv_ = _clears(cam0, cam, vote, uu, vv, d1, d2, -eps, quantise=False)
+            _, inv_ = _clears(cam0, cam, vote, pu, pv, d1, d2, -eps, quantise=False)
             cleared |= c_
             involved |= inv_
         occupied = measured | (~cleared & (~robot | involved))
-        for (i, _), lo, hi, occ in zip(R, d1, d2, occupied, strict=True):
-            if occ:
-                s0 = float(start[vs[i], us[i]])
-                segs_out.append((i, max(lo, s0), hi))
+        segs_out += [
+            (int(i), float(lo), float(hi))
+            for i, lo, hi in zip(pix[occupied], lo_c[occupied], d2[occupied], strict=True)
+        ]
     if not segs_out:
         return np.inf
     S = np.array(segs_out)

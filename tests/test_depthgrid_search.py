@@ -161,6 +161,7 @@ def test_column_search_matches_the_definition(seed, blocker, eager):
     assert checked > 50 and found_n >= 5, (checked, found_n)
 
 
+@pytest.mark.slow  # the exact reference: about 10-25 s of CPU per scene
 @pytest.mark.parametrize("seed,blocker", [(30, False), (31, True), (32, True)])
 def test_query_is_a_lower_bound_of_the_exact_distance(seed, blocker):
     """The fused distance lies between the exact distance to the occupied space (by definition, with the
