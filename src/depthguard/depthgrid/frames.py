@@ -70,7 +70,7 @@ def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservat
 
 @nb.njit(cache=True)
 def prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, margin, out):
-    """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``).
+    """One pass over a secondary image: the depth each pixel sees up to (its vote, see the module docstring).
 
     A missing pixel is never filled here: it votes 0 (it clears nothing), so that a small dark object with
     no reading in front of a far background cannot clear the cell it occupies. Hole filling is for the
