@@ -195,10 +195,12 @@ def test_vote_needs_d_end_not_d_start():
     conservative_clears = bool(np.all(seen > fp["d_end"]))
     assert not paper_confirms  # the paper would call the cell free ...
     assert not conservative_clears  # ... the d_end test does not
-    from depthguard.depthgrid import _kernels as K
+    from depthguard.depthgrid.records import Grid
+    from depthguard.depthgrid.votes import cell_occupied
 
     g_ = fusion.grid
-    occupied = K.cell_occupied(u, v, g, g_.d_min, g_.dd, *fusion.map.kernel_args(), fusion._votes, True)
+    grid = Grid(g_.d_min, g_.dd, g_.n_cells)
+    occupied = cell_occupied(u, v, g, grid, fusion.map.kernel_args(), fusion._votes, True)
     assert occupied  # and neither does the kernel
     res = fusion.query(P, 0.0, mode="min")
     assert res.distance[0] < 0.21
@@ -244,10 +246,37 @@ def test_one_camera_with_robot_mask_reduces_to_the_single_camera_module():
     assert np.allclose(res.distance[ok], ref.distance[ok], atol=0.5 * 0.5 * np.sqrt(2.0) / cams[0].fx)
 
 
+def test_missing_pixels_of_a_secondary_camera_never_clear_a_cell():
+    """A small dark object (no reading in camera 2) inside the principal camera's shadow stays an obstacle.
+
+    Camera 2 sees a far wall around the object, within the hole-filling radius: filling the hole with the
+    wall's depth would let camera 2 clear the cells the object occupies, and report a distance larger
+    than the true one.
+    """
+    cams = two_cameras()
+    P = np.array([[0.0, 0.0, 1.0]])
+    blocker = Sphere(np.array([0.7, 0.0, 1.0]), 0.1)  # puts P and the dark object in the principal's shadow
+    dark = Sphere(np.array([0.15, 0.0, 1.0]), 0.03)  # no reading in camera 2
+    full = Scene((blocker, dark, *WALLS))
+    true = float(full.distance(P)[0]) - 0.02
+    assert 0.09 < true < 0.11
+    depths = [render_depth(c, full) for c in cams]
+    hole = np.isfinite(render_depth(cams[1], Scene((dark,))))
+    assert 4 <= hole.sum() <= 60  # a hole narrower than the fill radius (4 pixels), inside the wall
+    depths[1] = depths[1].copy()
+    depths[1][hole] = np.nan
+    fusion = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE, fill_radius=4)
+    fusion.update(depths)
+    for mode in ("min", "all"):
+        res = fusion.query(P, 0.02, rho=0.4, mode=mode)
+        assert res.distance[0] <= true + 1e-9, mode
+    assert np.all(fusion._votes[0][hole] == 0.0)
+
+
 @pytest.mark.parametrize("invalid", ["conservative", "ignore"])
 def test_frame_preparation_matches_prepare_frame(invalid):
     """update() prepares each image in one pass; it must agree with depthspace.prepare_frame."""
-    from depthguard.depthgrid import _kernels as K
+    from depthguard.depthgrid import records as K
 
     rng = np.random.default_rng(5)
     cams = two_cameras()
@@ -278,7 +307,8 @@ def test_frame_preparation_matches_prepare_frame(invalid):
     assert np.array_equal(fusion._start, start.astype(np.float32))
     assert np.array_equal(fusion._kind, kind)
     missing1 = ~np.isfinite(depths[1]) | (depths[1] <= 0)
-    votes = np.where(missing1 & (f1.obstacle_depth == near), 0.0, f1.obstacle_depth)
+    # a missing secondary pixel is never filled: it clears nothing (votes 0) unless the caller ignores holes
+    votes = np.where(missing1 & ~masks[1] & (invalid == "conservative"), 0.0, f1.obstacle_depth)
     assert np.array_equal(fusion._votes[0, : cams[1].height], votes.astype(np.float32))
     assert (kind == K.KIND_UNKNOWN).sum() > 0 if invalid == "conservative" else True
 
@@ -312,7 +342,7 @@ def test_fused_distances_helper_and_errors():
 
 def test_voxel_baseline_agrees_on_the_shadow_scene():
     """The voxel baseline (bench) sees the same fused free space: the shadow is cleared there too."""
-    from depthguard.depthgrid.voxel import VoxelFusion
+    from depthguard.bench.voxel import VoxelFusion
 
     cams = two_cameras()
     P = np.array([[0.0, 0.0, 1.0]])

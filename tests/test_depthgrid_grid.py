@@ -7,7 +7,7 @@ import pytest
 
 from depthguard.camera import Camera, look_at
 from depthguard.depthgrid import DepthGrid, GridMap, workspace_depth_range
-from depthguard.depthgrid import _kernels as K
+from depthguard.depthgrid import footprint as K
 from depthguard.depthgrid.gridmap import map_key
 
 WORKSPACE = (-1.5, 1.5, -1.5, 1.5, -0.5, 1.5)

@@ -436,7 +436,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="frustum",
         help="point-to-pixel distance: frustum lower bound (default), ICRA'12 eq. 4 or literal RA-L'16 eqs. 5-7",
     )
-    p.add_argument("--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4)")
+    p.add_argument(
+        "--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4; 0: every hole is unknown)"
+    )
     p.add_argument(
         "--grid-dd", type=_positive_float, default=0.01, help="depth-grid quantisation in m (several cameras)"
     )

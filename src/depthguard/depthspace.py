@@ -1,6 +1,6 @@
 """Single-camera depth-space distances (ICRA'12 §III, RA-L'16 §IV-VI).
 
-Two stages, at two rates (DESIGN.md §1):
+Two stages, at two rates (docs/conventions.md):
 
 * :func:`prepare_frame`, once per camera frame (30 Hz): applies the robot mask, the missing-depth policy
   (hole filling) and builds a tile-minimum image used for pruning;
@@ -24,7 +24,7 @@ Region of surveillance (eq. 5). The exact pixel bounding box of the cube of side
 image when the cube reaches behind the camera. (A box centred on ``p_x`` misses obstacles at the sides of
 off-axis points.) Pixels deeper than ``d_p + ρ'`` are skipped (RA-L case i).
 
-Unseen space (DESIGN.md §5.2). With ``invalid="conservative"`` the space outside the field of view and
+Unseen space (docs/conventions.md). With ``invalid="conservative"`` the space outside the field of view and
 nearer than ``min_depth`` counts as an obstacle, exactly like a missing pixel does.
 
 First call: the numba kernels are compiled and cached on disk (``cache=True``): about 5-10 s the first
@@ -40,6 +40,10 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.kernels import FASTMATH
+from depthguard.kernels.hits import OUT_WIDTH, add_hit, no_hits, write_hits
+from depthguard.kernels.records import intrinsics, query_params
+from depthguard.kernels.region import nearest_tile, ray_distance_from, surveillance_box, tile_lower_bounds, unseen_space
 from depthguard.validation import check_points
 
 __all__ = [
@@ -138,7 +142,7 @@ def lower_bound_slack(camera: Camera, depth: float, distance: float = 0.0) -> fl
 # --------------------------------------------------------------------------------------------- frame stage
 @nb.njit(cache=True)
 def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, out):
-    """Missing-depth policy (DESIGN.md §4). Returns (filled, unknown) counts."""
+    """Missing-depth policy (docs/conventions.md). Returns (filled, unknown) counts."""
     H, W = depth.shape
     filled = 0
     unknown = 0
@@ -228,194 +232,95 @@ def prepare_frame(
 
 
 # ---------------------------------------------------------------------------------------------- query stage
-@nb.njit(cache=True, inline="always", fastmath=True, error_model="numpy")
-def _ray_point_distance(px, py, pz, a, b, d_start):
-    """Nearest point at depth >= d_start on the ray s (a, b, 1): returns (dx, dy, dz, s)."""
-    s = (px * a + py * b + pz) / (a * a + b * b + 1.0)
-    if s < d_start:
-        s = d_start
-    return px - s * a, py - s * b, pz - s, s
+@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+def _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model):
+    """Distance from P to pixel (u, v)'s obstacle from depth ``do`` on (see the module docstring).
 
-
-@nb.njit(cache=True, fastmath=True, error_model="numpy")
-def _query_one(obs, tmin, tile, fx, fy, cx, cy, Pc, radius, rho, mode, model, alpha, near_limit, unseen, out):
-    """Distance query for one point; writes out[0:8] = best, dir(3), nearest(3), count (camera frame)."""
-    H, W = obs.shape
-    px, py, pz = Pc[0], Pc[1], Pc[2]
-    reff = rho + radius
-    best = reff
-    bx = by = bz = 0.0
-    nx = ny = nz = np.nan
-    count = 0
-    sx = sy = sz = 0.0
-    h = 0.5 * math.sqrt(1.0 / (fx * fx) + 1.0 / (fy * fy))
-
-    # unseen space: outside the field of view and nearer than the near limit (DESIGN.md §5.2)
-    if unseen:
-        for k in range(5):
-            if k == 0:
-                a0 = (0.0 - cx) / fx
-                nrm = math.sqrt(1.0 + a0 * a0)
-                ux, uy, uz = 1.0 / nrm, 0.0, -a0 / nrm
-            elif k == 1:
-                a1 = (W - cx) / fx
-                nrm = math.sqrt(1.0 + a1 * a1)
-                ux, uy, uz = -1.0 / nrm, 0.0, a1 / nrm
-            elif k == 2:
-                b0 = (0.0 - cy) / fy
-                nrm = math.sqrt(1.0 + b0 * b0)
-                ux, uy, uz = 0.0, 1.0 / nrm, -b0 / nrm
-            elif k == 3:
-                b1 = (H - cy) / fy
-                nrm = math.sqrt(1.0 + b1 * b1)
-                ux, uy, uz = 0.0, -1.0 / nrm, b1 / nrm
-            else:
-                ux, uy, uz = 0.0, 0.0, 1.0
-            s = px * ux + py * uy + pz * uz
-            if k == 4:
-                s -= near_limit
-            if s < 0.0:
-                s = 0.0
-            if s < reff:
-                w = 1.0
-                if mode == 1:
-                    w = 1.0 / (1.0 + math.exp(((s - radius) * 2.0 / rho - 1.0) * alpha))
-                sx += w * ux
-                sy += w * uy
-                sz += w * uz
-                if s < best:
-                    best = s
-                    bx, by, bz = ux, uy, uz
-                    nx, ny, nz = px - s * ux, py - s * uy, pz - s * uz
-
-    # region of surveillance: pixel bounding box of the cube of side 2 reff (eq. 5, DESIGN.md §4)
-    u0, u1, v0, v1 = 0, W - 1, 0, H - 1
-    if pz - reff > 1e-6:
-        umin = vmin = np.inf
-        umax = vmax = -np.inf
-        for cxs in (-reff, reff):
-            for cys in (-reff, reff):
-                for czs in (-reff, reff):
-                    z = pz + czs
-                    qx = fx * (px + cxs) / z + cx
-                    qy = fy * (py + cys) / z + cy
-                    umin = min(umin, qx)
-                    umax = max(umax, qx)
-                    vmin = min(vmin, qy)
-                    vmax = max(vmax, qy)
-        u0 = max(0, int(math.floor(max(umin, -1.0))) - 1)
-        u1 = min(W - 1, int(math.floor(min(umax, W + 1.0))) + 1)
-        v0 = max(0, int(math.floor(max(vmin, -1.0))) - 1)
-        v1 = min(H - 1, int(math.floor(min(vmax, H + 1.0))) + 1)
-    if u0 > u1 or v0 > v1:
-        out[0] = best
-        out[1], out[2], out[3] = bx, by, bz
-        out[4], out[5], out[6] = nx, ny, nz
-        out[7] = count
-        return
-
-    t_u0, t_u1 = u0 // tile, u1 // tile
-    t_v0, t_v1 = v0 // tile, v1 // tile
-    ntu = t_u1 - t_u0 + 1
-    ntiles = ntu * (t_v1 - t_v0 + 1)
-    lbs = np.empty(ntiles)
-    zmax = pz + reff
-    for k in range(ntiles):
-        tv = t_v0 + k // ntu
-        tu = t_u0 + k % ntu
-        dmin = tmin[tv, tu]
-        if dmin > zmax:
-            lbs[k] = np.inf
-            continue
-        # lower bound over the whole tile frustum: its centre ray and half-diagonal
-        ua = tu * tile
-        ub = min(W, ua + tile)
-        va = tv * tile
-        vb = min(H, va + tile)
-        a = ((ua + ub) * 0.5 - cx) / fx
-        b = ((va + vb) * 0.5 - cy) / fy
-        hT = 0.5 * math.sqrt(((ub - ua) / fx) ** 2 + ((vb - va) / fy) ** 2)
-        dx, dy, dz, s = _ray_point_distance(px, py, pz, a, b, dmin)
+    Returns ``(D, dx, dy, dz, dr, s, a, b)``: the distance, P minus the point at depth ``s`` of the ray
+    ``(a, b, 1)`` used, and its norm.
+    """
+    if model == 0:  # frustum lower bound
+        dx, dy, dz, s = ray_distance_from(px, py, pz, a, b, do)
         dr = math.sqrt(dx * dx + dy * dy + dz * dz)
-        lbs[k] = dr * (1.0 - hT) - hT * pz
-    order = np.argsort(lbs) if mode == 0 else np.arange(ntiles)
+        D = dr * (1.0 - h) - h * pz
+        if D < 0.0:
+            D = 0.0
+        return D, dx, dy, dz, dr, s, a, b
+    if model == 2:  # literal RA-L'16 eqs. 5-7: nearest pixel edge, evaluated at the point's depth
+        qx = intr.fx * px / pz + intr.cx
+        qy = intr.fy * py / pz + intr.cy
+        a = (min(max(qx, u), u + 1.0) - intr.cx) / intr.fx
+        b = (min(max(qy, v), v + 1.0) - intr.cy) / intr.fy
+    s = do if do > pz else pz  # ICRA'12 eq. 4 (model 1) and eqs. 5-7: the gray area as d_o := d_p
+    dx, dy, dz = px - s * a, py - s * b, pz - s
+    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+    return dr, dx, dy, dz, dr, s, a, b
 
-    for kk in range(ntiles):
-        k = order[kk]
-        if lbs[k] >= best:
-            if mode == 0:
-                break  # nearest-first: every remaining tile is farther (ICRA'12 §III, shrinking region)
-            if lbs[k] >= reff:
+
+@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model):
+    """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped)."""
+    tile = qp.tile
+    reff = qp.rho + radius
+    zmax = pz + reff
+    for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
+        b = (v + 0.5 - intr.cy) / intr.fy
+        for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
+            do = obs[v, u]
+            if do > zmax:
                 continue
-        tv = t_v0 + k // ntu
-        tu = t_u0 + k % ntu
-        for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
-            b = (v + 0.5 - cy) / fy
-            for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
-                do = obs[v, u]
-                if do > zmax:
-                    continue
-                a = (u + 0.5 - cx) / fx
-                if model == 0:
-                    dx, dy, dz, s = _ray_point_distance(px, py, pz, a, b, do)
-                    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    D = dr * (1.0 - h) - h * pz
-                    if D < 0.0:
-                        D = 0.0
-                elif model == 1:
-                    s = do if do > pz else pz
-                    dx, dy, dz = px - s * a, py - s * b, pz - s
-                    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    D = dr
-                else:  # literal RA-L'16 eqs. 5-7: nearest pixel edge, evaluated at the point's depth
-                    qx = fx * px / pz + cx
-                    qy = fy * py / pz + cy
-                    ox = min(max(qx, u), u + 1.0)
-                    oy = min(max(qy, v), v + 1.0)
-                    s = do if do > pz else pz
-                    a = (ox - cx) / fx
-                    b = (oy - cy) / fy
-                    dx, dy, dz = px - s * a, py - s * b, pz - s
-                    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    D = dr
-                if D >= reff:
-                    continue
-                count += 1
-                if dr < 1e-12:  # the point sits on the ray: push away from the visible surface
-                    dx, dy, dz = px - do * a, py - do * b, pz - do
-                    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
-                    if dr < 1e-12:
-                        dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
-                ix, iy, iz = dx / dr, dy / dr, dz / dr
-                if mode == 1:
-                    w = 1.0 / (1.0 + math.exp(((D - radius) * 2.0 / rho - 1.0) * alpha))
-                    sx += w * ix
-                    sy += w * iy
-                    sz += w * iz
-                elif mode == 2:
-                    sx += ix
-                    sy += iy
-                    sz += iz
-                if D < best:
-                    best = D
-                    bx, by, bz = ix, iy, iz
-                    nx, ny, nz = s * a, s * b, s
-    if mode != 0:
-        nrm = math.sqrt(sx * sx + sy * sy + sz * sz)
-        if nrm > 1e-9:
-            bx, by, bz = sx / nrm, sy / nrm, sz / nrm
-    out[0] = best
-    out[1], out[2], out[3] = bx, by, bz
-    out[4], out[5], out[6] = nx, ny, nz
-    out[7] = count
+            a = (u + 0.5 - intr.cx) / intr.fx
+            D, dx, dy, dz, dr, s, ra, rb = _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model)
+            if D >= reff:
+                continue
+            if dr < 1e-12:  # the point sits on the ray: push away from the visible surface
+                dx, dy, dz = px - do * ra, py - do * rb, pz - do
+                dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+                if dr < 1e-12:
+                    dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
+            hits = add_hit(
+                hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s, True, radius, qp.rho, qp.mode, qp.alpha
+            )
+    return hits
 
 
-def _query_many_py(obs, tmin, tile, fx, fy, cx, cy, R, t, centres, radii, rho, mode, model, alpha, near, unseen):
+@nb.njit(cache=True, _nrt=False, fastmath=FASTMATH, error_model="numpy")
+def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out):
+    """Distance query for one sphere; writes out[0:8] = distance from the centre, direction (3), nearest
+    point (3), count (camera frame). ``lbs``: scratch for the tile bounds."""
+    px, py, pz = Pc[0], Pc[1], Pc[2]
+    reff = qp.rho + radius
+    h = 0.5 * math.sqrt(1.0 / (intr.fx * intr.fx) + 1.0 / (intr.fy * intr.fy))
+    hits = no_hits(reff)
+    if qp.unseen:
+        hits = unseen_space(hits, px, py, pz, radius, intr, qp)
+    u0, u1, v0, v1 = surveillance_box(px, py, pz, reff, intr)
+    if u0 <= u1 and v0 <= v1:
+        t_u0, t_v0, ntu, ntiles = tile_lower_bounds(tmin, px, py, pz, reff, (u0, u1, v0, v1), intr, qp.tile, lbs)
+        for kk in range(ntiles):
+            if qp.mode == 0:  # nearest tile first; stop when no tile can be nearer (ICRA'12 shrinking region)
+                k = nearest_tile(lbs, ntiles)
+                if not lbs[k] < hits.best:
+                    break
+                lbs[k] = np.inf
+            else:
+                k = kk
+                if lbs[k] >= reff:
+                    continue
+            hits = _tile_pixels(
+                hits, obs, t_u0 + k % ntu, t_v0 + k // ntu, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model
+            )
+    write_hits(hits, qp.mode, out)
+
+
+def _query_many_py(obs, tmin, intr, qp, model, R, t, centres, radii):
+    """:func:`_query_one` for N spheres (world frame in, camera frame out); rows of ``OUT_WIDTH``."""
     n = centres.shape[0]
-    out = np.empty((n, 8))
+    out = np.empty((n, OUT_WIDTH))
+    lbs = np.empty((n, tmin.shape[0] * tmin.shape[1]))
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
-        _query_one(obs, tmin, tile, fx, fy, cx, cy, Pc, radii[i], rho, mode, model, alpha, near, unseen, out[i])
+        _query_one(obs, tmin, intr, qp, model, Pc, radii[i], lbs[i], out[i])
     return out
 
 
@@ -466,27 +371,20 @@ def query_distances(
     raw = kernel(
         frame.obstacle_depth,
         frame.tile_min,
-        TILE,
-        cam.fx,
-        cam.fy,
-        cam.cx,
-        cam.cy,
+        intrinsics(cam),
+        query_params(rho, MODES.index(mode), alpha, frame.invalid == "conservative", TILE),
+        DISTANCE_MODELS.index(model),
         np.ascontiguousarray(cam.R),
         np.ascontiguousarray(cam.t),
         np.ascontiguousarray(c),
         np.ascontiguousarray(r),
-        float(rho),
-        MODES.index(mode),
-        DISTANCE_MODELS.index(model),
-        float(alpha),
-        float(cam.min_depth),
-        frame.invalid == "conservative",
     )
-    return _to_world(cam, raw, r, rho)
+    return to_world(cam, raw, r, rho)
 
 
-def _to_world(cam: Camera, raw: np.ndarray, radii: np.ndarray, rho: float) -> PointDistances:
-    """Kernel output (camera frame, centre distances) -> world-frame :class:`PointDistances`."""
+def to_world(cam: Camera, raw: np.ndarray, radii: np.ndarray, rho: float) -> PointDistances:
+    """Kernel output rows (camera frame, distances from the sphere centres; see
+    :mod:`depthguard.kernels.hits`) -> world-frame :class:`PointDistances` of N spheres of ``radii``."""
     found = raw[:, 0] < rho + radii
     dist = np.where(found, np.maximum(raw[:, 0] - radii, 0.0), np.inf)
     direction = np.where(found[:, None], cam.vector_to_world(raw[:, 1:4]), np.nan)

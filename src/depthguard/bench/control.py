@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from depthguard.bench.timing import machine_info, time_calls
+from depthguard.bench.timing import machine_info, reference_speed, time_calls, with_reference
 
 
 def _machine() -> dict:
@@ -60,6 +60,7 @@ def run_control_benchmark(quick: bool = False) -> dict:
     from depthguard.robot.model import load_lwr4
 
     repeat = 300 if quick else 5000
+    reference = reference_speed()  # machine-speed reference, same run (see depthguard.bench.timing)
     model = load_lwr4()
     points = ControlPointSet.build(model, "ral-9")
     cfg = ControllerConfig()
@@ -109,7 +110,7 @@ def run_control_benchmark(quick: bool = False) -> dict:
             "full_cycle": cycle,
             "peer_pinv_clip": pinv_clip,
         }
-        timings = {name: time_calls(fn, repeat, warmup=20) for name, fn in parts.items()}
+        timings = {name: with_reference(time_calls(fn, repeat, warmup=20), reference) for name, fn in parts.items()}
         full = timings["full_cycle"]
         results[scenario] = {
             "sns_scale": float(scale),
@@ -120,6 +121,7 @@ def run_control_benchmark(quick: bool = False) -> dict:
     return {
         "benchmark": "control",
         "machine": _machine(),
+        "reference": reference,
         "parameters": {
             "robot": "lwr4 (7 DOF)",
             "control_points": "ral-9 (9 points incl. end effector)",
@@ -161,6 +163,7 @@ def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: 
     from depthguard.scene import render_depth
 
     repeat = 20 if quick else 300
+    reference = reference_speed()  # machine-speed reference, same run (see depthguard.bench.timing)
     model = load_lwr4()
     q = Q_BENCH.copy()
     views = {"icra_2m": (2.0, 0.3, 1.2), "near_1.2m": (1.2, 0.3, 1.0)}
@@ -186,10 +189,12 @@ def run_selffilter_benchmark(quick: bool = False, margin: float = 0.03, pad_px: 
             "ms_p99": t["us_p99"] / 1e3,
             "peer_numpy_raycast_ms_median": peer["us_median"] / 1e3,
             "speedup_over_peer": peer["us_median"] / t["us_median"],
+            "vs_reference": with_reference(t, reference)["vs_reference"],
         }
     return {
         "benchmark": "selffilter",
         "machine": _machine(),
+        "reference": reference,
         "parameters": {
             "image": "640x480 (Kinect v1 intrinsics)",
             "robot": "lwr4 capsules",

@@ -1,8 +1,15 @@
 """``depthguard bench distance``: single-camera depth-space distances vs. a KD-tree baseline (issue 2),
-plus the multi-camera depth grid vs. a voxel baseline when available (issue 3).
+plus the multi-camera depth grid vs. a voxel baseline when available (issue 3), and the shadow scene.
 
 Scene (:mod:`depthguard.bench.scenes`): 640x480, fx = fy = 525, a person reaching towards an arm about 2 m
 from the camera, a wall at 3.5 m, 2 % missing pixels, Kinect-like noise, 9 control spheres.
+Shadow scene (:func:`depthguard.bench.scenes.shadow_frames`): the ``ral-shadow`` situation, two cameras at
+640x480, a person holding a panel between the principal camera and the robot, ``hybrid`` mode, ρ = 0.4
+(entry ``depthgrid-2cam-shadow-hybrid``; ``scenario ral-shadow`` reports the same stage as
+``distance_hz_median``).
+
+Every entry carries ``vs_reference``: its rate over that of the machine-speed reference kernel timed in
+the same run (:func:`depthguard.bench.timing.reference_speed`), so that runs on different machines compare.
 """
 
 from __future__ import annotations
@@ -11,7 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from depthguard.bench.scenes import arm_chain_points, bench_cameras, noisy_depth, person_scene
-from depthguard.bench.timing import machine_info, time_calls
+from depthguard.bench.timing import machine_info, reference_speed, time_calls, with_reference
 from depthguard.depthspace import prepare_frame, query_distances
 
 __all__ = ["run_distance_benchmark"]
@@ -39,6 +46,7 @@ def run_distance_benchmark(quick: bool = False, include_grid: bool = True) -> di
         include_grid: also run the multi-camera depth-grid benchmark if that module is installed.
     """
     repeat = 50 if quick else 500
+    reference = reference_speed()
     cam = bench_cameras()[0]
     scene = person_scene()
     depth = noisy_depth(cam, scene, seed=1)
@@ -91,6 +99,7 @@ def run_distance_benchmark(quick: bool = False, include_grid: bool = True) -> di
     out = {
         "benchmark": "distance",
         "machine": machine_info(),
+        "reference": reference,
         "parameters": {
             "width": cam.width,
             "height": cam.height,
@@ -117,4 +126,35 @@ def run_distance_benchmark(quick: bool = False, include_grid: bool = True) -> di
             out["results"].extend(grid["results"] if isinstance(grid, dict) else grid)
             if isinstance(grid, dict):
                 out["grid"] = {k: v for k, v in grid.items() if k != "results"}
+            out["results"].extend(_shadow_results(quick))
+    out["results"] = [with_reference(r, reference) for r in out["results"]]
+    out["reference_end"] = reference_speed()  # the same kernel at the end: how much the machine's speed drifted
+    return out
+
+
+def _shadow_results(quick: bool) -> list[dict]:
+    """The shadow scene (module docstring): fused query of the robot's 9 spheres, hybrid and min modes."""
+    from depthguard.bench.scenes import shadow_frames
+    from depthguard.depthgrid import DepthGridFusion
+
+    sh = shadow_frames()
+    fusion = DepthGridFusion(sh["cameras"], dd=0.01, workspace=sh["workspace"])
+    fusion.update(sh["depths"], sh["masks"])
+    out = []
+    for mode in ("hybrid", "min"):
+        fusion.query(sh["centres"], sh["radii"], rho=0.4, mode=mode)  # JIT warm-up
+        t = time_calls(
+            lambda mode=mode: fusion.query(sh["centres"], sh["radii"], rho=0.4, mode=mode), 30 if quick else 200
+        )
+        out.append(
+            {
+                "name": f"depthgrid-2cam-shadow-{mode}",
+                "rho": 0.4,
+                "hz_median": t["hz_median"],
+                "us_median": t["us_median"],
+                "us_p99": t["us_p99"],
+                "column_searches": int(fusion.last_cells.sum()),
+                "cell_votes": int(fusion.last_votes.sum()),
+            }
+        )
     return out

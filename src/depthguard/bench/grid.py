@@ -27,8 +27,8 @@ import numpy as np
 
 from depthguard.bench.scenes import arm_chain_points, bench_cameras, noisy_depth, person_scene
 from depthguard.bench.timing import machine_info, time_calls
+from depthguard.bench.voxel import VoxelFusion
 from depthguard.depthgrid import DepthGridFusion
-from depthguard.depthgrid.voxel import VoxelFusion
 
 __all__ = ["run_grid_benchmark", "WORKSPACE"]
 

@@ -10,9 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.camera import Camera, look_at
-from depthguard.scene import Capsule, HalfSpace, Scene, Sphere, render_depth
+from depthguard.scene import Box, Capsule, HalfSpace, Scene, Sphere, render_depth
 
-__all__ = ["person_scene", "bench_cameras", "arm_chain_points", "kinect_noise", "noisy_depth"]
+__all__ = ["person_scene", "bench_cameras", "arm_chain_points", "kinect_noise", "noisy_depth", "shadow_frames"]
+
+SHADOW_WORKSPACE = (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5)  # the simulated scenarios' default (sim/scenarios.py)
+SHADOW_Q = (0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0)  # the ral-shadow scenario's q0
 
 
 def person_scene(reach: float = 0.0) -> Scene:
@@ -103,3 +106,65 @@ def kinect_noise(
 def noisy_depth(camera: Camera, scene: Scene, seed: int = 0) -> np.ndarray:
     """Exact ray-cast depth of ``scene`` with :func:`kinect_noise` applied."""
     return kinect_noise(render_depth(camera, scene), np.random.default_rng(seed))
+
+
+def shadow_frames(width: int = 640, height: int = 480) -> dict:
+    """The ``ral-shadow`` situation (RA-L'16 Figs. 8 and 12) as two analytic frames, for ``bench distance``.
+
+    The two Kinect-like cameras of the ``"ral"`` placement (:func:`depthguard.sim.depthcam.placement`), the
+    shipped LWR at the scenario's ``q0`` (its link capsules, masked in both images as the self-filter
+    would), a person 1.5 m from the robot holding a 40x30 cm panel up between the principal camera and the
+    robot (the scenario's keyframe at t = 1 s), the floor and two walls. Kinect-like noise, no random
+    drop-outs (the simulated sensor drops pixels only at depth edges). The robot's 9 ``ral-9`` control
+    spheres (end-effector radius 0.12 m) are the query points, as in the scenario.
+
+    Returns:
+        ``{"cameras", "depths", "masks", "centres", "radii", "workspace"}``.
+    """
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.robot.model import load_lwr4
+    from depthguard.sim.depthcam import placement
+
+    cams = placement("ral", width, height)
+    model = load_lwr4()
+    q = np.array(SHADOW_Q)
+    a, b, r = model.link_capsules(q)
+    robot = Scene(tuple(Capsule(a[k], b[k], r[k]) for k in range(len(r))))
+    floor = -0.8
+    base = np.array([1.3, -0.62])
+    hand = np.array([1.15, -0.58, 1.12])
+    yaw = np.radians(145.0)
+    side = np.array([-np.sin(yaw), np.cos(yaw), 0.0])  # the person's left, in the floor plane
+    hip = np.array([base[0], base[1], floor + 0.95])
+    neck = np.array([base[0], base[1], floor + 1.45])
+    shoulder = neck - 0.2 * side
+    person = (
+        Capsule(hip + 0.1 * side, np.array([*base, floor + 0.08]) + 0.1 * side, 0.07),  # legs
+        Capsule(hip - 0.1 * side, np.array([*base, floor + 0.08]) - 0.1 * side, 0.07),
+        Capsule(hip, neck, 0.16),  # torso
+        Sphere(neck + np.array([0.0, 0.0, 0.22]), 0.11),  # head
+        Capsule(shoulder, hand, 0.05),  # the arm holding the panel up
+        Box(hand + np.array([-0.06, 0.0, 0.0]), np.array([0.05, 0.2, 0.15])),  # the panel
+    )
+    room = (
+        HalfSpace(np.array([0.0, 0.0, floor]), np.array([0.0, 0.0, 1.0])),
+        HalfSpace(np.array([-1.1, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])),
+        HalfSpace(np.array([0.0, -1.1, 0.0]), np.array([0.0, 1.0, 0.0])),
+    )
+    full = Scene((*robot.primitives, *person, *room))
+    rng = np.random.default_rng(7)
+    depths, masks = [], []
+    for cam in cams:
+        exact = render_depth(cam, full)
+        robot_d = render_depth(cam, robot)
+        masks.append(np.isfinite(robot_d) & (robot_d <= exact + 1e-9))
+        depths.append(kinect_noise(exact, rng, missing=0.0))
+    pts = ControlPointSet.build(model, "ral-9", ee_radius=0.12).evaluate(q)
+    return {
+        "cameras": cams,
+        "depths": depths,
+        "masks": masks,
+        "centres": np.asarray(pts.centres),
+        "radii": np.asarray(pts.radii),
+        "workspace": SHADOW_WORKSPACE,
+    }

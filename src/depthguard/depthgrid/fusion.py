@@ -17,45 +17,32 @@ iv.  (§VII) a robot pixel at ``d_r``: nothing lies before ``d_r``; the cells fr
      (otherwise every control sphere would touch the phantom space right behind its own link). A robot
      pixel without a reading is searched from the near limit.
 
-The search along a column visits cells by their depth gap to the point of the ray nearest P and stops at
-the first occupied cell or where the frustum bound reaches the current limit (ρ, or in ``"min"`` mode
-the best distance so far; tiles of 16x16 pixels are pruned by their own bound, nearest tile first in
-``"min"`` mode). Free space is skipped in blocks: first an 8-cell block shared by the whole tile (one
-footprint test for 256 columns), then an 8-cell and a 2-cell block of the column, then single cells. A
-cleared block contains each of its cells' footprints and far depths, so the answers are exactly those
-of the cell-by-cell search.
+Where the code is (one concept per module): :mod:`~depthguard.depthgrid.query` (the per-sphere, per-tile,
+per-pixel walk with the cases above), :mod:`~depthguard.depthgrid.column` (case iii/iv column search,
+nearest segment first, free space skipped in blocks), :mod:`~depthguard.depthgrid.chunks` (per-tile depth
+chunks decided at once, whole tiles skipped in shadows), :mod:`~depthguard.depthgrid.votes` (the votes of
+the secondary cameras on cells and blocks), :mod:`~depthguard.depthgrid.pyramid` (min pyramid of the vote
+images), :mod:`~depthguard.depthgrid.footprint` (cell footprints, the stored map), and, shared with the
+single-camera query, :mod:`depthguard.kernels` (region of surveillance, unseen space, aggregation). Block
+and chunk skipping only skip cells that the per-cell rule clears, so the answers are those of the
+cell-by-cell search (``tests/test_depthgrid_search.py``).
 
-Shadows (a person between the principal camera and the robot makes almost every pixel near the robot a
-case-iii pixel). Before its columns, each tile tries its whole *depth chunk* at once: the cells that any
-of its column searches can reach (ray points within the search bound T of P, so within a window of the
-tile-centre ray, and no nearer than the tile's smallest start depth), as one frustum piece per secondary
-camera; if that fails, its two halves. When every cell of the chunk is cleared, a column can only find
-its first segment (the cell of a measured surface, occupied without a vote, or the unseen space before
-``d_min``), and a robot column nothing, so robot columns are skipped; and when moreover the tile has no
-case-ii pixel (no surface beyond P) and a lower bound of the distance to its first segments exceeds T,
-the whole tile is skipped without visiting its pixels (only for such tiles are the chunk's blocks
-decided eagerly, one by one after a failed half; elsewhere they stay lazy, which is cheaper where
-obstacles are near). Runs of cleared tile blocks are crossed in one step. The footprint tests of blocks
-and chunks read the votes through a per-frame min pyramid (``_kernels.rect_sees_past``), which answers
-exactly as the pixel loop. All of this only skips cells that the per-cell rule clears, so the answers are
-unchanged (``tests/test_depthgrid_search.py`` compares the column search with a cell-by-cell search, and
-the query with and without the chunk tests, with a blocker in front of the principal camera and robot
-masks).
-
-The vote (DESIGN.md §4, conservative). Secondary camera k clears (calls free) a cell only when the cell
+The vote (docs/conventions.md, conservative). Secondary camera k clears (calls free) a cell only when the cell
 lies entirely in front of camera k and inside its image and *every* pixel of its footprint measures a
 depth ``d_o^k > d_end^k``, the cell's *far* depth in camera k. The paper's test ``d_o^k < d_start^k``
 (obstacle confirmed only in front of the cell's near depth) would clear a cell that contains the very
 surface camera k sees (``d_start <= d_o^k <= d_end``); ``tests/test_depthgrid_fusion.py`` shows such a
-case. A missing/unknown pixel of camera k never clears a cell; a cell that is not involved for camera k
+case. A missing pixel of camera k never clears a cell, whether or not valid pixels lie near it (it is
+never filled: a small dark object with no reading in front of a far background must not clear the cell
+it occupies); a cell that is not involved for camera k
 (partly outside its image or behind it) gets no vote from k. A cell is occupied when no involved camera
 clears it, so with one camera the result is the single-camera result. Robot windows (``update(windows=)``,
 optional): a pixel of camera k whose reading lies in front of the cell still passes when the cell's far
 depth lies in the stretch of that pixel's ray filled by the robot's own (inflated) body
-(``_kernels.pixel_sees_past``): a box in front of the arm does not make the arm's body an obstacle.
+(``depthgrid.votes.pixel_sees_past``): a box in front of the arm does not make the arm's body an obstacle.
 
 Robot pixels. In the principal camera: case iv. In a secondary camera a robot pixel never confirms an
-obstacle (DESIGN.md §4: the robot is not an obstacle to itself), so it counts as seeing past (default,
+obstacle (docs/conventions.md: the robot is not an obstacle to itself), so it counts as seeing past (default,
 ``robot_occludes=False``): space hidden by the robot from *every* other camera is treated as free, the
 documented limit of the method (RA-L'16 §VI: occlusions cannot be removed in general). With
 ``robot_occludes=True`` a secondary robot pixel counts as an obstacle at the robot's depth: it never
@@ -84,7 +71,7 @@ distance up to ``Δd`` plus the sampling of one ray per pixel (one pixel footpri
 the coarsest secondary camera at the point's depth), plus the cameras' own depth noise; it never falls
 more than one cell length plus the frustum slack below the distance to the space that no camera has
 seen. Space outside the principal camera's field of view or nearer than its near limit counts as an
-obstacle (DESIGN.md §5.2), as for one camera: the principal camera must see the whole space of interest
+obstacle (docs/conventions.md), as for one camera: the principal camera must see the whole space of interest
 (RA-L'16 §I, assumption 1).
 
 Speed (2 Kinect-like cameras, 640x480, 345 depth cells, 9 spheres, ρ = 0.4, one thread of a shared 2-core
@@ -97,13 +84,16 @@ obstacle within ρ costs 0.15-0.7 ms (2-5 ms before). See BENCHMARKS.md.
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthgrid import _kernels as K
+from depthguard.depthgrid.chunks import tile_max_start
+from depthguard.depthgrid.frames import prepare_principal, prepare_secondary
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
+from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout
+from depthguard.depthgrid.query import query_many, query_many_parallel
+from depthguard.depthgrid.records import Grid, Principal, Votes
 from depthguard.depthspace import (
     INVALID_POLICIES,
     MODES,
@@ -112,90 +102,12 @@ from depthguard.depthspace import (
     prepare_frame,
     query_distances,
     tile_min,
+    to_world,
 )
+from depthguard.kernels.records import intrinsics, query_params
 from depthguard.validation import check_points
 
 __all__ = ["DepthGridFusion", "fused_distances"]
-
-
-@nb.njit(cache=True, inline="always")
-def _filled(depth, missing, robot, has_mask, v, u, r):
-    """DESIGN.md §4 hole filling, as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
-    non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
-    H, W = depth.shape
-    best = np.inf
-    for vv in range(max(0, v - r), min(H, v + r + 1)):
-        for uu in range(max(0, u - r), min(W, u + r + 1)):
-            if not missing[vv, uu] and not (has_mask and robot[vv, uu]) and depth[vv, uu] < best:
-                best = depth[vv, uu]
-    return best
-
-
-@nb.njit(cache=True)
-def _prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
-    """One pass over the principal image: start depth and kind of every pixel (see ``_kernels``)."""
-    H, W = depth.shape
-    missing = np.empty((H, W), dtype=np.bool_)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            missing[v, u] = not (d > 0.0 and d < np.inf)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            if has_mask and robot[v, u]:
-                if not missing[v, u]:
-                    start[v, u] = d  # case iv: the robot at d_r
-                    kind[v, u] = K.KIND_ROBOT
-                elif conservative:
-                    start[v, u] = near_limit  # a robot pixel without a reading: unknown from the near limit
-                    kind[v, u] = K.KIND_ROBOT
-                else:
-                    start[v, u] = np.inf
-                    kind[v, u] = K.KIND_NONE
-            elif not missing[v, u]:
-                start[v, u] = d
-                kind[v, u] = K.KIND_SURFACE
-            elif not conservative:
-                start[v, u] = np.inf
-                kind[v, u] = K.KIND_NONE
-            else:
-                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
-                if best < np.inf:
-                    # a filled hole is not a measured surface: nothing before the nearest neighbouring
-                    # depth (the filling assumption), unknown from there on, so the other cameras may
-                    # clear its cells (a surface cell is occupied without a vote)
-                    start[v, u] = best
-                    kind[v, u] = K.KIND_UNKNOWN
-                else:
-                    start[v, u] = near_limit
-                    kind[v, u] = K.KIND_UNKNOWN
-
-
-@nb.njit(cache=True)
-def _prepare_secondary(depth, robot, has_mask, fill_radius, conservative, robot_occludes, margin, out):
-    """One pass over a secondary image: the depth each pixel sees up to (its vote, see ``_kernels``)."""
-    H, W = depth.shape
-    missing = np.empty((H, W), dtype=np.bool_)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            missing[v, u] = not (d > 0.0 and d < np.inf)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            if has_mask and robot[v, u]:
-                if robot_occludes:
-                    out[v, u] = 0.0 if missing[v, u] else d - margin
-                else:
-                    out[v, u] = np.inf  # the robot never confirms an obstacle (DESIGN.md §4)
-            elif not missing[v, u]:
-                out[v, u] = d - margin
-            elif not conservative:
-                out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
-            else:
-                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
-                out[v, u] = best - margin if best < np.inf else 0.0  # unknown: never clears a cell
 
 
 class DepthGridFusion:
@@ -209,9 +121,10 @@ class DepthGridFusion:
             number of depth cells (§VIII); ``None``: the principal camera's ``[min_depth, max_depth]``.
         map_mode: ``"onthefly"`` (default) or ``"stored"`` (:class:`GridMap`; identical answers).
         cache_dir: disk cache of a stored map (``None``: ``~/.cache/depthguard/depthgrid``; ``False``: off).
-        fill_radius: hole-filling radius in pixels; the images are prepared exactly as
-            :func:`depthguard.depthspace.prepare_frame` does (DESIGN.md §4), in one pass per camera.
-        robot_occludes: see the module docstring (default ``False``, as DESIGN.md §4).
+        fill_radius: hole-filling radius in pixels of the principal camera, whose image is prepared
+            exactly as :func:`depthguard.depthspace.prepare_frame` does (``docs/conventions.md``); 0: every
+            hole is unknown. Missing pixels of the secondary cameras are never filled (they clear nothing).
+        robot_occludes: see the module docstring (default ``False``, as docs/conventions.md).
         vote_margin: a secondary camera clears a cell only if it measures at least this much (metres)
             beyond the cell's far depth; 0 (default) as in the paper, about twice the depth noise of the
             secondary cameras for extra safety against noisy readings behind a surface.
@@ -256,18 +169,19 @@ class DepthGridFusion:
         hm = max([c.height for c in cameras[1:]], default=1)
         wm = max([c.width for c in cameras[1:]], default=1)
         # three row blocks per secondary camera: the votes, then the robot windows' lo and hi (see
-        # _kernels.pixel_sees_past and update(windows=...)); no window: lo = +inf, hi = -inf
+        # depthgrid.votes.pixel_sees_past and update(windows=...)); no window: lo = +inf, hi = -inf
         self._hm = hm
         self._votes = np.zeros((n, 3 * hm, wm), dtype=np.float32)
         self._votes[:, hm : 2 * hm] = np.inf
         self._votes[:, 2 * hm :] = -np.inf
-        self._pyr_meta, npyr = K.pyramid_layout(hm, wm)
-        self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see _kernels)
+        self._has_windows = False
+        self._pyr_meta, npyr = pyramid_layout(hm, wm)
+        self._pyr = np.zeros((n, npyr), dtype=np.float32)  # block minima of the votes (see depthgrid.pyramid)
         cam0 = cameras[0]
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
         self._tmin = tile_min(self._start, TILE)
-        self._tmax = K.tile_max_start(self._start, self._kind, TILE)
+        self._tmax = tile_max_start(self._start, self._kind, TILE)
         self._chunks = True  # per-tile chunk tests (False: the plain block-by-block search, for tests)
         self._invalid = "conservative"
         self._ready = False
@@ -288,7 +202,7 @@ class DepthGridFusion:
             depths: one (H, W) depth image per camera, ``z_C`` in metres; 0, NaN and inf mean no reading.
             masks: ``None`` or one entry per camera: ``None`` or an (H, W) bool robot mask (True = robot
                 pixel; the depth image holds the robot's depth there, so ``d_r`` is known).
-            invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (DESIGN.md §4).
+            invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (docs/conventions.md).
             windows: ``None`` or one entry per camera (the principal camera's is ignored): ``None`` or
                 ``(lo, hi)``, two (H, W) depth images (m, camera k's ``z``; ``lo > hi`` or NaN = none):
                 along pixel (u, v) of camera k, the robot's own body (its capsules inflated by the
@@ -313,9 +227,11 @@ class DepthGridFusion:
         hm = self._hm
         self._votes[:, hm : 2 * hm] = np.inf
         self._votes[:, 2 * hm :] = -np.inf
+        self._has_windows = False
         for k in range(1, len(self.cameras)):
             if windows is None or windows[k] is None:
                 continue
+            self._has_windows = True
             cam = self.cameras[k]
             lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float64)
             hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float64)
@@ -331,7 +247,7 @@ class DepthGridFusion:
                 else np.zeros((1, 1), dtype=np.bool_)
             )
             if k == 0:
-                _prepare_principal(
+                prepare_principal(
                     d,
                     robot,
                     has_mask,
@@ -342,19 +258,18 @@ class DepthGridFusion:
                     self._kind,
                 )
             else:
-                _prepare_secondary(
+                prepare_secondary(
                     d,
                     robot,
                     has_mask,
-                    self.fill_radius,
                     conservative,
                     self.robot_occludes,
                     np.float32(self.vote_margin),
                     self._votes[k - 1, : cam.height, : cam.width],
                 )
         self._tmin = tile_min(self._start, TILE)
-        self._tmax = K.tile_max_start(self._start, self._kind, TILE)
-        K.build_pyramid(self._votes[:, :hm], self._pyr_meta, self._pyr)
+        self._tmax = tile_max_start(self._start, self._kind, TILE)
+        build_pyramid(np.ascontiguousarray(self._votes[:, : self._hm]), self._pyr_meta, self._pyr)
         self._invalid = invalid
         self._ready = True
 
@@ -390,42 +305,23 @@ class DepthGridFusion:
         c, r = check_points(c, r)
         cam = self.cameras[0]
         g = self.grid
-        kernel = K.query_many if self.parallel else K.query_many_serial
+        kernel = query_many_parallel if self.parallel else query_many
         raw = kernel(
             np.ascontiguousarray(cam.R),
             np.ascontiguousarray(cam.t),
             np.ascontiguousarray(c),
             np.ascontiguousarray(r),
-            float(rho),
-            MODES.index(mode),
-            float(alpha),
-            self._start,
-            self._kind,
-            self._tmin,
-            self._tmax,
-            TILE,
+            query_params(rho, MODES.index(mode), alpha, self._invalid == "conservative", TILE),
+            intrinsics(cam),
+            Principal(self._start, self._kind, self._tmin, self._tmax),
+            Grid(float(g.d_min), float(g.dd), int(g.n_cells)),
+            self.map.kernel_args(),
+            Votes(self._votes, self._pyr, self._pyr_meta, self._has_windows),
             self._chunks,
-            cam.fx,
-            cam.fy,
-            cam.cx,
-            cam.cy,
-            float(cam.min_depth),
-            self._invalid == "conservative",
-            g.d_min,
-            g.dd,
-            g.n_cells,
-            *self.map.kernel_args(),
-            self._votes,
-            self._pyr,
-            self._pyr_meta,
         )
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)
-        found = raw[:, 0] < rho + r
-        dist = np.where(found, np.maximum(raw[:, 0] - r, 0.0), np.inf)
-        direction = np.where(found[:, None], cam.vector_to_world(raw[:, 1:4]), np.nan)
-        nearest = np.where(found[:, None], cam.camera_to_world(np.nan_to_num(raw[:, 4:7])), np.nan)
-        return PointDistances(dist, direction, nearest, raw[:, 7].astype(np.int64))
+        return to_world(cam, raw, r, rho)
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
         """Declared tolerance (metres) of the fused distance at each of N centres: Δd + pixel footprints.

@@ -37,8 +37,9 @@ from pathlib import Path
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthgrid import _kernels as K
+from depthguard.depthgrid import footprint as K
 from depthguard.depthgrid.grid import DepthGrid
+from depthguard.depthgrid.records import MapArrays
 
 __all__ = ["GridMap", "MAP_MODES", "default_cache_dir", "map_key"]
 
@@ -179,9 +180,9 @@ class GridMap:
     def stored(self) -> bool:
         return self.mode == "stored" and bool(self.secondaries)
 
-    def kernel_args(self) -> tuple:
-        """Arguments of the numba kernels: the tables, the stored flag and the stored map."""
-        return (self.corner_rays, self.centre_rays, self.cams, self.stored, self.packed)
+    def kernel_args(self) -> MapArrays:
+        """The kernels' record of the map: the tables, the stored flag and the stored map."""
+        return MapArrays(self.corner_rays, self.centre_rays, self.cams, bool(self.stored), self.packed)
 
     def footprint(self, k: int, u: int, v: int, g: int) -> dict | None:
         """Pixels of secondary camera k that see cell (u, v, g), with ``d_start`` and ``d_end`` in camera k.

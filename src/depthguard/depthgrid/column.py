@@ -1,0 +1,158 @@
+"""The column search (RA-L'16 §VI cases iii and iv): the nearest occupied depth interval of one pixel.
+
+Along principal pixel (u, v) the search segments are: ``-1`` = ``[s0, d_min)`` (before the grid), the
+cells ``g`` clipped to start at ``s0``, and ``n_cells`` = ``[d_max, inf)`` (beyond the grid). Space
+outside the grid is occupied (no secondary camera can clear it: the principal camera's gray area stays an
+obstacle), except behind a robot pixel (case iv), where only a secondary camera can confirm an obstacle.
+The cell holding a measured surface at ``s0`` is occupied without a vote (the principal camera measured
+it). Any other cell is occupied unless a secondary camera clears it (:mod:`depthguard.depthgrid.votes`).
+
+Order: ``|P - s r|^2 = l2 + rr (s - s_line)^2``, so the ray distance grows with the depth gap to
+``s_line`` (the depth of the ray point nearest P): the segments are visited by that gap, alternating
+outward, and only within the gap ``delta_max`` where the frustum bound ``d_ray (1 - h) - h d_p`` stays
+below ``limit``. The first occupied segment met is the nearest. Free space is skipped in blocks: first an
+8-cell block shared by the whole tile (state in ``Scratch.tstate``, shared by the tile's columns), then an
+8-cell and a 2-cell block of the column, then single cells; cleared blocks hold only cells that the
+per-cell rule clears, so the answer is that of the cell-by-cell search.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from depthguard.depthgrid.records import BLOCK, TILE_BLOCK
+from depthguard.depthgrid.votes import block_cleared, cell_occupied, tile_block_cleared
+
+__all__ = ["segment", "column_search"]
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _cell_of(s, grid):
+    """Search segment holding depth ``s``: -1 before the grid, ``n_cells`` beyond it."""
+    if s < grid.d_min:
+        return -1
+    g = int(math.floor((s - grid.d_min) / grid.dd))
+    return g if g < grid.n_cells else grid.n_cells
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def segment(g, s0, grid):
+    """Depth interval ``(lo, hi)`` of search segment ``g`` of a column starting at ``s0``."""
+    if g < 0:
+        return s0, grid.d_min
+    if g >= grid.n_cells:
+        return max(grid.d_min + grid.n_cells * grid.dd, s0), np.inf
+    lo = grid.d_min + g * grid.dd
+    return max(lo, s0), lo + grid.dd
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _skip_cleared_run(tstate, tb, going_up, lowest, n_cells):
+    """Next segment index after a run of cleared tile blocks from block ``tb`` (up or down)."""
+    if going_up:
+        t2 = tb + 1
+        while t2 < tstate.shape[0] and tstate[t2] == 1:
+            t2 += 1
+        return min(t2 * TILE_BLOCK, n_cells)
+    t2 = tb - 1
+    while t2 >= 0 and tstate[t2] == 1:
+        t2 -= 1
+    return max((t2 + 1) * TILE_BLOCK, lowest) - 1
+
+
+@nb.njit(cache=True, error_model="numpy", _nrt=False, inline="always")
+def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, vt, sc):
+    """Nearest occupied interval of pixel (u, v) (ray ``(a, b, 1)``) from ``s0`` on (module docstring).
+
+    Args:
+        surface / robot: the pixel's kind (a measured surface at ``s0``; a robot pixel, case iv).
+        P: the point (camera frame); h: pixel frustum slack; limit: stop where the bound reaches it.
+        rect: ``(ua, va, ub, vb)`` the pixel's tile; sc: the point's :class:`~depthguard.depthgrid.records.Scratch`.
+    Returns:
+        ``(found, lo, hi, tests)``: the depth interval of the occupied segment, and the number of cell and
+        block votes taken.
+    """
+    px, py, pz = P
+    n_cells = grid.n_cells
+    tstate = sc.tstate
+    rr = a * a + b * b + 1.0
+    pr = px * a + py * b + pz
+    s_line = pr / rr
+    l2 = max(px * px + py * py + pz * pz - pr * s_line, 0.0)
+    T = (limit + h * pz) / (1.0 - h)
+    if not l2 < T * T:
+        return False, 0.0, 0.0, 0
+    delta_max = math.sqrt((T * T - l2) / rr)
+    s_hi = s_line + delta_max
+    if s_hi < s0:
+        return False, 0.0, 0.0, 0
+    g_start = _cell_of(s0, grid)
+    g_end = _cell_of(s_hi, grid)
+    g_c = max(_cell_of(s_line if s_line > s0 else s0, grid), g_start)
+    s_lo = s_line - delta_max
+    lowest = max(g_start + 1 if surface else g_start, 0)
+    up = g_c
+    dn = g_c - 1
+    bu = BLOCK  # current block size in each direction: shrinks where blocks fail, near obstacles
+    bd = BLOCK
+    tests = 0
+    while True:
+        # depth gap between s_line and the next segment in each direction (inf when exhausted)
+        gu = np.inf
+        if up <= g_end:
+            lo_u = s0 if up < 0 else max(grid.d_min + up * grid.dd, s0)
+            gu = lo_u - s_line if lo_u > s_line else 0.0
+        gd = np.inf
+        if dn >= g_start:
+            hi_d = grid.d_min if dn < 0 else grid.d_min + (dn + 1) * grid.dd
+            if hi_d >= s_lo:
+                gd = s_line - hi_d if hi_d < s_line else 0.0
+        if gu == np.inf and gd == np.inf:
+            return False, 0.0, 0.0, tests
+        going_up = gu <= gd
+        if going_up:
+            g = up
+            up += 1
+        else:
+            g = dn
+            dn -= 1
+        lo, hi = segment(g, s0, grid)
+        if g < 0 or g >= n_cells:
+            if robot:
+                continue
+            return True, lo, hi, tests
+        if surface and g == g_start:
+            return True, lo, hi, tests
+        # skip cleared space a tile-wide block at a time (tstate: 0 unknown, 1 cleared, 2 not cleared) ...
+        tb = g // TILE_BLOCK
+        if tstate[tb] == 0:
+            tests += 1
+            g1 = min((tb + 1) * TILE_BLOCK, n_cells)
+            ua, va, ub, vb = rect
+            tstate[tb] = 1 if tile_block_cleared(ua, va, ub, vb, tb * TILE_BLOCK, g1, grid, mp, vt, sc.stack) else 2
+        if tstate[tb] == 1:
+            if going_up:
+                up = _skip_cleared_run(tstate, tb, True, lowest, n_cells)
+            else:
+                dn = _skip_cleared_run(tstate, tb, False, lowest, n_cells)
+            continue
+        # ... then a block of this column, then single cells
+        if going_up:
+            if bu > 1 and g + bu <= n_cells:
+                tests += 1
+                if block_cleared(u, v, g, g + bu, grid, mp, vt, sc.stack):
+                    up = g + bu
+                    continue
+                bu = bu // 4
+        elif bd > 1 and g - bd + 1 >= lowest:
+            tests += 1
+            if block_cleared(u, v, g - bd + 1, g + 1, grid, mp, vt, sc.stack):
+                dn = g - bd
+                continue
+            bd = bd // 4
+        tests += 1
+        if cell_occupied(u, v, g, grid, mp, vt.votes, robot):
+            return True, lo, hi, tests

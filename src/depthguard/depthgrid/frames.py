@@ -1,0 +1,101 @@
+"""Frame stage of the depth-grid fusion: one pass over each camera's image per frame (camera rate).
+
+* principal camera: the start depth and kind of every pixel (:mod:`depthguard.depthgrid.records`),
+  holes filled exactly as :func:`depthguard.depthspace.prepare_frame` does (``docs/conventions.md``);
+* secondary cameras: the vote of every pixel, the depth it sees past: its measured depth less the vote
+  margin; 0 for a missing pixel (never filled: it clears nothing); +inf for a robot pixel (it never
+  confirms an obstacle) unless ``robot_occludes``.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from depthguard.depthgrid import records as K
+
+__all__ = ["prepare_principal", "prepare_secondary"]
+
+
+@nb.njit(cache=True, inline="always")
+def _filled(depth, missing, robot, has_mask, v, u, r):
+    """Hole filling (``docs/conventions.md``), as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
+    non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
+    H, W = depth.shape
+    best = np.inf
+    for vv in range(max(0, v - r), min(H, v + r + 1)):
+        for uu in range(max(0, u - r), min(W, u + r + 1)):
+            if not missing[vv, uu] and not (has_mask and robot[vv, uu]) and depth[vv, uu] < best:
+                best = depth[vv, uu]
+    return best
+
+
+@nb.njit(cache=True)
+def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
+    """One pass over the principal image: start depth and kind of every pixel (module docstring)."""
+    H, W = depth.shape
+    missing = np.empty((H, W), dtype=np.bool_)
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            missing[v, u] = not (d > 0.0 and d < np.inf)
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            if has_mask and robot[v, u]:
+                if not missing[v, u]:
+                    start[v, u] = d  # case iv: the robot at d_r
+                    kind[v, u] = K.KIND_ROBOT
+                elif conservative:
+                    start[v, u] = near_limit  # a robot pixel without a reading: unknown from the near limit
+                    kind[v, u] = K.KIND_ROBOT
+                else:
+                    start[v, u] = np.inf
+                    kind[v, u] = K.KIND_NONE
+            elif not missing[v, u]:
+                start[v, u] = d
+                kind[v, u] = K.KIND_SURFACE
+            elif not conservative:
+                start[v, u] = np.inf
+                kind[v, u] = K.KIND_NONE
+            else:
+                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
+                if best < np.inf:
+                    # a filled hole is not a measured surface: nothing before the nearest neighbouring
+                    # depth (the filling assumption), unknown from there on, so the other cameras may
+                    # clear its cells (a surface cell is occupied without a vote)
+                    start[v, u] = best
+                    kind[v, u] = K.KIND_UNKNOWN
+                else:
+                    start[v, u] = near_limit
+                    kind[v, u] = K.KIND_UNKNOWN
+
+
+@nb.njit(cache=True)
+def prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, margin, out):
+    """One pass over a secondary image: the depth each pixel sees up to (its vote, see the module docstring).
+
+    A missing pixel is never filled here: it votes 0 (it clears nothing), so that a small dark object with
+    no reading in front of a far background cannot clear the cell it occupies. Hole filling is for the
+    principal camera only (where a filled pixel is an obstacle, never free space).
+    """
+    H, W = depth.shape
+    missing = np.empty((H, W), dtype=np.bool_)
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            missing[v, u] = not (d > 0.0 and d < np.inf)
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            if has_mask and robot[v, u]:
+                if robot_occludes:
+                    out[v, u] = 0.0 if missing[v, u] else d - margin
+                else:
+                    out[v, u] = np.inf  # the robot never confirms an obstacle (docs/conventions.md)
+            elif not missing[v, u]:
+                out[v, u] = d - margin
+            elif not conservative:
+                out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
+            else:
+                out[v, u] = 0.0  # missing: never clears a cell, filled or not

@@ -1,0 +1,197 @@
+"""The fused distance query of the depth grid (RA-L'16 §VI-VII): per control sphere, per tile, per pixel.
+
+For each sphere: the unseen space and the region of surveillance (shared with the single-camera query,
+:mod:`depthguard.kernels.region`); its tiles, pruned by their lower bound (nearest first in ``min``
+mode); per tile the depth-chunk test (:mod:`depthguard.depthgrid.chunks`); per pixel the case:
+
+i.   the pixel's start (and its gray area) lies beyond ``d_p + ρ``: nothing to do;
+ii.  a measured surface at ``d_o >= d_p``: the distance to the pixel frustum from ``d_o`` on, no vote;
+iii. ``d_o < d_p``, or an unknown pixel: the column search (:mod:`depthguard.depthgrid.column`) finds the
+     nearest segment that no secondary camera clears;
+iv.  a robot pixel at ``d_r``: the column search from ``d_r`` on, where a cell needs a witness (an involved
+     secondary camera that does not clear it) to be occupied.
+
+Point-to-segment distance (RA-L'16 eqs. 5-7, safe form): for the pixel-centre ray ``r = (a, b, 1)`` and
+the occupied depth interval ``[lo, hi]``, ``s* = clamp(P.r / r.r, lo, hi)``, ``d_ray = |P - s* r|``,
+``D = max(0, d_ray - h min(hi, d_p + d_ray))`` with ``h = ½ sqrt(fx⁻² + fy⁻²)``: never more than the
+distance to anything in the piece. Everything in the principal camera frame; distances from the sphere
+centre (the caller subtracts the radius). All kernels: ``cache=True`` (compiled once per machine).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from depthguard.depthgrid.chunks import tile_chunk_cleared, tile_chunk_prepare
+from depthguard.depthgrid.column import column_search
+from depthguard.depthgrid.records import KIND_NONE, KIND_ROBOT, KIND_SURFACE, PYR_STACK, TILE_BLOCK, Scratch
+from depthguard.kernels import FASTMATH
+from depthguard.kernels.hits import OUT_WIDTH, add_hit, no_hits, write_hits
+from depthguard.kernels.region import nearest_tile, surveillance_box, tile_lower_bounds, unseen_space
+
+__all__ = ["query_one", "query_many", "query_many_parallel"]
+
+
+@nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
+def _segment_hit(hits, P, a, b, lo, hi, h, radius, qp):
+    """``hits`` plus the piece of pixel ray ``(a, b, 1)`` between depths lo and hi, if within ρ + r."""
+    px, py, pz = P
+    s = (px * a + py * b + pz) / (a * a + b * b + 1.0)
+    s = min(max(s, lo), hi)
+    dx, dy, dz = px - s * a, py - s * b, pz - s
+    dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+    D = max(dr - h * min(hi, pz + dr), 0.0)
+    if D >= qp.rho + radius:
+        return hits
+    if dr < 1e-12:  # the point sits on the ray: push away from the start of the interval
+        dx, dy, dz = px - lo * a, py - lo * b, pz - lo
+        dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dr < 1e-12:
+            dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
+    return add_hit(hits, D, dx / dr, dy / dr, dz / dr, s * a, s * b, s, True, radius, qp.rho, qp.mode, qp.alpha)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
+def _first_segment(s0, surface, P, a, b, h, lim, grid):
+    """Column search of a pixel of a cleared tile (every grid cell within reach cleared, the space beyond
+    the grid out of reach): only the column's first segment can be occupied, the space ``[s0, d_min)``
+    before the grid or the cell of a measured surface. Returns ``(found, lo, hi)`` as the column search
+    does: found when the segment comes within the search bound ``T`` of P."""
+    if s0 < grid.d_min:
+        lo, hi = s0, grid.d_min
+    elif surface:
+        g = int(math.floor((s0 - grid.d_min) / grid.dd))
+        if g >= grid.n_cells:
+            return False, 0.0, 0.0
+        lo, hi = s0, grid.d_min + (g + 1) * grid.dd
+    else:
+        return False, 0.0, 0.0  # an unknown pixel inside the grid: its cells are cleared
+    px, py, pz = P
+    s = min(max((px * a + py * b + pz) / (a * a + b * b + 1.0), lo), hi)
+    dx, dy, dz = px - s * a, py - s * b, pz - s
+    T = (lim + h * pz) / (1.0 - h)
+    return dx * dx + dy * dy + dz * dz < T * T, lo, hi
+
+
+@nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
+def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks):
+    """``hits`` plus the pixels of tile (tu, tv) inside ``box``; returns ``(hits, column searches, tests)``."""
+    px, py, pz = P
+    tile = qp.tile
+    u0, u1, v0, v1 = box
+    reff = qp.rho + radius
+    zmax = pz + reff
+    rect = (tu * tile, tv * tile, min(intr.width, tu * tile + tile), min(intr.height, tv * tile + tile))
+    sc.tstate[:] = 0
+    allclear = pending = beyond_out = False
+    g0c = g1c = 0
+    cells = tests = 0
+    if chunks and pr.tmin[tv, tu] < pz:  # (a tile wholly beyond P has no case-iii pixel)
+        lim_t = hits.best if qp.mode == 0 else reff
+        allclear, pending, g0c, g1c, skip, beyond_out = tile_chunk_prepare(
+            P, h, lim_t, rect, pr.tmin[tv, tu], pr.tmax[tv, tu], intr, grid, mp, vt, sc
+        )
+        tests += 1
+        if skip:
+            return hits, cells, tests
+    for v in range(max(v0, rect[1]), min(v1 + 1, rect[3])):
+        b = (v + 0.5 - intr.cy) / intr.fy
+        for u in range(max(u0, rect[0]), min(u1 + 1, rect[2])):
+            kd = pr.kind[v, u]
+            if kd == KIND_NONE:
+                continue
+            s0 = pr.start[v, u]
+            if s0 > zmax:
+                continue  # case i
+            if allclear and kd == KIND_ROBOT:
+                continue  # case iv in a cleared tile: nothing within reach
+            a = (u + 0.5 - intr.cx) / intr.fx
+            if kd == KIND_SURFACE and s0 >= pz:
+                hits = _segment_hit(hits, P, a, b, s0, np.inf, h, radius, qp)  # case ii
+                continue
+            # cases iii and iv: ask the other cameras, unless the whole ray from s0 on is out of reach
+            lim = hits.best if qp.mode == 0 else reff
+            s = max((px * a + py * b + pz) / (a * a + b * b + 1.0), s0)
+            dx, dy, dz = px - s * a, py - s * b, pz - s
+            if not math.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - h) - h * pz < lim:
+                continue
+            if pending:
+                pending = False
+                tests += 1
+                allclear = tile_chunk_cleared(rect, g0c // TILE_BLOCK, g1c // TILE_BLOCK, grid, mp, vt, sc, False)
+                if allclear and kd == KIND_ROBOT:
+                    continue
+            if allclear and beyond_out:  # (robot pixels were skipped above)
+                found, lo, hi = _first_segment(s0, kd == KIND_SURFACE, P, a, b, h, lim, grid)
+            else:
+                cells += 1
+                found, lo, hi, nt = column_search(
+                    u, v, a, b, s0, kd == KIND_SURFACE, kd == KIND_ROBOT, P, h, lim, rect, grid, mp, vt, sc
+                )
+                tests += nt
+            if found:
+                hits = _segment_hit(hits, P, a, b, lo, hi, h, radius, qp)
+    return hits, cells, tests
+
+
+@nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=FASTMATH)
+def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out):
+    """Fused distance query for one sphere at P (principal camera frame, a 3-tuple); writes ``out[0:10]``
+    = distance from the centre, direction (3), nearest point (3), count, column searches, votes taken.
+
+    Records: ``qp`` :class:`~depthguard.kernels.records.QueryParams`, ``intr``
+    :class:`~depthguard.kernels.records.Intrinsics` (principal camera), ``pr`` / ``grid`` / ``mp`` / ``vt`` /
+    ``sc`` from :mod:`depthguard.depthgrid.records`; ``chunks``: use the per-tile chunk tests.
+    """
+    px, py, pz = P
+    reff = qp.rho + radius
+    h = 0.5 * math.sqrt(1.0 / (intr.fx * intr.fx) + 1.0 / (intr.fy * intr.fy))
+    hits = no_hits(reff)
+    if qp.unseen:
+        hits = unseen_space(hits, px, py, pz, radius, intr, qp)
+    box = surveillance_box(px, py, pz, reff, intr)
+    cells = tests = 0
+    if box[0] <= box[1] and box[2] <= box[3]:
+        lbs = sc.lbs
+        t_u0, t_v0, ntu, ntiles = tile_lower_bounds(pr.tmin, px, py, pz, reff, box, intr, qp.tile, lbs)
+        for kk in range(ntiles):
+            if qp.mode == 0:  # nearest tile first; stop when no tile can be nearer (shrinking region)
+                k = nearest_tile(lbs, ntiles)
+                if not lbs[k] < hits.best:
+                    break
+                lbs[k] = np.inf
+            else:
+                k = kk
+                if lbs[k] >= reff:
+                    continue
+            hits, c, t = _tile_columns(
+                hits, t_u0 + k % ntu, t_v0 + k // ntu, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks
+            )
+            cells += c
+            tests += t
+    write_hits(hits, qp.mode, out)
+    out[8] = cells
+    out[9] = tests
+
+
+def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks):
+    """:func:`query_one` for N spheres (world frame in): rows of ``OUT_WIDTH``."""
+    n = centres.shape[0]
+    out = np.empty((n, OUT_WIDTH))
+    lbs = np.empty((n, pr.tmin.shape[0] * pr.tmin.shape[1]))
+    tstates = np.zeros((n, grid.n_cells // TILE_BLOCK + 1), dtype=np.uint8)
+    stacks = np.empty((n, 3 * PYR_STACK), dtype=np.int64)
+    for i in nb.prange(n):
+        Pc = R @ centres[i] + t
+        sc = Scratch(lbs[i], tstates[i], stacks[i])
+        query_one((Pc[0], Pc[1], Pc[2]), radii[i], qp, intr, pr, grid, mp, vt, sc, chunks, out[i])
+    return out
+
+
+# One implementation, two compilations: one thread (default; no thread start-up latency on a loaded
+# machine) and numba's threads over the spheres (``DepthGridFusion(parallel=True)``).
+query_many = nb.njit(cache=True)(_query_many_py)
+query_many_parallel = nb.njit(cache=True, parallel=True)(_query_many_py)

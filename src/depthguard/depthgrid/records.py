@@ -1,0 +1,96 @@
+"""Typed records of the depth-grid kernels and the constants they share (see :mod:`depthguard.depthgrid.query`).
+
+Conventions shared by every depth-grid kernel (the method: :mod:`depthguard.depthgrid.fusion`):
+
+* the principal camera's pixel-corner rays are ``c = ((u' - cx)/fx, (v' - cy)/fy, 1)``, ``u' = 0..W``;
+  for secondary camera k, ``corner_rays[k, v', u'] = M_k c`` (``centre_rays[k, v, u]`` likewise for the
+  pixel-centre rays) with ``M_k = R_k R_0^T``, and ``cams[k] = (b_k, fx, fy, cx, cy, W, H)`` with
+  ``b_k = t_k - M_k t_0``, so the cell corner at depth ``d`` is ``X_k = d M_k c + b_k``;
+* principal pixel kinds: 0 nothing, 1 measured surface at ``start``, 2 unknown from ``start`` on
+  (missing pixel at the near limit), 3 robot at ``start`` (RA-L'16 case iv).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "Grid",
+    "MapArrays",
+    "Votes",
+    "Principal",
+    "Scratch",
+    "KIND_NONE",
+    "KIND_SURFACE",
+    "KIND_UNKNOWN",
+    "KIND_ROBOT",
+    "BLOCK",
+    "TILE_BLOCK",
+    "PYR_STACK",
+    "scratch",
+]
+
+KIND_NONE, KIND_SURFACE, KIND_UNKNOWN, KIND_ROBOT = 0, 1, 2, 3
+BLOCK = 8  # first block size (cells) tried along a column; then 2, then single cells
+TILE_BLOCK = 8  # depth cells per tile-wide block
+PYR_STACK = 256  # entries (3 int64 each) of the explicit stack of the min-pyramid descent
+
+
+class Grid(NamedTuple):
+    """The depth grid (RA-L'16 eq. 4): near face ``d_min`` of the first cell, cell depth ``dd`` (metres),
+    number of depth cells per pixel."""
+
+    d_min: float
+    dd: float
+    n_cells: int
+
+
+class MapArrays(NamedTuple):
+    """The off-line map (RA-L'16 §V): ``corner_rays`` (K, H+1, W+1, 3), ``centre_rays`` (K, H, W, 3),
+    ``cams`` (K, 9), and, when ``stored``, every cell's packed footprint ``pmap`` (K, H, W, n_cells)."""
+
+    corner_rays: np.ndarray
+    centre_rays: np.ndarray
+    cams: np.ndarray
+    stored: bool
+    pmap: np.ndarray
+
+
+class Votes(NamedTuple):
+    """Per frame: ``votes`` (K, 3 H, W) float32: rows ``[0, H)`` the depth each secondary pixel sees past
+    (0: nothing, +inf: everything), rows ``[H, 2H)`` and ``[2H, 3H)`` the low and high ends of its robot
+    window (+inf / -inf: none; :func:`depthguard.depthgrid.votes.pixel_sees_past`); the block-minimum
+    pyramid ``pyr`` (K, n) of the votes with layout ``meta`` (L, 3); ``windows``: any window set."""
+
+    votes: np.ndarray
+    pyr: np.ndarray
+    meta: np.ndarray
+    windows: bool = False
+
+
+class Principal(NamedTuple):
+    """Per frame, the principal image: ``start`` (H, W) float32 start depth and ``kind`` (H, W) uint8 of
+    each pixel, and per 16x16 tile the smallest start ``tmin`` and the largest non-robot start ``tmax``."""
+
+    start: np.ndarray
+    kind: np.ndarray
+    tmin: np.ndarray
+    tmax: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """Per query point: tile bounds ``lbs``, tile-block states ``tstate`` (0 unknown, 1 cleared, 2 not
+    cleared) and the pyramid descent's ``stack``."""
+
+    lbs: np.ndarray
+    tstate: np.ndarray
+    stack: np.ndarray
+
+
+def scratch(n_tiles: int, n_cells: int) -> Scratch:
+    """A :class:`Scratch` for one point (tests and tools; the query allocates its own)."""
+    return Scratch(
+        np.empty(n_tiles), np.zeros(n_cells // TILE_BLOCK + 1, dtype=np.uint8), np.empty(3 * PYR_STACK, np.int64)
+    )

@@ -1,0 +1,169 @@
+"""The secondary cameras' votes on principal cells and on blocks of cells (RA-L'16 §VI, conservative form).
+
+Camera k clears (calls free) a cell only when the cell lies entirely in front of camera k and inside its
+image and *every* pixel of its footprint (:mod:`depthguard.depthgrid.footprint`) sees past the cell's far
+depth: ``vote > d_end``. A missing pixel votes 0 and clears nothing; a cell that is not involved for camera
+k gets no vote from it. A *block* (several cells of one pixel, or of a whole tile) is cleared when one
+camera clears the frustum piece that contains them all: its footprint contains each cell's and its far
+depth is at least theirs, so every cell in it is cleared by the per-cell rule. A block that is not
+cleared tells nothing (its cells are then tested one by one).
+
+Records: ``mp`` :class:`~depthguard.depthgrid.records.MapArrays`, ``vt``
+:class:`~depthguard.depthgrid.records.Votes`, ``grid`` :class:`~depthguard.depthgrid.records.Grid`.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+
+from depthguard.depthgrid.footprint import DEND_SCALE, cell_footprint, rect_footprint, unpack
+from depthguard.depthgrid.pyramid import rect_sees_past
+
+__all__ = [
+    "pixel_sees_past",
+    "footprint_sees_past",
+    "centre_sees_past",
+    "cell_occupied",
+    "block_cleared",
+    "tile_block_cleared",
+]
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def pixel_sees_past(k, pv, pu, dend, votes):
+    """Pixel (pu, pv) of camera k does not hold an obstacle before ``dend``: its vote depth exceeds
+    ``dend``, or ``dend`` lies in the pixel's robot window (``lo <= dend <= hi``: the part of any cell
+    that ends at ``dend`` and that this pixel sees lies inside the robot's inflated body).
+
+    ``votes`` holds three row blocks of equal height (see ``DepthGridFusion``): the votes, then ``lo``
+    (+inf where the pixel has no window), then ``hi`` (-inf where none).
+    """
+    if votes[k, pv, pu] > dend:
+        return True
+    hm = votes.shape[1] // 3
+    return votes[k, hm + pv, pu] <= dend and dend <= votes[k, 2 * hm + pv, pu]
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def footprint_sees_past(k, u0, v0, du, dv, q, votes):
+    """True when camera k calls the cell free: every covered pixel sees past ``d_end``
+    (:func:`pixel_sees_past`)."""
+    if u0 < 0:
+        return False  # not involved: no vote
+    dend = q * DEND_SCALE
+    for pv in range(v0, v0 + dv + 1):
+        for pu in range(u0, u0 + du + 1):
+            if not pixel_sees_past(k, pv, pu, dend, votes):
+                return False
+    return True
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _sees_past(k, u0, v0, du, dv, q, vt, stack):
+    """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large."""
+    if (du + 1) * (dv + 1) <= 128:
+        return footprint_sees_past(k, u0, v0, du, dv, q, vt.votes)
+    # the pyramid holds the votes only (no robot windows): a "yes" is final; a "no" is checked pixel by
+    # pixel only where robot windows may turn it (robot_windows set for this frame)
+    if rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, vt, stack):
+        return True
+    return vt.windows and footprint_sees_past(k, u0, v0, du, dv, q, vt.votes)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def centre_sees_past(k, u, v, d1, d2, mp, votes):
+    """Quick necessary test for camera k clearing the frustum piece ``(u, v, [d1, d2])``.
+
+    The piece's centre lies inside its footprint and nearer than ``d_end``, so unless the pixel under the
+    centre measures beyond the centre's depth, camera k cannot clear it. One projection and one read
+    instead of eight projections; applied before every footprint test, in both map modes.
+    """
+    cams = mp.cams
+    rays = mp.centre_rays
+    dm = 0.5 * (d1 + d2)
+    Z = dm * rays[k, v, u, 2] + cams[k, 2]
+    if Z <= 1e-6:
+        return False
+    iz = 1.0 / Z
+    pu = cams[k, 3] * (dm * rays[k, v, u, 0] + cams[k, 0]) * iz + cams[k, 5]
+    pv = cams[k, 4] * (dm * rays[k, v, u, 1] + cams[k, 1]) * iz + cams[k, 6]
+    if not (pu >= 0.0 and pv >= 0.0 and pu < cams[k, 7] and pv < cams[k, 8]):
+        return False
+    # the vote, or the top of the pixel's robot window (pixel_sees_past needs hi >= d_end > Z)
+    hm = votes.shape[1] // 3
+    return votes[k, int(pv), int(pu)] > Z or votes[k, 2 * hm + int(pv), int(pu)] > Z
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def cell_occupied(u, v, g, grid, mp, votes, need_vote):
+    """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely.
+
+    With ``need_vote`` (case iv, behind a robot pixel of the principal camera) at least one secondary
+    camera must be involved: space that only the robot hides from the principal camera and that no other
+    camera watches stays unseen (``docs/conventions.md``), as with one camera.
+    """
+    involved = False
+    d1 = grid.d_min + g * grid.dd
+    d2 = d1 + grid.dd
+    for k in range(mp.cams.shape[0]):
+        if mp.stored:
+            u0, v0, du, dv, q = unpack(mp.pmap[k, v, u, g])
+        elif need_vote or centre_sees_past(k, u, v, d1, d2, mp, votes):
+            u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d2, mp.corner_rays, mp.cams)
+        else:
+            continue  # cannot clear; its involvement does not matter
+        if u0 >= 0:
+            involved = True
+            if centre_sees_past(k, u, v, d1, d2, mp, votes) and footprint_sees_past(k, u0, v0, du, dv, q, votes):
+                return False
+    return involved or not need_vote
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def block_cleared(u, v, g0, g1, grid, mp, vt, stack):
+    """True when one secondary camera clears every cell ``g0 <= g < g1`` of pixel (u, v) at once.
+
+    The block's footprint is that of the frustum piece between ``d_min + g0 Δd`` and ``d_min + g1 Δd``
+    (widened by 1 nm); see the module docstring.
+    """
+    d1 = grid.d_min + g0 * grid.dd - 1e-9
+    d2 = grid.d_min + g1 * grid.dd + 1e-9
+    for k in range(mp.cams.shape[0]):
+        if not centre_sees_past(k, u, v, d1, d2, mp, vt.votes):
+            continue
+        u0, v0, du, dv, q = cell_footprint(k, u, v, d1, d2, mp.corner_rays, mp.cams)
+        if u0 >= 0 and _sees_past(k, u0, v0, du, dv, q, vt, stack):
+            return True
+    return False
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def tile_block_cleared(ua, va, ub, vb, g0, g1, grid, mp, vt, stack):
+    """True when one secondary camera clears the cells ``g0 <= g < g1`` of every pixel of a tile at once.
+
+    Same argument as :func:`block_cleared`, for the frustum over the tile's pixels ``[ua, ub) x [va, vb)``.
+    """
+    cams = mp.cams
+    cr = mp.corner_rays
+    d1 = grid.d_min + g0 * grid.dd - 1e-9
+    d2 = grid.d_min + g1 * grid.dd + 1e-9
+    dm = 0.5 * (d1 + d2)
+    for k in range(cams.shape[0]):
+        # quick necessary test at the centre of the piece
+        mx = 0.25 * (cr[k, va, ua, 0] + cr[k, va, ub, 0] + cr[k, vb, ua, 0] + cr[k, vb, ub, 0])
+        my = 0.25 * (cr[k, va, ua, 1] + cr[k, va, ub, 1] + cr[k, vb, ua, 1] + cr[k, vb, ub, 1])
+        mz = 0.25 * (cr[k, va, ua, 2] + cr[k, va, ub, 2] + cr[k, vb, ua, 2] + cr[k, vb, ub, 2])
+        Z = dm * mz + cams[k, 2]
+        if Z <= 1e-6:
+            continue
+        pu = cams[k, 3] * (dm * mx + cams[k, 0]) / Z + cams[k, 5]
+        pv = cams[k, 4] * (dm * my + cams[k, 1]) / Z + cams[k, 6]
+        if not (pu >= 0.0 and pv >= 0.0 and pu < cams[k, 7] and pv < cams[k, 8]):
+            continue
+        hm = vt.votes.shape[1] // 3
+        if not (vt.votes[k, int(pv), int(pu)] > Z or vt.votes[k, 2 * hm + int(pv), int(pu)] > Z):
+            continue
+        u0, v0, du, dv, q = rect_footprint(k, ua, va, ub, vb, d1, d2, cr, cams)
+        if u0 >= 0 and _sees_past(k, u0, v0, du, dv, q, vt, stack):
+            return True
+    return False
