@@ -270,7 +270,7 @@ def test_missing_pixels_of_a_secondary_camera_never_clear_a_cell():
     for mode in ("min", "all"):
         res = fusion.query(P, 0.02, rho=0.4, mode=mode)
         assert res.distance[0] <= true + 1e-9, mode
-    assert np.all(fusion._votes[0][hole] == 0.0)
+    assert np.all(fusion._votes[0, : cams[1].height][hole] == 0.0)
 
 
 @pytest.mark.parametrize("invalid", ["conservative", "ignore"])

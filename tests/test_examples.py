@@ -114,7 +114,8 @@ def test_12_proximity_nsb_output():
     binary Gray code of the level (computed here as level ^ (level >> 1)), one bit per step."""
     lines = _run("12_proximity_nsb.py")
     nsb = re.compile(
-        rf"t = ({NUM}) s  d2 = ({NUM}) m  sigma = ({NUM}) m\^2  lambda = ({NUM})  base x = ({NUM}) m  ee error = ({NUM}) mm"
+        rf"t = ({NUM}) s  d2 = ({NUM}) m  sigma = ({NUM}) m\^2  lambda = ({NUM})  "
+        rf"base x = ({NUM}) m  ee error = ({NUM}) mm"
     )
     rows = [[float(x) for x in m.groups()] for m in map(nsb.fullmatch, lines) if m]
     assert len(rows) >= 5
@@ -126,7 +127,7 @@ def test_12_proximity_nsb_output():
     steps = [m.groups() for m in map(lvl.fullmatch, lines) if m]
     levels = [int(s[2]) for s in steps]
     assert levels == list(range(levels[0], levels[0] + len(levels))) and levels[-1] == 7
-    for _, dist, level, code in steps:
+    for _, _dist, level, code in steps:
         assert code == format(int(level) ^ (int(level) >> 1), "03b")
     codes = [int(s[3], 2) for s in steps]
     assert all(bin(a ^ b).count("1") == 1 for a, b in zip(codes, codes[1:], strict=False))
