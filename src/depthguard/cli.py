@@ -186,6 +186,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             cameras=args.cameras,
             out_dir=args.out,
             progress=not args.json,
+            ssm=bool(getattr(args, "ssm", False)),
         )
     if args.json:
         print(json.dumps(out, default=float))

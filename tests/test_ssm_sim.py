@@ -1,0 +1,68 @@
+"""SSM in the simulated cell: the true per-point clearance against MuJoCo, and the scenario contracts
+(``ral-hexagon --ssm --quick``, ``ssm-approach --quick`` with and without avoidance)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco")
+pytest.importorskip("pinocchio")
+
+from depthguard.sim.ssm_metrics import sphere_clearance  # noqa: E402
+
+_XML = """
+<mujoco><worldbody>
+  <body name="probe" mocap="true" pos="0 0 0"><geom name="probe" type="sphere" size="{r}"/></body>
+  <geom name="box" type="box" size="0.2 0.1 0.05" pos="0.6 0.1 0.3" euler="20 35 -50"/>
+  <geom name="cap" type="capsule" size="0.05 0.25" pos="-0.4 0.3 0.2" euler="40 10 70"/>
+  <geom name="ball" type="sphere" size="0.11" pos="0.1 -0.5 -0.2"/>
+</worldbody></mujoco>
+"""
+
+
+@pytest.mark.parametrize("r", [0.0, 0.06])
+def test_sphere_clearance_matches_mj_geomDistance(r):
+    m = mujoco.MjModel.from_xml_string(_XML.format(r=max(r, 1e-4)))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    names = ["box", "cap", "ball"]
+    gids = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n) for n in names])
+    probe = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "probe")
+    rng = np.random.default_rng(3)
+    ft = np.zeros(6)
+    for _ in range(200):
+        c = rng.uniform(-1.0, 1.0, 3)
+        d.mocap_pos[0] = c
+        mujoco.mj_kinematics(m, d)
+        rad = max(r, 1e-4)
+        ours = sphere_clearance(m, d, gids, c[None], np.array([rad]))[0]
+        ref = min(mujoco.mj_geomDistance(m, d, probe, int(g), 10.0, ft) for g in gids)
+        if ref > 0.0:  # separated: exact
+            assert ours == pytest.approx(ref, abs=1e-6)
+        else:  # penetrating: ours never over-reports
+            assert ours <= 1e-6
+
+
+def test_sphere_clearance_empty_is_inf():
+    m = mujoco.MjModel.from_xml_string(_XML.format(r=0.05))
+    d = mujoco.MjData(m)
+    assert np.isinf(sphere_clearance(m, d, np.array([], int), np.zeros((2, 3)), np.zeros(2))).all()
+
+
+@pytest.mark.slow
+def test_ral_hexagon_ssm_quick_contract():
+    from depthguard.sim.scenarios import run_scenario
+
+    r = run_scenario("ral-hexagon", quick=True, variants=False, ssm=True)
+    json.dumps(r)
+    assert r["ssm"] is True
+    assert r["collision_steps"] == 0, r
+    assert r["min_separation_margin"] >= 0.0, r
+    assert r["task_completion"] >= 0.9, r
+    for k in ("time_reduced_s", "time_stopped_s", "ssm_parameters"):
+        assert k in r
+    p = r["ssm_parameters"]
+    assert p["intrusion"]["value"] == 0.05 and p["intrusion"]["source"]
