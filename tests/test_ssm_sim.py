@@ -66,3 +66,30 @@ def test_ral_hexagon_ssm_quick_contract():
         assert k in r
     p = r["ssm_parameters"]
     assert p["intrusion"]["value"] == 0.05 and p["intrusion"]["source"]
+
+
+@pytest.mark.slow
+def test_ssm_approach_quick_stops_and_resumes():
+    from depthguard.control.ssm import SsmConfig
+    from depthguard.sim.ssm_approach import HALT_CLEARANCE, run
+
+    r = run(quick=True)
+    json.dumps(r)
+    assert r["collision_steps"] == 0, r
+    assert r["min_separation_margin"] >= 0.0, r
+    assert r["protective_stops"] >= 1 and r["time_stopped_s"] > 0.0, r
+    assert r["resumed"] is True, r
+    # stopped before the separation fell below C + Z_d + Z_r; the person stood off the stopped robot
+    assert r["min_true_separation_while_moving"] >= SsmConfig().constant_terms, r
+    assert r["min_clearance_people_boxes"] >= min(HALT_CLEARANCE, 0.1) - 2e-3, r
+    for k in ("min_clearance", "task_completion", "path_error", "distance_hz_median", "time_reduced_s"):
+        assert k in r
+
+
+@pytest.mark.slow
+def test_ssm_approach_collides_without_avoidance():
+    from depthguard.sim.ssm_approach import run
+
+    r = run(quick=True, avoidance=False)
+    assert r["collision_steps"] > 0, r
+    assert r["ssm"] is False

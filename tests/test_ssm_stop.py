@@ -84,3 +84,26 @@ def test_monitor_stopping_distance_bounds_the_controllers_stop(points, limits):
         ratios.append(np.max(path / np.maximum(s_s, 1e-12)))
     assert max(speeds) > 0.5  # the states really moved
     assert max(ratios) > 0.7  # and the bound is not vacuous: close to the real path somewhere
+
+
+def test_nothing_within_rho_is_taken_as_the_sensing_range(points):
+    """+inf means "nothing within rho": with ``sensing_range`` = rho the monitor slows a fast arm whose S_p
+    exceeds rho; trusting +inf (the default) lets it run at full speed."""
+    from depthguard.control.ssm import SsmMonitor
+    from depthguard.control.braking import chain_lengths
+
+    model = points.model
+    q = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
+    model.update(q)
+    J = points.evaluate(q, updated=True).jacobians
+    L = chain_lengths(model, points.joints, points.offsets)
+    N = points.n_points
+    qd = np.full(7, 1.0)
+    args = (J, np.zeros(7), np.zeros(7), qd, np.full(N, np.inf), np.zeros((N, 3)))  # at rest, asked for qd
+    trusting = SsmMonitor(L, 10.0, 500.0, SsmConfig()).update(*args)
+    ranged = SsmMonitor(L, 10.0, 500.0, SsmConfig(sensing_range=0.4)).update(*args)
+    assert trusting.scale == 1.0
+    assert np.max(trusting.s_p) > 0.4  # the case that matters: S_p beyond the query's range
+    assert 0.0 < ranged.scale < 1.0 and np.all(ranged.s_p <= 0.4 + 1e-9)
+    with pytest.raises(ValueError, match="sensing_range"):
+        SsmConfig(sensing_range=0.0)

@@ -68,6 +68,9 @@ class SsmConfig:
             sigma = 1.43e-3 z^2 m -> 3.9 cm) plus the distance bound's declared tolerance (1 cm) -> 0.05 m.
         robot_uncertainty: Z_r, m: joint encoder and kinematic calibration error at the tool, 0.01 m.
         hysteresis: a protective stop ends when S >= S_p + hysteresis for every point, m.
+        sensing_range: the range of the distance query (its rho), m: a distance of +inf ("nothing within
+            rho") is a lower bound of ``sensing_range``, not of infinity, and is taken as that. inf (the
+            default) trusts +inf; set it to the query's rho whenever ``S_p`` can exceed rho.
     """
 
     v_h_near: float = 2.0
@@ -82,9 +85,14 @@ class SsmConfig:
     sensor_uncertainty: float = 0.05
     robot_uncertainty: float = 0.01
     hysteresis: float = 0.05
+    sensing_range: float = float("inf")
 
     def __post_init__(self) -> None:
+        if not self.sensing_range > 0:
+            raise ValueError(f"SsmConfig.sensing_range must be > 0 (inf allowed), got {self.sensing_range!r}")
         for name, val in self.__dict__.items():
+            if name == "sensing_range":
+                continue
             if not (np.isfinite(val) and val >= 0):
                 raise ValueError(f"SsmConfig.{name} must be a finite number >= 0, got {val!r}")
         if self.v_h_near <= 0 or self.v_h_far <= 0:
@@ -238,7 +246,7 @@ class SsmMonitor:
             qdot, qddot: (n,) current joint velocity (rad/s) and acceleration (rad/s^2).
             qdot_nominal: (n,) the joint velocity the task asks for at full scale, rad/s.
             distances: (N,) lower bounds of the separation from each point's sphere, m; inf = nothing
-                within range; NaN counts as 0 (unknown: stop).
+                within range (taken as ``config.sensing_range``); NaN counts as 0 (unknown: stop).
             directions: (N, 3) repulsive unit directions (obstacle -> point); non-finite rows count as
                 pointing straight at the obstacle along the motion (worst case).
             data_age: age of the distances, s (added to T_r).
@@ -246,7 +254,7 @@ class SsmMonitor:
         """
         cfg = self.config
         N = self.lengths.shape[0]
-        dist = np.where(np.isnan(distances), 0.0, np.asarray(distances, dtype=float))
+        dist = np.where(np.isnan(distances), 0.0, np.minimum(np.asarray(distances, dtype=float), cfg.sensing_range))
         dirs = np.asarray(directions, dtype=float)
         v_cur = np.asarray(jacobians @ qdot)  # (N, 3)
         v_nom = np.asarray(jacobians @ qdot_nominal)

@@ -259,11 +259,14 @@ def _run_one(
         rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
         alpha_body=float(av.get("alpha", 6.0)),
         ssm=ssm and avoidance,
+        ssm_config=_ssm_config(av) if ssm and avoidance else None,
         avoidance_mode=av.get("mode") if ssm and avoidance else None,
     )
-    if ssm and avoidance:  # records the monitor and the true separation (metrics only)
+    if ssm and avoidance:  # background model of the empty cell; the monitor's record (metrics only)
+        from depthguard.sim.background import BackgroundFilter
         from depthguard.sim.ssm_metrics import SsmRecorder
 
+        stage = BackgroundFilter(stage, cell, cams)
         ctrl = SsmRecorder(ctrl, cell)
     task = _task(sc, ee0)
     duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
@@ -393,6 +396,13 @@ def run_scenario(
         result["files"] = files
         (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
     return result
+
+
+def _ssm_config(av: dict):
+    """The monitor's configuration in the simulated cell: the defaults, with the distance query's range."""
+    from depthguard.control.ssm import SsmConfig
+
+    return SsmConfig(sensing_range=float(av.get("rho", 0.4)))
 
 
 def _ssm_keys(log, cfg, on: bool) -> dict[str, Any]:

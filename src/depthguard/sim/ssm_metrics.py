@@ -112,6 +112,8 @@ class SsmRecorder:
 
     def __init__(self, ctrl, cell, exclude: tuple[str, ...] = ("table",)) -> None:
         self.ctrl, self.cell = ctrl, cell
+        self.ssm_config = getattr(getattr(ctrl, "_c", None), "config", None)
+        self.ssm_config = getattr(self.ssm_config, "ssm", None) or SsmConfig()
         self.geoms = np.array([g for g in cell.obstacle_geoms if cell.geom_names[g] not in exclude], int)
         self.rows: dict[str, list] = {k: [] for k in ("t", "state", "scale", "binding", "dist", "s_p", "s_true", "qd")}
 
@@ -158,7 +160,7 @@ def ssm_parameters(cfg: SsmConfig | None = None) -> dict[str, Any]:
 
 def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmConfig | None = None) -> dict[str, Any]:
     """The ``--ssm`` metrics of one run (module docstring) from the recorder of that run."""
-    cfg = cfg or SsmConfig()
+    cfg = cfg or rec.ssm_config
     a = rec.arrays()
     state, s_true, s_p = a["state"], a["s_true"], a["s_p"]
     allowed = (state == MonitorState.MONITOR_OK) | (state == MonitorState.REDUCED)
