@@ -89,8 +89,8 @@ def test_monitor_stopping_distance_bounds_the_controllers_stop(points, limits):
 def test_nothing_within_rho_is_taken_as_the_sensing_range(points):
     """+inf means "nothing within rho": with ``sensing_range`` = rho the monitor slows a fast arm whose S_p
     exceeds rho; trusting +inf (the default) lets it run at full speed."""
-    from depthguard.control.ssm import SsmMonitor
     from depthguard.control.braking import chain_lengths
+    from depthguard.control.ssm import SsmMonitor
 
     model = points.model
     q = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])

@@ -7,7 +7,10 @@ would never let the arm move. A real installation records the empty cell once at
 monitors only what is not background; :class:`BackgroundFilter` does the same here: every camera's depth of
 the static geoms (geom group 0: room, floor, table; not the boxes, which stay obstacles) is ray cast once,
 and afterwards a pixel whose measured depth is at or behind that background (within the camera's noise:
-3 sigma + quantization + 1 cm) is masked like a robot pixel (a surface that is not an obstacle).
+3 sigma + quantization + 1 cm) reads as the far end of the camera's range: free space in front of it, as in
+the empty cell. (Masking it like a robot pixel would not do: a missing pixel surrounded by masked pixels has
+no valid neighbour to be filled from and becomes unknown space, i.e. an obstacle at the near limit.) A
+missing pixel next to a person is still filled with the person's, nearer, depth.
 
 Limit: a person flat against the background (a hand lying on the table) is hidden within that tolerance.
 """
@@ -38,6 +41,7 @@ class BackgroundFilter:
         gg[list(groups)] = 1
         cell.forward()
         self.far = []  # per camera: depth at or beyond which a pixel is background (inf: never)
+        self.beyond = [float(c.camera.max_depth) if np.isfinite(c.camera.max_depth) else 10.0 for c in cams]
         for c in cams:
             ref = raycast_depth(cell.model, cell.data, c.camera, gg)
             tol = 3.0 * c.noise_coeff * ref * ref + c.quantization + margin
@@ -47,10 +51,11 @@ class BackgroundFilter:
         return getattr(self.stage, name)
 
     def update(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> None:
-        """Frame stage: robot masks plus the background pixels, then the wrapped stage's update."""
+        """Frame stage: background pixels (not robot pixels) read as the far range, then the wrapped stage."""
         out = []
-        for d, m, far in zip(depths, masks, self.far, strict=True):
+        for d, m, far, beyond in zip(depths, masks, self.far, self.beyond, strict=True):
+            d = np.asarray(d)
             with np.errstate(invalid="ignore"):
-                bg = np.asarray(d) >= far  # NaN (no reading) is never background
-            out.append(np.asarray(m, bool) | bg)
-        self.stage.update(depths, out)
+                bg = (d >= far) & ~np.asarray(m, bool)  # NaN (no reading) is never background
+            out.append(np.where(bg, np.asarray(beyond, d.dtype), d))
+        self.stage.update(out, masks)
