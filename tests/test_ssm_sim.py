@@ -76,7 +76,11 @@ def test_ssm_approach_quick_stops_and_resumes():
     r = run(quick=True)
     json.dumps(r)
     assert r["collision_steps"] == 0, r
-    assert r["min_separation_margin"] >= 0.0, r
+    # S_true with the person where the camera saw them: the monitor's decisions were right. (Against the
+    # person's position *now*, S_true - S_p dips below 0 by up to v_h x the frame's age, which v_h T_r in S_p
+    # budgets for: reported as min_separation_margin, see docs/ssm.md.)
+    assert r["min_separation_margin_at_capture"] >= 0.0, r
+    assert r["min_separation_margin"] > -1.6 * (1 / 30 + 0.004), r
     assert r["protective_stops"] >= 1 and r["time_stopped_s"] > 0.0, r
     assert r["resumed"] is True, r
     # stopped before the separation fell below C + Z_d + Z_r; the person stood off the stopped robot

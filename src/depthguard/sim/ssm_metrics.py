@@ -54,14 +54,17 @@ def sphere_clearance(model, data, geoms: np.ndarray, centres: np.ndarray, radii:
     bounding sphere, which under-reports (the safe side for a margin). Reads ``data.geom_xpos`` and
     ``geom_xmat`` as they are (call ``mj_kinematics`` first when the state changed). ``inf`` if no geom.
     """
+    g = np.asarray(geoms, int)
+    return _clearance(model, g, data.geom_xpos[g], data.geom_xmat[g].reshape(-1, 3, 3), centres, radii)
+
+
+def _clearance(model, g, pos, mat, centres, radii) -> np.ndarray:
+    """:func:`sphere_clearance` with the geoms' world positions (G, 3) and rotations (G, 3, 3) given."""
     c = np.asarray(centres, float)
     best = np.full(len(c), np.inf)
-    if len(geoms) == 0:
-        return best
-    g = np.asarray(geoms)
+    if len(g) == 0:
+        return best - np.asarray(radii, float)
     kind = model.geom_type[g]
-    pos = data.geom_xpos[g]  # (G, 3)
-    mat = data.geom_xmat[g].reshape(-1, 3, 3)
     size = model.geom_size[g]
     for sel, fn in (
         (kind == _SPHERE, _to_spheres),
@@ -110,12 +113,16 @@ class SsmRecorder:
         exclude: obstacle geoms left out of ``S_true`` (the table: the robot's mount).
     """
 
-    def __init__(self, ctrl, cell, exclude: tuple[str, ...] = ("table",)) -> None:
+    def __init__(self, ctrl, cell, exclude: tuple[str, ...] = ("table",), frame_period: float = 1.0 / 30.0) -> None:
         self.ctrl, self.cell = ctrl, cell
         self.ssm_config = getattr(getattr(ctrl, "_c", None), "config", None)
         self.ssm_config = getattr(self.ssm_config, "ssm", None) or SsmConfig()
         self.geoms = np.array([g for g in cell.obstacle_geoms if cell.geom_names[g] not in exclude], int)
-        self.rows: dict[str, list] = {k: [] for k in ("t", "state", "scale", "binding", "dist", "s_p", "s_true", "qd")}
+        keys = ("t", "state", "scale", "binding", "dist", "s_p", "s_true", "s_capture", "qd")
+        self.rows: dict[str, list] = {k: [] for k in keys}
+        self.frame_period = frame_period
+        self._next_frame = 0.0
+        self._frames: list[tuple[float, np.ndarray, np.ndarray]] = []  # (t, pos, mat) of the obstacle geoms
 
     def __getattr__(self, name: str):
         return getattr(self.ctrl, name)
@@ -136,12 +143,23 @@ class SsmRecorder:
         N = len(cp.radii)
         r["dist"].append(np.full(N, np.nan) if m is None else np.array(m.separation, float))
         r["s_p"].append(np.full(N, np.nan) if m is None else np.array(m.s_p, float))
-        r["s_true"].append(sphere_clearance(self.cell.model, self.cell.data, self.geoms, cp.centres, cp.radii))
+        m_, d_ = self.cell.model, self.cell.data
+        r["s_true"].append(sphere_clearance(m_, d_, self.geoms, cp.centres, cp.radii))
+        if t >= self._next_frame - 1e-9:  # the loop's frame schedule: the obstacles as the cameras saw them
+            self._next_frame += self.frame_period
+            self._frames = [*self._frames[-3:], (t, d_.geom_xpos[self.geoms].copy(), d_.geom_xmat[self.geoms].copy())]
+        seen = [f for f in self._frames if f[0] <= t_distances + 1e-9]
+        if seen:  # the frame behind the distances of this cycle
+            _, pos, mat = seen[-1]
+            r["s_capture"].append(_clearance(m_, self.geoms, pos, mat.reshape(-1, 3, 3), cp.centres, cp.radii))
+        else:
+            r["s_capture"].append(np.full(N, np.nan))
         r["qd"].append(float(np.max(np.abs(out.qdot_cmd))) if out is not None else 0.0)
         return res
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The record as arrays: t (T,), state (T,), scale (T,), binding (T,), dist/s_p/s_true (T, N), qd (T,)."""
+        """The record as arrays: t (T,), state (T,), scale (T,), binding (T,), dist/s_p/s_true/s_capture (T, N),
+        qd (T,)."""
         return {k: np.asarray(v) for k, v in self.rows.items()}
 
 
@@ -173,10 +191,13 @@ def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmCon
     moving = a["qd"] > 1e-3
     resumed = any(np.any(moving[e:] & allowed[e:]) for e in ends)
     sep = s_true.min(axis=1) if len(state) else np.array([])
+    cap = np.where(allowed[:, None], a["s_capture"] - s_p, np.inf)
+    cap = np.where(np.isnan(cap), np.inf, cap)
     return {
         "ssm": True,
         "min_separation_margin": float(per_point[k]) if k >= 0 else None,
         "binding_point": names[k] if k >= 0 else None,
+        "min_separation_margin_at_capture": float(cap.min()) if np.isfinite(cap).any() else None,
         "time_reduced_s": float(np.sum(state == MonitorState.REDUCED) * dt),
         "time_stopped_s": float(np.sum(stopped) * dt),
         "protective_stops": int(len(starts) + (1 if len(state) and stopped[0] else 0)),
@@ -191,7 +212,7 @@ def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmCon
 
 def plot_ssm(out_dir: str | Path, rec: SsmRecorder, names: tuple[str, ...], point: str | None, title: str) -> str:
     """``ssm.png``: true and measured separation and S_p of the binding point over time, the monitor's state
-    and scale below. Returns the file path."""
+    and scale below; the whole record next to it as ``ssm_record.npz``. Returns the png's path."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -220,4 +241,5 @@ def plot_ssm(out_dir: str | Path, rec: SsmRecorder, names: tuple[str, ...], poin
     path = Path(out_dir) / "ssm.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    np.savez_compressed(Path(out_dir) / "ssm_record.npz", names=np.array(names), **a)
     return str(path)
