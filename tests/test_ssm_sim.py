@@ -94,6 +94,6 @@ def test_ssm_approach_quick_stops_and_resumes():
 def test_ssm_approach_collides_without_avoidance():
     from depthguard.sim.ssm_approach import run
 
-    r = run(quick=True, avoidance=False)
+    r = run(quick=True, avoidance=False, options={"duration": 2.0})  # the sweep meets the hand at ~1.3 s
     assert r["collision_steps"] > 0, r
     assert r["ssm"] is False

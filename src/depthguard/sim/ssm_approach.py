@@ -145,11 +145,16 @@ def _connect(cell) -> None:
 
 def run(name: str = "ssm-approach", quick: bool = False, avoidance: bool = True, out_dir=None,
         progress: bool = False, options: dict | None = None) -> dict[str, Any]:  # fmt: skip
-    """Run the scenario (module docstring); returns the JSON-ready metrics (``cli.EXTRA_SCENARIOS`` entry)."""
+    """Run the scenario (module docstring); returns the JSON-ready metrics (``cli.EXTRA_SCENARIOS`` entry).
+
+    ``options`` may hold ``duration`` (s, shortens the run; used by the tests), besides the CLI's keys.
+    """
     from depthguard.sim.scenarios import _run_one, compute_metrics
     from depthguard.sim.ssm_metrics import plot_ssm, ssm_metrics, ssm_parameters
 
     sc = dict(SCENARIO, people=[])
+    if (options or {}).get("duration"):
+        sc["duration"] = sc["quick_duration"] = float(options["duration"])
     person = {"name": "dave", "keyframes": []}
     sc["people"] = [person]
     t_walk = 0.25  # s: the hand reaches the sweep while the end effector is on its way towards it
