@@ -226,6 +226,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             out_dir=args.out,
             progress=not args.json,
             **({"backend": "octree", "octree_res": args.octree_res or 0.05} if args.backend == "octree" else {}),
+            ssm=bool(getattr(args, "ssm", False)),
         )
     if args.json:
         print(json.dumps(out, default=float))

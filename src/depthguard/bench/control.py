@@ -4,7 +4,9 @@
 control points (distance query excluded): forward kinematics + Jacobians, control points, body bounds,
 SNS, Ruckig, the input checks, the joint bounds (v_max, position limits) and the bound enforcement,
 and the whole cycle, in free space and with obstacles that make SNS scale the task. The
-budget is 200 µs p99. A plain pseudo-inverse with clipping is timed in the same run as the peer.
+budget is 200 µs p99. A plain pseudo-inverse with clipping is timed in the same run as the peer. The
+same run times the cycle with speed and separation monitoring (``avoidance="both"``: monitor +
+controller, ``full_cycle_ssm``, target 150 µs p99) and the monitor's update alone (``ssm_monitor``).
 
 ``run_selffilter_benchmark`` times the self-filter on 640x480 frames (target 3 ms) with the exact
 numpy ray caster of :mod:`depthguard.scene` as the peer, and counts, against exact ground truth, the
@@ -12,6 +14,8 @@ robot pixels left in and the obstacle (hand) pixels wrongly removed.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -70,14 +74,27 @@ def run_control_benchmark(quick: bool = False) -> dict:
     for scenario in ("free", "constrained"):
         dist, dirs = _inputs(points, q, scenario == "constrained")
         ctrl = AvoidanceController(points, cfg)
+        ctrl_ssm = AvoidanceController(points, replace(cfg, avoidance="both"))
         state = {"t": 0.0}
         inp0 = CycleInput(0.0, q, np.zeros(7), 0.0, xdot_d, dist, dirs, 0.0)
         ctrl.step(inp0)
+        # SSM: the obstacle 0.2 m farther, so that the monitor scales the task (REDUCED: its bisection runs)
+        # instead of stopping at once
+        d_ssm = dist + 0.2
+        ctrl_ssm.step(inp0._replace(distances=d_ssm))
+        states: dict[str, int] = {}
 
         def cycle(ctrl=ctrl, dist=dist, dirs=dirs, state=state) -> None:
             state["t"] += 0.001
             t = state["t"]
             ctrl.step(CycleInput(t, q, np.zeros(7), t, xdot_d, dist, dirs, t))
+
+        def cycle_ssm(ctrl=ctrl_ssm, dist=d_ssm, dirs=dirs, state={"t": 0.0}, states=states) -> None:  # noqa: B006
+            state["t"] += 0.001
+            t = state["t"]
+            m = ctrl.step(CycleInput(t, q, np.zeros(7), t, xdot_d, dist, dirs, t)).ssm
+            name = m.state.name if m is not None else "none"
+            states[name] = states.get(name, 0) + 1
 
         model.update(q)
         st = points.evaluate(q, updated=True)
@@ -108,6 +125,10 @@ def run_control_benchmark(quick: bool = False) -> dict:
                 *s, *s, lo, hi, ctrl.otg.a_max, ctrl.otg.j_max, cfg.dt
             ),
             "full_cycle": cycle,
+            "full_cycle_ssm": cycle_ssm,
+            "ssm_monitor": lambda m=ctrl_ssm.monitor, st=st, dist=d_ssm, dirs=dirs: m.update(
+                st.jacobians, np.full(7, 0.2), np.zeros(7), np.full(7, 0.3), dist, dirs
+            ),
             "peer_pinv_clip": pinv_clip,
         }
         timings = {name: with_reference(time_calls(fn, repeat, warmup=20), reference) for name, fn in parts.items()}
@@ -117,6 +138,9 @@ def run_control_benchmark(quick: bool = False) -> dict:
             "timings_us": timings,
             "full_cycle_p99_over_budget": full["us_p99"] / 200.0,
             "full_cycle_over_peer_pinv_clip_median": full["us_median"] / timings["peer_pinv_clip"]["us_median"],
+            "full_cycle_ssm_p99_over_target": timings["full_cycle_ssm"]["us_p99"] / 150.0,
+            "ssm_cycle_over_plain_median": timings["full_cycle_ssm"]["us_median"] / full["us_median"],
+            "ssm_states_timed": states,
         }
     return {
         "benchmark": "control",
@@ -129,6 +153,8 @@ def run_control_benchmark(quick: bool = False) -> dict:
             "dt_s": cfg.dt,
             "repeat": repeat,
             "budget_us_p99": 200.0,
+            "ssm_target_us_p99": 150.0,
+            "ssm": "avoidance='both', SsmConfig() defaults; constrained: obstacle 0.2 m farther for the SSM cycle",
             "distance_query": "excluded",
             "q": Q_BENCH.tolist(),
         },

@@ -68,6 +68,9 @@ class SsmConfig:
             sigma = 1.43e-3 z^2 m -> 3.9 cm) plus the distance bound's declared tolerance (1 cm) -> 0.05 m.
         robot_uncertainty: Z_r, m: joint encoder and kinematic calibration error at the tool, 0.01 m.
         hysteresis: a protective stop ends when S >= S_p + hysteresis for every point, m.
+        sensing_range: the range of the distance query (its rho), m: a distance of +inf ("nothing within
+            rho") is a lower bound of ``sensing_range``, not of infinity, and is taken as that. inf (the
+            default) trusts +inf; set it to the query's rho whenever ``S_p`` can exceed rho.
     """
 
     v_h_near: float = 2.0
@@ -82,9 +85,14 @@ class SsmConfig:
     sensor_uncertainty: float = 0.05
     robot_uncertainty: float = 0.01
     hysteresis: float = 0.05
+    sensing_range: float = float("inf")
 
     def __post_init__(self) -> None:
+        if not self.sensing_range > 0:
+            raise ValueError(f"SsmConfig.sensing_range must be > 0 (inf allowed), got {self.sensing_range!r}")
         for name, val in self.__dict__.items():
+            if name == "sensing_range":
+                continue
             if not (np.isfinite(val) and val >= 0):
                 raise ValueError(f"SsmConfig.{name} must be a finite number >= 0, got {val!r}")
         if self.v_h_near <= 0 or self.v_h_far <= 0:
@@ -196,6 +204,56 @@ def _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_no
     return lo
 
 
+@njit(cache=True)
+def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, prm, stopped, hyst, dist, sp):
+    """:meth:`SsmMonitor.update` in one kernel: fills ``dist`` (N,) and ``sp`` (N,); returns (scale or -1,
+    stopped, stop_ended, T_s, binding)."""
+    N, _, n = jac.shape
+    lever0 = np.empty((N, n))
+    appr_cur = np.empty(N)
+    appr_nom = np.empty(N)
+    for k in range(N):
+        d = distances[k]
+        dist[k] = 0.0 if np.isnan(d) else min(d, rng)
+        good = np.isfinite(dirs[k, 0]) and np.isfinite(dirs[k, 1]) and np.isfinite(dirs[k, 2])
+        dc, dn, nc, nn = 0.0, 0.0, 0.0, 0.0
+        for i in range(3):
+            vc, vn = 0.0, 0.0
+            for j in range(n):
+                vc += jac[k, i, j] * qd[j]
+                vn += jac[k, i, j] * qn[j]
+            nc += vc * vc
+            nn += vn * vn
+            if good:
+                dc -= dirs[k, i] * vc
+                dn -= dirs[k, i] * vn
+        appr_cur[k] = max(dc, 0.0) if good else np.sqrt(nc)
+        appr_nom[k] = max(dn, 0.0) if good else np.sqrt(nn)
+        for j in range(n):
+            lever0[k, j] = np.sqrt(jac[k, 0, j] ** 2 + jac[k, 1, j] ** 2 + jac[k, 2, j] ** 2)
+    s = _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm)
+    ended = False
+    if stopped:
+        _s_p(0.0, lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm, sp)
+        release = True
+        for k in range(N):
+            if not dist[k] >= sp[k] + hyst:
+                release = False
+        if release:
+            stopped, ended = False, True
+        else:
+            s = -1.0
+    if s < 0.0:
+        stopped = True
+    T_s = _s_p(max(s, 0.0), lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm, sp)
+    binding, best = -1, np.inf
+    for k in range(N):
+        m = dist[k] - sp[k]
+        if np.isfinite(m) and (binding < 0 or m < best):
+            binding, best = k, m
+    return s, stopped, ended, T_s, binding
+
+
 @dataclass
 class SsmMonitor:
     """Per-cycle speed and separation monitor for a control-point set (module docstring).
@@ -238,7 +296,7 @@ class SsmMonitor:
             qdot, qddot: (n,) current joint velocity (rad/s) and acceleration (rad/s^2).
             qdot_nominal: (n,) the joint velocity the task asks for at full scale, rad/s.
             distances: (N,) lower bounds of the separation from each point's sphere, m; inf = nothing
-                within range; NaN counts as 0 (unknown: stop).
+                within range (taken as ``config.sensing_range``); NaN counts as 0 (unknown: stop).
             directions: (N, 3) repulsive unit directions (obstacle -> point); non-finite rows count as
                 pointing straight at the obstacle along the motion (worst case).
             data_age: age of the distances, s (added to T_r).
@@ -246,50 +304,26 @@ class SsmMonitor:
         """
         cfg = self.config
         N = self.lengths.shape[0]
-        dist = np.where(np.isnan(distances), 0.0, np.asarray(distances, dtype=float))
-        dirs = np.asarray(directions, dtype=float)
-        v_cur = np.asarray(jacobians @ qdot)  # (N, 3)
-        v_nom = np.asarray(jacobians @ qdot_nominal)
-        appr_cur = _approach(v_cur, dirs)
-        appr_nom = _approach(v_nom, dirs)
         T_r = reaction_time(cfg, max(float(data_age), 0.0))
         prm = np.array([T_r, cfg.constant_terms, cfg.v_h_near, cfg.v_h_far, cfg.near_limit, cfg.v_h_floor])
         v_h = -np.ones(N) if obstacle_speed is None else np.nan_to_num(np.asarray(obstacle_speed, float), nan=1e3)
-        lever0 = np.ascontiguousarray(np.linalg.norm(jacobians, axis=1))
-        qd, qdd, qn = (np.ascontiguousarray(x, dtype=float) for x in (qdot, qddot, qdot_nominal))
-        args = (lever0, self.lengths, appr_cur, appr_nom, qd, qdd, qn, self.a_max, self.j_max, v_h, prm)
-        s = _largest_scale(dist, *args)
-        stop_ended = False
-        if self.stopped:
-            sp0 = np.empty(N)
-            _s_p(0.0, *args, sp0)
-            if np.all(dist >= sp0 + cfg.hysteresis):
-                self.stopped, stop_ended = False, True
-            else:
-                s = -1.0
-        if s < 0.0:
-            self.stopped = True
+        c = np.ascontiguousarray
+        dist, sp = np.empty(N), np.empty(N)
+        s, stopped, stop_ended, T_s, binding = _update(
+            c(jacobians, dtype=float), c(qdot, dtype=float), c(qddot, dtype=float), c(qdot_nominal, dtype=float),
+            c(distances, dtype=float), c(directions, dtype=float), float(cfg.sensing_range), self.lengths,
+            self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp,
+        )  # fmt: skip
+        self.stopped = stopped
         scale = max(s, 0.0)
-        sp = np.empty(N)
-        T_s = _s_p(scale, *args, sp)
         margin = dist - sp
-        finite = np.isfinite(margin)
-        binding = int(np.argmin(np.where(finite, margin, np.inf))) if finite.any() else -1
         state = (
             MonitorState.PROTECTIVE_STOP
             if self.stopped
             else (MonitorState.MONITOR_OK if scale >= 1.0 else MonitorState.REDUCED)
         )
-        return SsmOutput(scale, state, binding, dist, sp, margin, float(T_s), T_r, stop_ended)
+        return SsmOutput(scale, state, int(binding), dist, sp, margin, float(T_s), T_r, bool(stop_ended))
 
     def reset(self) -> None:
         """Forget a latched protective stop."""
         self.stopped = False
-
-
-def _approach(v: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """(N,) speed of each point towards its obstacle, ``max(0, -u . v)``, m/s; ``|v|`` where u is not finite."""
-    speed = np.linalg.norm(v, axis=1)
-    good = np.all(np.isfinite(dirs), axis=1)
-    towards = -np.einsum("ki,ki->k", np.where(good[:, None], dirs, 0.0), v)
-    return np.ascontiguousarray(np.where(good, np.maximum(towards, 0.0), speed))

@@ -88,6 +88,9 @@ class Controller:
         kin: the controller's model and control points.
         q0: (n,) initial joint positions.
         rho, vmax, alpha: end-effector repulsion (eq. 7). rho_body, alpha_body: body constraints (eqs. 12-14).
+        ssm: speed and separation monitoring on top of the repulsion (``avoidance="both"``), with
+            ``ssm_config`` (a :class:`depthguard.control.ssm.SsmConfig`, None = its defaults);
+            ``avoidance_mode`` overrides the controller's mode ("repulsion", "ssm" or "both").
     """
 
     def __init__(
@@ -101,6 +104,9 @@ class Controller:
         alpha_body: float,
         dt: float = 1e-3,
         distance_timeout: float = 0.1,
+        ssm: bool = False,
+        ssm_config: object | None = None,
+        avoidance_mode: str | None = None,
     ) -> None:
         self.kin = kin
         self.n = kin.n
@@ -113,9 +119,12 @@ class Controller:
             rho_body=rho_body,
             alpha_body=alpha_body,
             distance_timeout=distance_timeout,
+            avoidance=avoidance_mode or ("both" if ssm else "repulsion"),
+            ssm=ssm_config,
         )
         self._c = AvoidanceController(kin.points, cfg)
         self.vmax, self.rho, self.alpha = vmax, rho, alpha
+        self.last_output = None  # the latest CycleOutput (its .ssm holds the monitor's output when SSM is on)
 
     def step(
         self,
@@ -139,6 +148,7 @@ class Controller:
             distances, directions = np.full(N, np.nan), np.zeros((N, 3))
         directions = np.where(np.isfinite(directions), directions, 0.0)
         out = self._c.step(CycleInput(t, q, qd, t, xdot, distances, directions, t_distances))
+        self.last_output = out
         return out.q_cmd, out.qdot_cmd, {"status": out.status.name, "scale": out.scale, "xdot_c": out.xdot_c}
 
 

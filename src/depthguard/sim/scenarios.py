@@ -251,12 +251,16 @@ def _run_one(
     camera_backend: str = "auto",
     backend: str = "depthspace",
     octree_res: float = 0.05,
+    ssm: bool = False,
+    setup=None,
 ):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
     from depthguard.sim.pipeline import Controller, DistanceStage
 
     cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras, demo=demo)
+    if setup is not None:  # e.g. reactive people (depthguard.sim.ssm_approach)
+        setup(cell)
     av = sc.get("avoidance", {})
     cams = [KinectSim(cell.model, c, i, seed=seed + i, backend=camera_backend) for i, c in enumerate(cell.cameras)]
     stage = DistanceStage(
@@ -274,7 +278,16 @@ def _run_one(
         alpha=float(av.get("alpha", 6.0)),
         rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
         alpha_body=float(av.get("alpha", 6.0)),
+        ssm=ssm and avoidance,
+        ssm_config=_ssm_config(av) if ssm and avoidance else None,
+        avoidance_mode=av.get("mode") if ssm and avoidance else None,
     )
+    if ssm and avoidance:  # background model of the empty cell; the monitor's record (metrics only)
+        from depthguard.sim.background import BackgroundFilter
+        from depthguard.sim.ssm_metrics import SsmRecorder
+
+        stage = BackgroundFilter(stage, cell, cams)
+        ctrl = SsmRecorder(ctrl, cell)
     task = _task(sc, ee0)
     duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
     if demo:
@@ -293,6 +306,7 @@ def _run_one(
         distance_period=float(sc.get("distance_period", 0.003)),
     )
     log = run_loop(cell, cams, kin, stage, ctrl, task, cfg)
+    log.ssm = ctrl if ssm and avoidance else None
     for c in cams:
         c.close()
     return cell, log, task, cfg
@@ -324,6 +338,7 @@ def run_scenario(
     demo: bool = False,
     backend: str = "depthspace",
     octree_res: float = 0.05,
+    ssm: bool = False,
 ) -> dict[str, Any]:
     """Run a scenario; return its metrics (the object ``depthguard scenario NAME --json`` prints).
 
@@ -340,6 +355,8 @@ def run_scenario(
         demo: use the file's ``demo_duration`` and ``demo_resolution`` (``make demo``).
         backend: ``"depthspace"`` (depth space / depth grid) or ``"octree"`` (SAPHARI §3 octree, conservative
             mode, nodes of ``octree_res`` m over the scenario's workspace, C(t) from the arm's reachability).
+        ssm: speed and separation monitoring (ISO/TS 15066) on top of the repulsion; adds the keys of
+            :func:`depthguard.sim.ssm_metrics.ssm_metrics` and ``ssm.png``. Off when ``avoidance`` is False.
     Returns:
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
@@ -361,6 +378,7 @@ def run_scenario(
         demo=demo,
         backend=backend,
         octree_res=octree_res,
+        ssm=ssm,
     )
     result: dict[str, Any] = {
         "scenario": sc["name"],
@@ -374,6 +392,7 @@ def run_scenario(
         "people_max_hand_speed": {p.name: round(p.max_hand_speed(), 3) for p in cell.spec.people},
     }
     result.update(compute_metrics(log, task, cfg))
+    result.update(_ssm_keys(log, cfg, ssm and avoidance))
     runs = {"main": (log, task)}
     if variants and avoidance:
         result["variants"] = {}
@@ -394,8 +413,9 @@ def run_scenario(
                 label=f"{sc['name']} [{v['name']}]",
                 backend=backend,
                 octree_res=octree_res,
+                ssm=ssm,
             )
-            result["variants"][v["name"]] = compute_metrics(vlog, vtask, vcfg)
+            result["variants"][v["name"]] = {**compute_metrics(vlog, vtask, vcfg), **_ssm_keys(vlog, vcfg, ssm)}
             runs[v["name"]] = (vlog, vtask)
     result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)
     if out_dir is not None:
@@ -415,6 +435,26 @@ def run_scenario(
             files["recording"] = str(record_run(out / "recording.mcap", cell, log))
         except ImportError as exc:
             result["recording_error"] = f"recording skipped: {exc} (pip install depthguard[sim])"
+        if getattr(log, "ssm", None) is not None:
+            from depthguard.sim.ssm_metrics import plot_ssm
+
+            files["ssm"] = plot_ssm(out, log.ssm, log.point_names, result.get("binding_point"), sc["name"])
         result["files"] = files
         (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
     return result
+
+
+def _ssm_config(av: dict):
+    """The monitor's configuration in the simulated cell: the defaults, with the distance query's range."""
+    from depthguard.control.ssm import SsmConfig
+
+    return SsmConfig(sensing_range=float(av.get("rho", 0.4)))
+
+
+def _ssm_keys(log, cfg, on: bool) -> dict[str, Any]:
+    """The SSM keys of a run (:func:`depthguard.sim.ssm_metrics.ssm_metrics`); ``{"ssm": False}`` when off."""
+    if not on or getattr(log, "ssm", None) is None:
+        return {"ssm": False}
+    from depthguard.sim.ssm_metrics import ssm_metrics
+
+    return ssm_metrics(log.ssm, cfg.control_dt, log.point_names)
