@@ -50,7 +50,7 @@ class BackgroundFilter:
     def __getattr__(self, name: str):
         return getattr(self.stage, name)
 
-    def update(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> None:
+    def update(self, depths: list[np.ndarray], masks: list[np.ndarray], *args, **kwargs) -> None:
         """Frame stage: background pixels (not robot pixels) read as the far range, then the wrapped stage."""
         out = []
         for d, m, far, beyond in zip(depths, masks, self.far, self.beyond, strict=True):
@@ -58,4 +58,4 @@ class BackgroundFilter:
             with np.errstate(invalid="ignore"):
                 bg = (d >= far) & ~np.asarray(m, bool)  # NaN (no reading) is never background
             out.append(np.where(bg, np.asarray(beyond, d.dtype), d))
-        self.stage.update(out, masks)
+        self.stage.update(out, masks, *args, **kwargs)

@@ -81,8 +81,9 @@ class OctreeStage:
         box = VoxelBox(g.box.origin + self.reach_offset, g.box.res, g.box.shape)
         return g._replace(box=box)
 
-    def update(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> None:
-        """Frame stage: one depth image and robot mask per camera; the scans are taken here."""
+    def update(self, depths: list[np.ndarray], masks: list[np.ndarray], *_: object) -> None:
+        """Frame stage: one depth image and robot mask per camera; the scans are taken here (the depth
+        stage's extra arguments, joints, model and margins, are not needed: the octree has its own)."""
         q = self.cell.q()
         t0 = time.perf_counter()
         self.reach = self._reachability(q)
@@ -119,3 +120,13 @@ class OctreeStage:
     def stage_ms(self) -> dict[str, float]:
         """Median milliseconds per stage."""
         return {k: round(1e3 * float(np.median(v)), 3) for k, v in self.times.items() if v}
+
+    def tolerance(self, centres: np.ndarray, noise_coeff: float = 0.0) -> np.ndarray:
+        """Declared over-report tolerance (N,) m: 0.01 m (the node-box lower bound, issue contract) plus three
+        standard deviations of the depth noise ``noise_coeff z²`` at ``z + ρ`` in each camera."""
+        c = np.atleast_2d(np.asarray(centres, float))
+        noise = np.zeros(len(c))
+        for cam in self.cameras:
+            z = np.maximum(cam.world_to_camera(c)[:, 2], 0.0) + self.rho
+            noise = np.maximum(noise, 3.0 * noise_coeff * z * z)
+        return 0.01 + noise
