@@ -12,7 +12,7 @@ from depthguard.sim.mjcf_robot import build_model, rpy_quat, urdf_to_mjcf_body  
 def test_rpy_quat_matches_rotation_matrix():
     import mujoco
 
-    from depthguard.robot.model import _rpy_to_matrix
+    from depthguard.robot.shapes import rpy_to_matrix as _rpy_to_matrix
 
     rng = np.random.default_rng(0)
     for _ in range(20):

@@ -90,12 +90,18 @@ def test_run_folder_has_metrics_plots_and_recording(tmp_path):
     with open(tmp_path / "recording.mcap", "rb") as fh:
         reader = make_reader(fh)
         topics = {c.topic for c in reader.get_summary().channels.values()}
-        assert {"/camera0/depth", "/joint_states", "/control_points", "/repulsion", "/clearance"} <= topics
-        for schema, _channel, message in reader.iter_messages(topics=["/camera0/depth"]):
-            img = json.loads(message.data)
-            assert img["encoding"] == "16UC1" and img["width"] == 160 and img["height"] == 120
-            assert schema.encoding == "jsonschema"
-            break
+        want = {"/camera0/depth/image_raw", "/joint_states", "/depthguard/distances", "/depthguard/repulsion",
+                "/depthguard/true_clearance", "/depthguard/markers"}  # fmt: skip
+        assert want <= topics
+        assert reader.get_header().profile == "ros2"
+    from depthguard.io import ros2
+    from depthguard.io.mcap_ros2 import read_messages
+
+    for _, typename, _, msg in read_messages(tmp_path / "recording.mcap", topics=["/camera0/depth/image_raw"]):
+        assert typename == "sensor_msgs/msg/Image"
+        assert msg.encoding == "16UC1" and msg.width == 160 and msg.height == 120
+        assert ros2.image_to_depth(msg).shape == (120, 160)
+        break
 
 
 def test_three_rates_in_simulated_time():
