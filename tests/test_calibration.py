@@ -151,7 +151,7 @@ def test_cli_calibrate_writes_a_file_the_cell_file_uses(tmp_path, capsys):
 
     src = (Path(__file__).resolve().parents[1] / "examples" / "cells" / "sim-hexagon.toml").read_text()
     off = src.replace("eye = [1.75, -0.95, 1.5]", "eye = [1.77, -0.97, 1.52]").replace(
-        "target = [0.0, 0.0, 0.35]", "target = [0.05, 0.0, 0.40]", 1
+        "target = [0.0, 0.0, 0.45]", "target = [0.05, 0.0, 0.50]", 1
     )
     cell = tmp_path / "cell.toml"
     cell.write_text(off)

@@ -41,7 +41,7 @@ def test_examples_parse_and_sim_hexagon_matches_the_scenario_cameras():
     for cam, eye in zip(cell.cameras, ([1.75, -0.95, 1.5], [-0.75, 1.85, 1.5]), strict=True):
         c = cam.build()
         np.testing.assert_allclose(c.position, eye, atol=1e-12)
-        px = c.project(np.array([[0.0, 0.0, 0.35]]))[0]
+        px = c.project(np.array([[0.0, 0.0, 0.45]]))[0]
         np.testing.assert_allclose(px[:2], [c.cx, c.cy], atol=1e-9)
 
 

@@ -128,7 +128,7 @@ TOP_LEVEL: dict[str, Any] = {
     "name": (_str, True),
     "description": (lambda x: None if isinstance(x, str) else "a string", False),
     "paper": (lambda x: None if isinstance(x, str) else "a string", False),
-    "cameras": (_choice("icra", "ral"), True),
+    "cameras": (_choice("icra", "ral", "platform"), True),
     "camera_count": (_int_range(1, 8), False),
     "resolution": (_size, False),
     "quick_resolution": (_size, False),
@@ -138,6 +138,11 @@ TOP_LEVEL: dict[str, Any] = {
     "demo_duration": (_pos, False),
     "q0": (lambda x: None if isinstance(x, list) and x and all(_is_num(v) for v in x) else "a list of numbers", False),
     "robot": (_str, False),
+    "frame_period": (_pos, False),
+    "quick_frame_period": (_pos, False),
+    "octree_res": (_pos, False),
+    "reach_res": (_pos, False),
+    "horizon": (_pos, False),
     "auto_spheres": (_int_range(1, 16), False),
     "ee_start": (_vec(3), False),
     "control_points": (_str, False),
@@ -194,7 +199,7 @@ def _check_cross(data: dict[str, Any], source: str) -> None:
     task = data["task"]
     if task.get("kind", "points") != "hold" and "waypoints" not in task:
         raise _fail(source, "field 'task.waypoints'", 'is missing (needed unless task.kind = "hold")')
-    n_placed = {"icra": 1, "ral": 2}[data["cameras"]]
+    n_placed = {"icra": 1, "ral": 2, "platform": 2}[data["cameras"]]
     if data.get("camera_count", 1) > n_placed:
         raise _fail(source, "field 'camera_count'", f"must be 1..{n_placed} for cameras = {data['cameras']!r}")
     movable = {b["name"] for b in data.get("boxes", []) if b.get("movable", False)}
