@@ -31,14 +31,22 @@ def _filled(depth, missing, robot, has_mask, v, u, r):
 
 
 @nb.njit(cache=True)
-def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
-    """One pass over the principal image: start depth and kind of every pixel (module docstring)."""
+def missing_pixels(depth):
+    """(H, W) bool: the pixels without a reading (0, negative, NaN or inf)."""
     H, W = depth.shape
     missing = np.empty((H, W), dtype=np.bool_)
     for v in range(H):
         for u in range(W):
             d = depth[v, u]
             missing[v, u] = not (d > 0.0 and d < np.inf)
+    return missing
+
+
+@nb.njit(cache=True)
+def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
+    """One pass over the principal image: start depth and kind of every pixel (module docstring)."""
+    H, W = depth.shape
+    missing = missing_pixels(depth)
     for v in range(H):
         for u in range(W):
             d = depth[v, u]
@@ -80,11 +88,7 @@ def prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, marg
     principal camera only (where a filled pixel is an obstacle, never free space).
     """
     H, W = depth.shape
-    missing = np.empty((H, W), dtype=np.bool_)
-    for v in range(H):
-        for u in range(W):
-            d = depth[v, u]
-            missing[v, u] = not (d > 0.0 and d < np.inf)
+    missing = missing_pixels(depth)
     for v in range(H):
         for u in range(W):
             d = depth[v, u]
