@@ -23,15 +23,8 @@ from depthguard.bench.timing import machine_info, reference_speed, time_calls, w
 
 
 def _machine() -> dict:
-    """machine_info plus the 1-minute load average: p99s on a busy shared machine measure preemption."""
-    import os
-
-    info = dict(machine_info())
-    try:
-        info["load_average_1min"] = os.getloadavg()[0]
-    except OSError:  # pragma: no cover
-        pass
-    return info
+    """machine_info (it includes the 1-minute load average: p99s on a busy machine measure preemption)."""
+    return dict(machine_info())
 
 
 __all__ = ["run_control_benchmark", "run_selffilter_benchmark"]

@@ -28,14 +28,7 @@ __all__ = ["run_proximity_benchmark"]
 
 
 def _machine() -> dict:
-    import os
-
-    info = dict(machine_info())
-    try:
-        info["load_average_1min"] = os.getloadavg()[0]
-    except OSError:  # pragma: no cover
-        pass
-    return info
+    return dict(machine_info())  # includes the load average
 
 
 def _interleaved(fns: dict, repeat: int, rounds: int = 20) -> dict:

@@ -52,7 +52,7 @@ def machine_info() -> dict[str, object]:
     """Facts about the machine that ran a benchmark."""
     import numba
 
-    return {
+    info: dict[str, object] = {
         "python": platform.python_version(),
         "platform": platform.platform(),
         "processor": platform.processor() or platform.machine(),
@@ -61,6 +61,11 @@ def machine_info() -> dict[str, object]:
         "numpy": np.__version__,
         "numba": numba.__version__,
     }
+    try:  # how loaded the machine was: figures from a shared machine are inflated
+        info["load_average_1min"] = os.getloadavg()[0]
+    except OSError:  # pragma: no cover - not on every platform
+        pass
+    return info
 
 
 # ------------------------------------------------------------------------------------ machine-speed reference
