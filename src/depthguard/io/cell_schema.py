@@ -1,0 +1,180 @@
+"""The cell file's schema: known keys, their types, defaults and choices, and the checks that name the key
+(used by :mod:`depthguard.io.cellfile`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["CellError"]
+
+_SHAPES = ("box", "cylinder", "sphere", "mesh")
+
+
+class CellError(ValueError):
+    """A cell file problem; the message names the file and the key."""
+
+
+# ------------------------------------------------------------------------------------------- the schema
+# key -> (type(s), default); a default of ... means required.
+_NUM = (int, float)
+_SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
+    "cell": {"name": (str, "cell"), "description": (str, "")},
+    "robot": {
+        "model": (str, None),
+        "urdf": (str, None),
+        "ee_frame": (str, None),
+        "joint_names": (list, None),
+        "control_points": (str, "ral-9"),
+        "ee_radius": (_NUM, 0.06),
+        "spheres": (list, []),
+        "attachments": (list, []),
+    },
+    "sphere": {"link": (str, ...), "position": (list, ...), "radius": (_NUM, ...)},
+    "attachment": {
+        "name": (str, ...),
+        "link": (str, ...),
+        "shape": (str, ...),
+        "size": (list, []),
+        "mesh": (str, None),
+        "xyz": (list, [0.0, 0.0, 0.0]),
+        "rpy": (list, [0.0, 0.0, 0.0]),
+    },
+    "camera": {
+        "name": (str, ...),
+        "topic": (str, ""),
+        "info_topic": (str, ""),
+        "frame_id": (str, ""),
+        "intrinsics": (str, "file"),
+        "width": (int, None),
+        "height": (int, None),
+        "fx": (_NUM, None),
+        "fy": (_NUM, None),
+        "cx": (_NUM, None),
+        "cy": (_NUM, None),
+        "min_depth": (_NUM, 0.3),
+        "max_depth": (_NUM, 8.0),
+        "depth_scale": (_NUM, 0.001),
+        "rate": (_NUM, 30.0),
+        "extrinsics": (str, "file"),
+        "R": (list, None),
+        "t": (list, None),
+        "matrix": (list, None),
+        "eye": (list, None),
+        "target": (list, None),
+        "up": (list, [0.0, 0.0, 1.0]),
+        "parent": (str, "world"),
+    },
+    "distance": {
+        "backend": (str, "depthspace"),
+        "rho": (_NUM, 0.4),
+        "mode": (str, "hybrid"),
+        "invalid": (str, "conservative"),
+        "fill_radius": (int, 4),
+        "grid_dd": (_NUM, 0.01),
+        "workspace": (list, [-1.2, 1.2, -1.2, 1.2, -0.3, 1.5]),
+        "octree_res": (_NUM, 0.05),
+        "period": (_NUM, 0.003),
+    },
+    "controller": {
+        "rate": (_NUM, 1000.0),
+        "distance_timeout": (_NUM, 0.1),
+        "joint_timeout": (_NUM, 0.005),
+        "resume_time": (_NUM, 0.1),
+        "velocity_scale": (_NUM, 1.0),
+        "a_max": (_NUM, 10.0),
+        "j_max": (_NUM, 500.0),
+        "rho_ee": (_NUM, 0.4),
+        "rho_body": (_NUM, 0.4),
+        "alpha": (_NUM, 6.0),
+        "v_rep_max": (_NUM, 2.0),
+        "ssm": (bool, False),
+    },
+    "topics": {
+        "joint_states": (str, "/joint_states"),
+        "tf": (str, "/tf"),
+        "tf_static": (str, "/tf_static"),
+        "command": (str, "/depthguard/joint_trajectory"),
+        "command_array": (str, "/depthguard/joint_velocity_command"),
+        "distances": (str, "/depthguard/distances"),
+        "status": (str, "/depthguard/status"),
+        "markers": (str, "/depthguard/markers"),
+    },
+    "network": {
+        "domain": (int, 0),
+        "host": (str, "127.0.0.1"),
+        "base_port": (int, 7460),
+        "connect": (list, ["tcp/127.0.0.1:7447"]),
+        "publishers": (list, ["distance", "controller"]),
+        "tls_root_ca": (str, ""),
+        "tls_certificate": (str, ""),
+        "tls_private_key": (str, ""),
+    },
+}
+_TOP = {"cell", "robot", "cameras", "distance", "controller", "topics", "calibration", "network"}
+_CHOICES = {
+    ("distance", "backend"): ("depthspace", "octree"),
+    ("distance", "mode"): ("min", "all", "hybrid"),
+    ("distance", "invalid"): ("conservative", "ignore"),
+    ("camera", "intrinsics"): ("file", "camera_info", "device"),
+    ("camera", "extrinsics"): ("file", "tf"),
+    ("attachment", "shape"): _SHAPES,
+}
+_POSITIVE = {"rho", "grid_dd", "octree_res", "period", "rate", "distance_timeout", "joint_timeout", "a_max", "j_max"}
+
+
+def _section(src: Path, where: str, kind: str, table: Any) -> dict[str, Any]:
+    """Validate one table against ``_SCHEMA[kind]``: unknown keys, types, choices, required keys."""
+    if not isinstance(table, dict):
+        raise CellError(f"{src}: [{where}] must be a table, got {type(table).__name__}")
+    schema = _SCHEMA[kind]
+    unknown = sorted(set(table) - set(schema))
+    if unknown:
+        raise CellError(f"{src}: unknown key(s) {unknown} in [{where}]; known keys: {sorted(schema)}")
+    out: dict[str, Any] = {}
+    for key, (typ, default) in schema.items():
+        if key not in table:
+            if default is ...:
+                raise CellError(f"{src}: [{where}] needs the key '{key}'")
+            out[key] = default
+            continue
+        val = table[key]
+        if isinstance(val, bool) and typ is not bool:
+            raise CellError(f"{src}: {where}.{key} must be {_type_name(typ)}, got {val!r}")
+        if not isinstance(val, typ):
+            raise CellError(f"{src}: {where}.{key} must be {_type_name(typ)}, got {val!r}")
+        if typ is _NUM and not np.isfinite(val):
+            raise CellError(f"{src}: {where}.{key} must be finite, got {val!r}")
+        if key in _POSITIVE and val <= 0:
+            raise CellError(f"{src}: {where}.{key} must be > 0, got {val!r}")
+        choices = _CHOICES.get((kind, key))
+        if choices and val not in choices:
+            raise CellError(f"{src}: {where}.{key} must be one of {list(choices)}, got {val!r}")
+        out[key] = val
+    return out
+
+
+def _type_name(typ: Any) -> str:
+    if typ is _NUM:
+        return "a number"
+    return {str: "a string", int: "an integer", list: "an array", bool: "true or false"}.get(typ, str(typ))
+
+
+def _vector(src: Path, where: str, value: Any, n: int) -> tuple[float, ...]:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise CellError(f"{src}: {where} must be {n} numbers, got {value!r}") from None
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise CellError(f"{src}: {where} must be {n} finite numbers, got {value!r}")
+    return tuple(float(x) for x in arr)
+
+
+def _is_matrix(value: Any, rows: int, cols: int) -> bool:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return arr.shape == (rows, cols) and bool(np.all(np.isfinite(arr)))
