@@ -157,7 +157,32 @@ def _clears(cam0: Camera, cam: Camera, votes, u, v, d1, d2, eps: float, quantise
         far = np.ceil(far / DEND_QUANTUM) * DEND_QUANTUM + 1e-9
     lo = _rect_min(votes, iv0, iv1, iu0, iu1, involved)
     clear = involved & (lo > far)
+    # a pixel of the bounding box that the projected cell does not touch has no say (exact projection)
+    for i in np.nonzero(involved & ~clear)[0]:
+        uu, vv = np.meshgrid(np.arange(iu0[i], iu1[i] + 1), np.arange(iv0[i], iv1[i] + 1))
+        uu, vv = uu.ravel(), vv.ravel()
+        bad = votes[vv, uu] <= far[i]
+        clear[i] = not np.any(_squares_touch_hull(pu[:, i], pv[:, i], uu[bad], vv[bad], eps))
     return clear, involved
+
+
+def _squares_touch_hull(px, py, su, sv, eps: float) -> np.ndarray:
+    """(M,) bool: pixel squares [su, su+1] x [sv, sv+1] (grown by ``eps``) that meet the convex hull of the
+    points (px, py), by the separating-axis theorem over the image axes and the normals of every pair of
+    points (the hull's edges are among them)."""
+    P = np.stack([px, py], axis=1)  # (8, 2)
+    d = P[None, :, :] - P[:, None, :]
+    n = np.stack([-d[..., 1], d[..., 0]], axis=-1).reshape(-1, 2)
+    n = np.concatenate([n[np.linalg.norm(n, axis=1) > 1e-12], [[1.0, 0.0], [0.0, 1.0]]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    hp = P @ n.T  # (8, A)
+    sq = np.stack(
+        [np.stack([su - eps, sv - eps], 1), np.stack([su + 1 + eps, sv - eps], 1),
+         np.stack([su + 1 + eps, sv + 1 + eps], 1), np.stack([su - eps, sv + 1 + eps], 1)], axis=1
+    )  # (M, 4, 2)  # fmt: skip
+    sp = sq @ n.T  # (M, 4, A)
+    sep = (hp.max(0)[None] < sp.min(1)) | (sp.max(1) < hp.min(0)[None])
+    return ~np.any(sep, axis=1)
 
 
 def grid_exact(cams, votes, start, kind, d_min, dd, n_cells, Pc, reach, strict: bool):

@@ -129,3 +129,58 @@ def test_self_filter_against_the_exact_robot_silhouette():
         assert np.all(robot_depth[on] <= depth[on] + 0.02)
         only_robot = raycast_depth(cell.model, cell.data, cam, geomgroup=np.eye(6, dtype=np.uint8)[GROUP_ROBOT])
         assert np.isfinite(only_robot).sum() >= robot.sum()
+
+
+def test_projector_shadow_matches_rays_cast_from_the_projector():
+    """The simulated Kinect's missing band is the projector's shadow: checked against MuJoCo rays cast from
+    the projector (7.5 cm to the camera's right) to every pixel's surface point. Away from the band's
+    boundary pixels (sampling), a pixel is dropped exactly when that ray is blocked; and the band lies to the
+    left of the nearer object (none along horizontal edges)."""
+    import mujoco
+
+    from depthguard.sim.depthcam import KINECT_BASELINE, projector_shadow
+
+    cell = _cell(160, 120)
+    cam = cell.cameras[0]
+    z = raycast_depth(cell.model, cell.data, cam)
+    shadow = projector_shadow(np.where(np.isfinite(z), z, np.inf), float(cam.fx), KINECT_BASELINE)
+    proj = cam.position + cam.R.T @ np.array([KINECT_BASELINE, 0.0, 0.0])
+    rays = cam.pixel_ray_directions()  # (H, W, 3), camera frame, z = 1
+    blocked = np.zeros_like(shadow)
+    gid = np.zeros(1, np.int32)
+    for v in range(cam.height):
+        for u in range(cam.width):
+            if not np.isfinite(z[v, u]):
+                continue
+            p = cam.position + cam.R.T @ (rays[v, u] * z[v, u])
+            d = p - proj
+            n = float(np.linalg.norm(d))
+            hit = mujoco.mj_ray(cell.model, cell.data, proj, d / n, None, 1, -1, gid)
+            blocked[v, u] = 0 <= hit < n - 2e-3
+    # compare away from the shadow's boundary (one pixel either side of a change along the row)
+    edge = np.zeros_like(shadow)
+    edge[:, 1:] |= shadow[:, 1:] != shadow[:, :-1]
+    edge[:, :-1] |= shadow[:, 1:] != shadow[:, :-1]
+    edge[:, 1:] |= blocked[:, 1:] != blocked[:, :-1]
+    edge[:, :-1] |= blocked[:, 1:] != blocked[:, :-1]
+    inner = ~edge & np.isfinite(z)
+    assert blocked.sum() > 50 and shadow.sum() > 50  # the person and the arm cast shadows
+    assert np.mean(shadow[inner] == blocked[inner]) > 0.995
+    # one-sided: a shadow pixel's nearest valid right neighbour is nearer, its left one is not
+    vv, uu = np.nonzero(shadow)
+    for v, u in zip(vv, uu, strict=True):
+        right = z[v, u + 1 :][~shadow[v, u + 1 :] & np.isfinite(z[v, u + 1 :])]
+        assert right.size and right[0] < z[v, u]
+
+
+def test_projector_shadow_band_width():
+    """A 1 m plane in front of a 3 m wall at fx = 575 px: f b (1/1 - 1/3) = 28.75 px to its left, none to its
+    right, above or below."""
+    from depthguard.sim.depthcam import projector_shadow
+
+    z = np.full((40, 640), 3.0)
+    z[10:30, 300:400] = 1.0
+    s = projector_shadow(z, 575.0, 0.075)
+    assert not s[:10].any() and not s[30:].any() and not s[:, 300:].any()
+    cols = np.nonzero(s[20])[0]
+    assert cols.max() == 299 and 28 <= cols.size <= 29

@@ -471,7 +471,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("name")
     p.add_argument("--quick", action="store_true", help="short, low-resolution form (for CI)")
     p.add_argument("--no-avoidance", action="store_true", help="run without collision avoidance")
-    p.add_argument("--cameras", type=int, choices=[1, 2], default=None, help="number of cameras")
+    p.add_argument(
+        "--cameras",
+        type=int,
+        choices=[1, 2, 3],
+        default=None,
+        help='number of cameras (3: the "ral" scenarios with a third camera behind the arm, docs/phantom-zero.md)',
+    )
     p.add_argument(
         "--backend", choices=["depthspace", "octree"], default=None, help="distance backend (default depthspace)"
     )

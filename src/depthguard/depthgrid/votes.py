@@ -2,7 +2,10 @@
 
 Camera k clears (calls free) a cell only when the cell lies entirely in front of camera k and inside its
 image and *every* pixel of its footprint (:mod:`depthguard.depthgrid.footprint`) sees past the cell's far
-depth: ``vote > d_end``. A missing pixel votes 0 and clears nothing; a cell that is not involved for camera
+depth: ``vote > d_end``. For a single cell, a footprint pixel that does not see past is then checked
+against the cell's exact projection (:func:`pixel_touches_cell`): a pixel of the bounding box that the
+projected cell does not touch has no say about the cell (the same pixel-area sampling as the bounding box,
+so the same tolerance). A missing pixel votes 0 and clears nothing; a cell that is not involved for camera
 k gets no vote from it. A *block* (several cells of one pixel, or of a whole tile) is cleared when one
 camera clears the frustum piece that contains them all: its footprint contains each cell's and its far
 depth is at least theirs, so every cell in it is cleared by the per-cell rule. A block that is not
@@ -14,6 +17,8 @@ Records: ``mp`` :class:`~depthguard.depthgrid.records.MapArrays`, ``vt``
 
 from __future__ import annotations
 
+import math
+
 import numba as nb
 
 from depthguard.depthgrid.footprint import DEND_SCALE, cell_footprint, rect_footprint, unpack
@@ -24,6 +29,7 @@ __all__ = [
     "footprint_sees_past",
     "centre_sees_past",
     "cell_occupied",
+    "pixel_touches_cell",
     "block_cleared",
     "tile_block_cleared",
 ]
@@ -55,6 +61,76 @@ def footprint_sees_past(k, u0, v0, du, dv, q, votes):
         for pu in range(u0, u0 + du + 1):
             if not pixel_sees_past(k, pv, pu, dend, votes):
                 return False
+    return True
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _corner(k, cu, cv, d, corner_rays, cams):
+    """Image point (x, y) in camera k of the principal corner ray (cu, cv) at depth d."""
+    Z = d * corner_rays[k, cv, cu, 2] + cams[k, 2]
+    return (
+        cams[k, 3] * (d * corner_rays[k, cv, cu, 0] + cams[k, 0]) / Z + cams[k, 5],
+        cams[k, 4] * (d * corner_rays[k, cv, cu, 1] + cams[k, 1]) / Z + cams[k, 6],
+    )
+
+
+@nb.njit(cache=True, _nrt=False)
+def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
+    """False only when pixel square ``[pu, pu+1) x [pv, pv+1)`` of camera k is strictly separated from the
+    projection of principal cell ``(u, v, [d1, d2])`` (the convex hull of its 8 projected corners).
+
+    Separating-axis test: the square and the hull are disjoint exactly when a line through two projected
+    corners has all 8 corners on one side and the square's 4 corners strictly (1e-6 px) on the other (the
+    image axes do not separate them: the pixel lies in the hull's bounding box). Only ever *removes* a
+    pixel that sees nothing of the cell, so it never clears more than the exact projection allows.
+    """
+    x0, y0 = _corner(k, u, v, d1, corner_rays, cams)
+    x1, y1 = _corner(k, u, v, d2, corner_rays, cams)
+    x2, y2 = _corner(k, u + 1, v, d1, corner_rays, cams)
+    x3, y3 = _corner(k, u + 1, v, d2, corner_rays, cams)
+    x4, y4 = _corner(k, u, v + 1, d1, corner_rays, cams)
+    x5, y5 = _corner(k, u, v + 1, d2, corner_rays, cams)
+    x6, y6 = _corner(k, u + 1, v + 1, d1, corner_rays, cams)
+    x7, y7 = _corner(k, u + 1, v + 1, d2, corner_rays, cams)
+    px = (x0, x1, x2, x3, x4, x5, x6, x7)
+    py = (y0, y1, y2, y3, y4, y5, y6, y7)
+    fu = float(pu)
+    fv = float(pv)
+    sx = (fu, fu + 1.0, fu + 1.0, fu)
+    sy = (fv, fv, fv + 1.0, fv + 1.0)
+    for i in range(8):
+        for j in range(8):
+            ex = px[j] - px[i]
+            ey = py[j] - py[i]
+            if ex * ex + ey * ey < 1e-18:
+                continue
+            ok = True  # every projected corner on the left of i -> j (or on the line)
+            for m in range(8):
+                if ex * (py[m] - py[i]) - ey * (px[m] - px[i]) < 0.0:
+                    ok = False
+                    break
+            if not ok:
+                continue
+            sep = True  # every square corner strictly on the right
+            for c in range(4):
+                if ex * (sy[c] - py[i]) - ey * (sx[c] - px[i]) > -1e-6 * math.sqrt(ex * ex + ey * ey):
+                    sep = False
+                    break
+            if sep:
+                return False
+    return True
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _cell_seen_past(k, u, v, d1, d2, u0, v0, du, dv, q, mp, votes):
+    """:func:`footprint_sees_past` for one cell, with each failing pixel checked against the cell's exact
+    projection (:func:`pixel_touches_cell`)."""
+    dend = q * DEND_SCALE
+    for pv in range(v0, v0 + dv + 1):
+        for pu in range(u0, u0 + du + 1):
+            if not pixel_sees_past(k, pv, pu, dend, votes):
+                if pixel_touches_cell(k, u, v, d1, d2, pu, pv, mp.corner_rays, mp.cams):
+                    return False
     return True
 
 
@@ -114,7 +190,9 @@ def cell_occupied(u, v, g, grid, mp, votes, need_vote):
             continue  # cannot clear; its involvement does not matter
         if u0 >= 0:
             involved = True
-            if centre_sees_past(k, u, v, d1, d2, mp, votes) and footprint_sees_past(k, u0, v0, du, dv, q, votes):
+            if centre_sees_past(k, u, v, d1, d2, mp, votes) and _cell_seen_past(
+                k, u, v, d1, d2, u0, v0, du, dv, q, mp, votes
+            ):
                 return False
     return involved or not need_vote
 

@@ -14,8 +14,13 @@ Two ways to get the exact depth:
 
 Sensor model (Kinect v1, after Khoshelham & Elberink 2012): axial noise with standard deviation
 ``noise_coeff * z**2`` (1.4 mm at 1 m), quantisation to ``quantization`` (1 mm), readings only within
-``[min_depth, max_depth]`` (0.5-4.5 m), and no reading on the far side of depth edges (the projector's
-shadow band, ``edge_band`` pixels wide where the depth jumps by more than ``edge_jump`` m).
+``[min_depth, max_depth]`` (0.5-4.5 m), and no reading where the pattern projector cannot light the surface
+(``shadow="projector"``, the default): the projector sits ``baseline`` (7.5 cm) to the camera's right (+x),
+so a nearer object casts, on the surface behind it, a band without reading on its *left* side, as wide as
+the disparity difference ``f b (1/z_near - 1/z_far)`` pixels, and horizontal edges cast none (the
+structured-light geometry: the pattern's epipolar lines are the image rows). ``shadow="band"`` is the
+older, cruder model: ``edge_band`` pixels on the far side of every edge, in all four directions, where
+the depth jumps by more than ``edge_jump`` m.
 The noise generator is seeded (``seed``), so runs are repeatable.
 """
 
@@ -24,11 +29,43 @@ from __future__ import annotations
 import math
 import os
 
+import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera, look_at
 
-__all__ = ["kinect_camera", "KinectSim", "egl_available", "raycast_depth"]
+__all__ = ["kinect_camera", "KinectSim", "egl_available", "raycast_depth", "projector_shadow"]
+
+KINECT_BASELINE = 0.075  # m, IR projector to IR camera (Kinect v1)
+
+
+@nb.njit(cache=True)
+def projector_shadow(z, fx, baseline):
+    """(H, W) bool: the pixels whose surface the projector cannot light (structured-light shadow).
+
+    The projector sits at ``(baseline, 0, 0)`` in the camera frame; the point seen at pixel column u
+    with depth z lies in projector column ``u_p = u - fx baseline / z``. Along a row (an epipolar line)
+    the projector lights a point only if no point to its right (nearer the projector) has a projector
+    column at or left of its own: scanning from the right, a pixel whose ``u_p`` is not below the
+    running minimum lies in the shadow of a nearer surface. ``z``: (H, W) exact depth, NaN or inf
+    where nothing is hit (casts no shadow). Example: a 1 m object in front of a 3 m wall at
+    fx = 575 px casts a band of 575 * 0.075 * (1 - 1/3) = 28.75 px on the wall to its left.
+    """
+    H, W = z.shape
+    out = np.zeros((H, W), dtype=np.bool_)
+    fb = fx * baseline
+    for v in range(H):
+        run = np.inf
+        for u in range(W - 1, -1, -1):
+            d = z[v, u]
+            if not (d > 0.0 and d < np.inf):
+                continue
+            up = u - fb / d
+            if up >= run - 1e-9:
+                out[v, u] = True
+            else:
+                run = up
+    return out
 
 
 def kinect_camera(
@@ -123,7 +160,9 @@ class KinectSim:
             and the image is at least 320x240; ray casting otherwise).
         noise_coeff: axial noise standard deviation per z^2, m^-1 (1.4e-3: 1.4 mm at 1 m).
         quantization: depth step in m (1e-3).
-        edge_jump, edge_band: depth jump (m) that makes a depth edge, band width (pixels) without reading.
+        shadow: "projector" (default: the projector's shadow, ``baseline`` m to the camera's right, see
+            :func:`projector_shadow`), "band" (``edge_band`` pixels without reading on the far side of
+            every depth jump larger than ``edge_jump`` m) or "none".
         seed: seed of the noise generator.
         geomgroup: the geom groups the camera sees (default: all).
     """
@@ -139,6 +178,8 @@ class KinectSim:
         quantization: float = 1e-3,
         edge_jump: float = 0.05,
         edge_band: int = 1,
+        shadow: str = "projector",
+        baseline: float = KINECT_BASELINE,
         seed: int = 0,
         geomgroup: np.ndarray | None = None,
     ) -> None:
@@ -149,6 +190,12 @@ class KinectSim:
             # it needs MUJOCO_GL (egl/osmesa) set before mujoco is imported
             big = camera.width * camera.height >= 320 * 240
             backend = "render" if (big and os.environ.get("MUJOCO_GL") and _gl_ok()) else "raycast"
+        if shadow not in ("projector", "band", "none"):
+            raise ValueError(f"shadow must be 'projector', 'band' or 'none', got {shadow!r}")
+        if not (math.isfinite(baseline) and baseline >= 0):
+            raise ValueError(f"baseline must be a non-negative number of metres, got {baseline!r}")
+        self.shadow = shadow
+        self.baseline = float(baseline)
         self.model = model
         self.camera = camera
         self.index = index
@@ -186,12 +233,14 @@ class KinectSim:
         return depth
 
     def sensor_effects(self, depth: np.ndarray) -> np.ndarray:
-        """Apply edge drop-outs, noise, quantisation and range to an exact depth image (float32 out)."""
+        """Apply the projector shadow (or edge band), noise, quantisation and range to an exact depth image
+        (float32 out)."""
         z = np.array(depth, dtype=np.float64)
-        # far side of depth edges: a neighbour much nearer -> no reading (Kinect shadow band)
         zf = np.where(np.isfinite(z), z, np.inf)
         edge = np.zeros(z.shape, bool)
-        for _ in range(self.edge_band):
+        if self.shadow == "projector":
+            edge = projector_shadow(zf, float(self.camera.fx), self.baseline)
+        for _ in range(self.edge_band if self.shadow == "band" else 0):
             near = np.full(z.shape, np.inf)
             near[:, 1:] = np.minimum(near[:, 1:], zf[:, :-1])
             near[:, :-1] = np.minimum(near[:, :-1], zf[:, 1:])
@@ -225,14 +274,21 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
       They aim at 0.45 m above the robot base, so that the principal camera sees the space within ρ of the
       arm's control points above the table (RA-L'16 §I, assumption 1; aimed at 0.35 m, the top of the
       image cut the space above the arm, which then counted as unseen obstacle 0.2-0.3 m over the arm).
+    * ``"ral3"``: the two ``"ral"`` cameras and a third one 2 m high behind the arm, at (-0.9, -0.9, 2.0): it
+      sees the rays that the two leave unmeasured (the projector shadows of the second camera that pass
+      behind the arm in the principal view, ``docs/phantom-zero.md``). ``--cameras 3`` of a ``"ral"``
+      scenario uses it.
     """
     target = (0.0, 0.0, 0.35)
     if name == "icra":
         return [kinect_camera((2.0, 0.0, 1.2), target, width=width, height=height)]
-    if name == "ral":
+    if name in ("ral", "ral3"):
         aim = (0.0, 0.0, 0.45)
-        return [
+        cams = [
             kinect_camera((1.75, -0.95, 1.5), aim, width=width, height=height),
             kinect_camera((-0.75, 1.85, 1.5), aim, width=width, height=height),
         ]
-    raise ValueError(f"unknown camera placement {name!r}; known: 'icra', 'ral'")
+        if name == "ral3":  # a third camera high behind the arm (docs/phantom-zero.md)
+            cams.append(kinect_camera((-0.9, -0.9, 2.0), aim, width=width, height=height))
+        return cams
+    raise ValueError(f"unknown camera placement {name!r}; known: 'icra', 'ral', 'ral3'")

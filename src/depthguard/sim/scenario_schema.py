@@ -128,7 +128,7 @@ TOP_LEVEL: dict[str, Any] = {
     "name": (_str, True),
     "description": (lambda x: None if isinstance(x, str) else "a string", False),
     "paper": (lambda x: None if isinstance(x, str) else "a string", False),
-    "cameras": (_choice("icra", "ral", "platform"), True),
+    "cameras": (_choice("icra", "ral", "ral3", "platform"), True),
     "camera_count": (_int_range(1, 8), False),
     "resolution": (_size, False),
     "quick_resolution": (_size, False),

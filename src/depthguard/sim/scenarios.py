@@ -97,6 +97,8 @@ def _build(sc: dict, *, quick: bool, cameras: int | None, demo: bool = False):
     if demo:
         res = sc.get("demo_resolution", res)
     cams = placement(sc["cameras"], int(res[0]), int(res[1]))
+    if sc["cameras"] == "ral" and cameras is not None and cameras > len(cams):
+        cams = placement("ral3", int(res[0]), int(res[1]))  # the third camera (docs/phantom-zero.md)
     n_cams = cameras if cameras is not None else sc.get("camera_count", len(cams))
     if n_cams < 1 or n_cams > len(cams):
         raise ValueError(f"scenario {sc['name']}: cameras must be 1..{len(cams)} for placement {sc['cameras']!r}")
