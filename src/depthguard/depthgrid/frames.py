@@ -103,3 +103,45 @@ def prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, marg
                 out[v, u] = np.inf  # "ignore": a missing pixel is free space, as the caller asked
             else:
                 out[v, u] = 0.0  # missing: never clears a cell, filled or not
+
+
+def limit_robot_votes(cameras, depths, masks, votes, margin: float) -> None:
+    """Several secondary cameras: a robot pixel of one no longer sees past what another one measures.
+
+    A secondary robot pixel votes +inf (the robot never confirms an obstacle), so with two or more
+    secondary cameras, camera k seeing the arm in front of a box would clear the box that camera j
+    measures. For every measured, non-robot pixel of camera j, its point is projected into every other
+    secondary camera k; where it lands on a robot pixel of k (vote +inf), that pixel's vote becomes at most
+    the point's depth in k less ``margin``: k still sees past the stretch in front of the point, not the
+    point itself, so the cell that holds it stays occupied unless a camera measures past it.
+
+    Args:
+        cameras: the secondary cameras; depths, masks: their (H, W) images (metres, NaN/0 = no reading)
+            and robot masks (or None); votes: their (H, W) float32 vote images, updated in place.
+    """
+    if len(cameras) < 2:
+        return
+    for j, (cj, dj, mj) in enumerate(zip(cameras, depths, masks, strict=True)):
+        d = np.asarray(dj, dtype=np.float64)
+        ok = np.isfinite(d) & (d > 0)
+        if mj is not None:
+            ok &= ~np.asarray(mj, dtype=bool)
+        vv, uu = np.nonzero(ok)
+        if vv.size == 0:
+            continue
+        pw = cj.unproject(uu + 0.5, vv + 0.5, d[vv, uu])
+        for k, ck in enumerate(cameras):
+            if k == j:
+                continue
+            pc = ck.world_to_camera(pw)
+            z = pc[:, 2]
+            front = z > 1e-6
+            pu = np.floor(ck.fx * pc[front, 0] / z[front] + ck.cx).astype(np.int64)
+            pv = np.floor(ck.fy * pc[front, 1] / z[front] + ck.cy).astype(np.int64)
+            zf = z[front]
+            inside = (pu >= 0) & (pv >= 0) & (pu < ck.width) & (pv < ck.height)
+            pu, pv, zf = pu[inside], pv[inside], zf[inside]
+            vk = votes[k]
+            robot = np.isposinf(vk[pv, pu])
+            if np.any(robot):
+                np.minimum.at(vk, (pv[robot], pu[robot]), (zf[robot] - margin).astype(np.float32))
