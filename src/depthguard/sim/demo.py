@@ -104,6 +104,11 @@ def run_demo(out_dir: str | Path | None = None) -> int:
         f"(over-report tolerance declared by the fusion: {_fmt(on.get('declared_tolerance'), ' m', 3)}; "
         "README: how the distances are computed)"
     )
+    if (on.get("time_at_zero_s") or 0.0) > 0:
+        print(
+            "phantom contact with two cameras: a control sphere crossed space that neither camera measures "
+            "(docs/phantom-zero.md);\n  `depthguard scenario ral-hexagon --cameras 3` adds a third camera."
+        )
     for name, res in (("avoidance ON", on), ("avoidance OFF", off)):
         print(f"\n{name}: {res['out_dir']}")
         for k, v in res.get("files", {}).items():
