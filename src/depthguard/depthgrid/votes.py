@@ -104,9 +104,13 @@ def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
             ey = py[j] - py[i]
             if ex * ex + ey * ey < 1e-18:
                 continue
-            ok = True  # every projected corner on the left of i -> j (or on the line)
+            # every projected corner on the left of i -> j (or on the line, within 1e-9 px: rounding, so that
+            # compiled and interpreted runs decide alike on collinear corners; the square must lie 1e-6 px
+            # beyond the line, so the line still separates)
+            ok = True
+            tol = 1e-9 * math.sqrt(ex * ex + ey * ey)
             for m in range(8):
-                if ex * (py[m] - py[i]) - ey * (px[m] - px[i]) < 0.0:
+                if ex * (py[m] - py[i]) - ey * (px[m] - px[i]) < -tol:
                     ok = False
                     break
             if not ok:
