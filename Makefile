@@ -37,4 +37,4 @@ bench: $(STAMP)
 	$(BIN)/depthguard bench distance --json
 
 clean:
-	rm -rf $(VENV) build *.egg-info src/*.egg-info
+	rm -rf $(VENV) build *.egg-info src/*.egg-info $${XDG_CACHE_HOME:-$$HOME/.cache}/depthguard/numba

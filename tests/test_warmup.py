@@ -12,6 +12,7 @@ from depthguard.sim import warmup
 
 
 def test_is_cached_follows_sources_and_cache_files(tmp_path, monkeypatch):
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)  # numba's default place, beside the modules
     pkg = tmp_path / "depthguard"
     (pkg / "k" / "__pycache__").mkdir(parents=True)
     src = pkg / "k" / "kern.py"
@@ -60,3 +61,20 @@ def test_background_compile_runs_the_groups_in_child_processes():
     messages: list[str] = []
     bg.wait(announce=messages.append)
     assert messages == [] and all(p.returncode == 0 for p in bg.procs.values())
+
+
+def test_is_cached_looks_in_the_versioned_cache_folder(tmp_path, monkeypatch):
+    pkg = tmp_path / "depthguard"
+    (pkg / "k").mkdir(parents=True)
+    (pkg / "k" / "kern.py").write_text("x = 1\n")
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
+    monkeypatch.setattr(warmup, "_root", lambda: pkg)
+    monkeypatch.setitem(warmup.SOURCES, "g", ("k",))
+    index = cache / "k_0123" / "kern.f-3.py311.nbi"
+    index.parent.mkdir(parents=True)
+    index.write_bytes(b"")
+    warmup._write_stamp("g")
+    assert warmup.is_cached("g")
+    index.unlink()  # the versioned cache folder cleared: cold again
+    assert not warmup.is_cached("g")

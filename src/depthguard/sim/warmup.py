@@ -18,6 +18,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -135,13 +136,21 @@ def _group_state(group: str) -> dict:
         p = root / rel
         files += sorted(p.rglob("*.py")) if p.is_dir() else [p]
     sources = {str(f.relative_to(root)): f.stat().st_mtime_ns for f in files if f.is_file()}
-    index = sorted(str(i.relative_to(root)) for f in files for i in (f.parent / "__pycache__").glob(f"{f.stem}.*.nbi"))
+    cache = os.environ.get("NUMBA_CACHE_DIR")  # depthguard.kernelcache: one folder per version of the sources
+    if cache:
+        stems = {f.stem for f in files}
+        index = sorted(str(i.relative_to(cache)) for i in Path(cache).rglob("*.nbi") if i.name.split(".")[0] in stems)
+    else:
+        index = sorted(
+            str(i.relative_to(root)) for f in files for i in (f.parent / "__pycache__").glob(f"{f.stem}.*.nbi")
+        )
     return {"sources": sources, "index": index}
 
 
 def is_cached(group: str) -> bool:
     """True when ``group`` was compiled by this module since its sources last changed and its cache index
-    files are still there (numba's default cache location, ``__pycache__`` beside the modules). A wrong
+    files are still there (``NUMBA_CACHE_DIR``, see :mod:`depthguard.kernelcache`, or numba's default
+    ``__pycache__`` beside the modules). A wrong
     False costs a few seconds (the child processes load the cache and exit); a wrong True (caches kept
     elsewhere) means lazy compilation inside the run, as without this module."""
     import json
