@@ -224,7 +224,6 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="timing-sensitive (rates over 5 s of publishing) on a loaded machine")
 def test_monitor_node_reports_status_rates_and_nodes(tmp_path, capsys):
     pytest.importorskip("zenoh")
     from depthguard.io import ros2
@@ -251,6 +250,8 @@ def test_monitor_node_reports_status_rates_and_nodes(tmp_path, capsys):
 
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
     assert lines, "the monitor printed nothing"
-    last = [x for x in lines if x["status"] is not None][-1]
-    assert last["status"] == "STOP_STALE_DISTANCES" and last["hz"]["status"] >= 5
-    assert "controller" in last["nodes"] and "monitor" in last["nodes"]
+    seen = [x for x in lines if x["status"] is not None]
+    assert seen and seen[-1]["status"] == "STOP_STALE_DISTANCES"
+    # 20 Hz published for 5 s: the best full second shows it (a loaded machine delays single seconds)
+    assert max(x["hz"]["status"] for x in seen) >= 10, lines
+    assert any("controller" in x["nodes"] and "monitor" in x["nodes"] for x in lines), lines

@@ -24,7 +24,9 @@ __all__ = ["run_monitor_node"]
 def run_monitor_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
-    """Run the monitor until ``duration`` s or SIGTERM; prints one JSON line per second to stdout."""
+    """Run the monitor until ``duration`` s or SIGTERM; prints one JSON line per second to stdout: the latest
+    status and smallest distance, the message rates (Hz, over the time since the previous line) and the
+    live nodes."""
     stop = stop if stop is not None else StopFlag()
     top = Topics.of(cell)
     node = open_node(cell, "monitor", **kw)
@@ -53,6 +55,7 @@ def run_monitor_node(
         node.subscribe(top.command, "sensor_msgs/msg/JointState", on_cmd),
     ]
     t_start = time.time()
+    t_last = t_start
     lines = 0
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
@@ -60,7 +63,11 @@ def run_monitor_node(
             toks = [str(r.ok.key_expr) for r in node.session.liveliness().get(f"@ros2_lv/{node.domain}/**") if r.ok]
             alive = sorted({parse_liveliness_token(k).node for k in toks if "/NN/" in k})
             with lock:
-                rec = {"t": round(time.time(), 3), **last, "hz": dict(count), "nodes": alive}
+                now = time.time()
+                span = max(now - t_last, 1e-3)  # the last line may cover less than a second (stopped)
+                hz = {k: round(c / span, 2) for k, c in count.items()}
+                rec = {"t": round(now, 3), **last, "hz": hz, "nodes": alive}
+                t_last = now
                 for k in count:
                     count[k] = 0
             rec["dropped"] = {s.topic: dict(s.dropped) for s in subs if s.dropped}
