@@ -96,6 +96,9 @@ def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
     py = (y0, y1, y2, y3, y4, y5, y6, y7)
     fu = float(pu)
     fv = float(pv)
+    for m in range(8):  # a projected corner inside the square: touched, no separating line to look for
+        if fu <= px[m] <= fu + 1.0 and fv <= py[m] <= fv + 1.0:
+            return True
     sx = (fu, fu + 1.0, fu + 1.0, fu)
     sy = (fv, fv, fv + 1.0, fv + 1.0)
     for i in range(8):
