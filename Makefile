@@ -5,6 +5,11 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
+# the tests run in 2 worker processes, one test file per worker at a time (pytest-xdist): the CI machine has
+# 2 cores, and the numba kernels then compile in both at once; `make test WORKERS=0` runs them in one process
+WORKERS ?= 2
+PYTEST_PAR := $(if $(filter 0,$(WORKERS)),,-n $(WORKERS) --dist loadfile)
+
 .PHONY: venv demo test test-quick test-random lint bench clean
 
 $(STAMP): pyproject.toml
@@ -21,14 +26,14 @@ demo: $(STAMP)
 
 # every extra is installed here, so a skipped test is a failure (tests/conftest.py; listed skips excepted)
 test: $(STAMP)
-	DEPTHGUARD_REQUIRE_EXTRAS=1 $(BIN)/python -m pytest -q
+	DEPTHGUARD_REQUIRE_EXTRAS=1 $(BIN)/python -m pytest -q $(PYTEST_PAR)
 
 # the property tests with fresh random seeds and 5x their examples (CI runs them derandomized)
 test-random: $(STAMP)
-	DEPTHGUARD_HYPOTHESIS=random $(BIN)/python -m pytest -q -m "not slow"
+	DEPTHGUARD_HYPOTHESIS=random $(BIN)/python -m pytest -q $(PYTEST_PAR) -m "not slow"
 
 test-quick: $(STAMP)
-	DEPTHGUARD_REQUIRE_EXTRAS=1 $(BIN)/python -m pytest -q -m "not slow"
+	DEPTHGUARD_REQUIRE_EXTRAS=1 $(BIN)/python -m pytest -q $(PYTEST_PAR) -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests examples

@@ -157,32 +157,50 @@ def _clears(cam0: Camera, cam: Camera, votes, u, v, d1, d2, eps: float, quantise
         far = np.ceil(far / DEND_QUANTUM) * DEND_QUANTUM + 1e-9
     lo = _rect_min(votes, iv0, iv1, iu0, iu1, involved)
     clear = involved & (lo > far)
-    # a pixel of the bounding box that the projected cell does not touch has no say (exact projection)
-    for i in np.nonzero(involved & ~clear)[0]:
-        uu, vv = np.meshgrid(np.arange(iu0[i], iu1[i] + 1), np.arange(iv0[i], iv1[i] + 1))
-        uu, vv = uu.ravel(), vv.ravel()
-        bad = votes[vv, uu] <= far[i]
-        clear[i] = not np.any(_squares_touch_hull(pu[:, i], pv[:, i], uu[bad], vv[bad], eps))
+    # a pixel of the bounding box that the projected cell does not touch has no say (exact projection):
+    # every (cell, failing pixel) pair at once, flattened over the cells' bounding boxes
+    idx = np.nonzero(involved & ~clear)[0]
+    if len(idx):
+        w, h = iu1[idx] - iu0[idx] + 1, iv1[idx] - iv0[idx] + 1
+        sz = w * h
+        ci = np.repeat(np.arange(len(idx)), sz)
+        off = np.arange(int(sz.sum())) - np.repeat(np.cumsum(sz) - sz, sz)
+        uu, vv = iu0[idx][ci] + off % w[ci], iv0[idx][ci] + off // w[ci]
+        bad = votes[vv, uu] <= far[idx][ci]
+        ci, uu, vv = ci[bad], uu[bad], vv[bad]
+        touch = _squares_touch_hulls(pu[:, idx[ci]].T, pv[:, idx[ci]].T, uu, vv, eps)
+        clear[idx] = np.bincount(ci[touch], minlength=len(idx)) == 0
     return clear, involved
 
 
 def _squares_touch_hull(px, py, su, sv, eps: float) -> np.ndarray:
     """(M,) bool: pixel squares [su, su+1] x [sv, sv+1] (grown by ``eps``) that meet the convex hull of the
-    points (px, py), by the separating-axis theorem over the image axes and the normals of every pair of
-    points (the hull's edges are among them)."""
-    P = np.stack([px, py], axis=1)  # (8, 2)
-    d = P[None, :, :] - P[:, None, :]
-    n = np.stack([-d[..., 1], d[..., 0]], axis=-1).reshape(-1, 2)
-    n = np.concatenate([n[np.linalg.norm(n, axis=1) > 1e-12], [[1.0, 0.0], [0.0, 1.0]]])
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    hp = P @ n.T  # (8, A)
-    sq = np.stack(
-        [np.stack([su - eps, sv - eps], 1), np.stack([su + 1 + eps, sv - eps], 1),
-         np.stack([su + 1 + eps, sv + 1 + eps], 1), np.stack([su - eps, sv + 1 + eps], 1)], axis=1
-    )  # (M, 4, 2)  # fmt: skip
-    sp = sq @ n.T  # (M, 4, A)
-    sep = (hp.max(0)[None] < sp.min(1)) | (sp.max(1) < hp.min(0)[None])
-    return ~np.any(sep, axis=1)
+    points (px, py) (8,) (:func:`_squares_touch_hulls` with one hull for every square)."""
+    m = len(su)
+    return _squares_touch_hulls(np.broadcast_to(px, (m, 8)), np.broadcast_to(py, (m, 8)), su, sv, eps)
+
+
+def _squares_touch_hulls(px, py, su, sv, eps: float, chunk: int = 4096) -> np.ndarray:
+    """(M,) bool: pixel square ``[su, su+1] x [sv, sv+1]`` (grown by ``eps``) meets the convex hull of the 8
+    points ``(px[i], py[i])`` (M, 8), by the separating-axis theorem over the image axes and the normals of
+    every pair of points (the hull's edges are among them)."""
+    out = np.empty(len(su), bool)
+    for s in range(0, len(su), chunk):
+        P = np.stack([px[s : s + chunk], py[s : s + chunk]], axis=-1)  # (m, 8, 2)
+        d = P[:, None, :, :] - P[:, :, None, :]
+        n = np.stack([-d[..., 1], d[..., 0]], axis=-1).reshape(len(P), -1, 2)
+        n = np.concatenate([n, np.broadcast_to([[1.0, 0.0], [0.0, 1.0]], (len(P), 2, 2))], axis=1)
+        norm = np.linalg.norm(n, axis=-1, keepdims=True)
+        usable = norm[..., 0] > 1e-12  # (m, A): a pair of coincident points gives no axis
+        n = n / np.where(norm > 1e-12, norm, 1.0)
+        hp = np.einsum("mpk,mak->mpa", P, n)  # (m, 8, A)
+        u0, v0 = su[s : s + chunk] - eps, sv[s : s + chunk] - eps
+        u1, v1 = u0 + 1 + 2 * eps, v0 + 1 + 2 * eps
+        sq = np.stack([np.stack([u0, v0], 1), np.stack([u1, v0], 1), np.stack([u1, v1], 1), np.stack([u0, v1], 1)], 1)
+        sp = np.einsum("mck,mak->mca", sq, n)  # (m, 4, A)
+        sep = usable & ((hp.max(1) < sp.min(1)) | (sp.max(1) < hp.min(1)))
+        out[s : s + chunk] = ~np.any(sep, axis=1)
+    return out
 
 
 def grid_exact(cams, votes, start, kind, d_min, dd, n_cells, Pc, reach, strict: bool):
