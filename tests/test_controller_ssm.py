@@ -89,3 +89,42 @@ def test_scaled_motion_keeps_the_protective_distance(points):
 def test_bad_mode_is_a_configuration_error(points):
     with pytest.raises(ValueError, match="avoidance"):
         AvoidanceController(points, ControllerConfig(avoidance="ISO"))
+
+
+def _point_obstacle_run(ctrl, points, obstacle, n):
+    """Closed loop against a fixed point obstacle: true sphere-to-point distances and directions."""
+    q, qd = Q0.copy(), np.zeros(7)
+    outs, gaps = [], []
+    for k in range(n):
+        t = k * 0.001
+        st = points.evaluate(q)
+        off = st.centres - obstacle
+        centre_dist = np.linalg.norm(off, axis=1)
+        d = centre_dist - st.radii
+        gaps.append(d)
+        out = ctrl.step(CycleInput(t, q, qd, t, XDOT, d, off / centre_dist[:, None], t))
+        q, qd = out.q_cmd, out.qdot_cmd
+        outs.append(out)
+    return outs, np.array(gaps)
+
+
+@pytest.mark.parametrize("evades", [True, False])
+def test_protective_stop_in_both_mode_evades_only_when_asked(points, evades):
+    """Protective stop with "both": the task stops; with ``stop_evades`` the end effector's repulsion still
+    moves it away from an obstacle 0.12 m below it (and no point gets closer than the tolerance of one
+    cycle's motion); without it the arm stays where it stopped."""
+    st0 = points.evaluate(Q0)
+    obstacle = st0.centres[0] + np.array([0.0, 0.0, -0.12 - st0.radii[0]])  # below the end effector
+    ctrl = AvoidanceController(points, ControllerConfig(avoidance="both", stop_evades=evades))
+    outs, gaps = _point_obstacle_run(ctrl, points, obstacle, 600)
+    stopped = [o.status == CycleStatus.STOP_PROTECTIVE for o in outs]
+    assert all(stopped[5:300])
+    moved = gaps[299, 0] - gaps[5, 0]
+    if evades:  # (once far enough, the stop ends and the task resumes, REDUCED)
+        assert moved > 0.1, f"the end effector should back away, moved {moved:.4f} m"
+        assert (np.diff(gaps[:300], axis=0) > -2e-4).all(), "no control point may approach the obstacle"
+        assert not all(stopped), "the stop should end once the arm is clear"
+    else:
+        assert all(stopped[5:])
+        assert abs(moved) < 2e-3
+        assert np.abs(outs[-1].qdot_cmd).max() < 1e-9

@@ -15,7 +15,8 @@ Per cycle (:func:`control_cycle`), a sequence of small stages:
    bounds tightened further; eq. 11 under those bounds by SNS (:mod:`depthguard.control.sns`), with
    damped least squares near singularities. With ``avoidance`` "ssm" or "both", speed and separation
    monitoring (:mod:`depthguard.control.ssm`) scales the task velocity before SNS, and its protective stop
-   (``STOP_PROTECTIVE``) brakes like any other stop;
+   (``STOP_PROTECTIVE``) brakes like any other stop (with "both" and ``stop_evades``, the task stops but
+   the end effector's repulsion alone may still move the arm away, within the body bounds);
 5. :func:`generate`: Ruckig (velocity mode) towards the target, the fallback braking step if Ruckig
    fails (``ERROR_OTG``), and :func:`~depthguard.control.bounded.enforce_velocity_bounds`: the command
    of every cycle lies within that cycle's bounds; when a bound shrinks faster than the jerk limit can
@@ -174,7 +175,9 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
         if not (np.isfinite(plan.target).all() and np.isfinite(plan.xdot_c).all()):
             status, plan = CycleStatus.STOP_INVALID_INPUT, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
         elif plan.ssm is not None and plan.ssm.scale <= 0.0:
-            status, plan = CycleStatus.STOP_PROTECTIVE, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK), plan.ssm)
+            status = CycleStatus.STOP_PROTECTIVE
+            if not _evades(ctrl.config):  # (an evasive plan already holds the repulsion alone)
+                plan = Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK), plan.ssm)
         elif plan.scale < 1.0 - 1e-9 or (plan.ssm is not None and plan.ssm.scale < 1.0):
             status = CycleStatus.SCALED
     new, ok, limited = generate(ctrl, otg, plan.target, b.lo, b.hi)
@@ -272,9 +275,17 @@ def plan_motion(
     if ctrl.monitor is not None and otg is not None:  # speed and separation monitoring scales the task
         nominal = J.T @ np.linalg.solve(J @ J.T + (lam * lam + 1e-12) * np.eye(J.shape[0]), xdot_c)
         ssm = ctrl.monitor.update(cps.jacobians, otg.velocity, otg.acceleration, nominal, dist, dirs, data_age)
-        xdot_c = xdot_c * ssm.scale
+        if ssm.scale <= 0.0 and _evades(cfg):  # protective stop: no task, the repulsion may still evade
+            xdot_c = commanded_task_velocity(np.zeros_like(xdot_c), v_rep)
+        else:
+            xdot_c = xdot_c * ssm.scale
     target, scale = sns_velocity_unchecked(J, xdot_c, b.lo_s, b.hi_s, lam)
     return Plan(target, float(scale), xdot_c, ssm)
+
+
+def _evades(cfg: ControllerConfig) -> bool:
+    """A protective stop keeps the end effector's repulsion ("both" mode with ``stop_evades``)."""
+    return cfg.avoidance == "both" and cfg.stop_evades
 
 
 def generate(

@@ -64,6 +64,10 @@ class ControllerConfig:
         avoidance: "repulsion" (the papers: end-effector repulsion and body bounds), "ssm" (speed and
             separation monitoring, ISO/TS 15066, scaling the task, plus the body bounds) or "both".
         ssm: the :class:`depthguard.control.ssm.SsmConfig` (None = its defaults) when SSM is on.
+        stop_evades: with ``avoidance`` "both", a protective stop halts the task but the end effector's
+            repulsion (eq. 10) may still move the arm *away* from what approaches, within the body bounds
+            (which forbid every control point to approach an obstacle within ``rho_body``). False: the
+            plain jerk-limited stop, as in "ssm" mode. A person who walks into a stopped arm is then hit.
         resume_time: after any stop, motion resumes only once every input has been valid (and fresh)
             for this long in a row, s (cycles in a row and elapsed time both count); until then the
             cycle reports ``STOP_RESUME_WAIT`` and keeps stopping.
@@ -88,6 +92,7 @@ class ControllerConfig:
     resume_time: float = 0.1
     avoidance: str = "repulsion"
     ssm: object | None = None
+    stop_evades: bool = True
 
 
 class CycleInput(NamedTuple):

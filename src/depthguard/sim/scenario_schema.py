@@ -130,6 +130,7 @@ TOP_LEVEL: dict[str, Any] = {
     "paper": (lambda x: None if isinstance(x, str) else "a string", False),
     "cameras": (_choice("icra", "ral", "ral3", "platform"), True),
     "camera_count": (_int_range(1, 8), False),
+    "ssm_camera_count": (_int_range(1, 8), False),
     "resolution": (_size, False),
     "quick_resolution": (_size, False),
     "demo_resolution": (_size, False),
@@ -202,6 +203,9 @@ def _check_cross(data: dict[str, Any], source: str) -> None:
     n_placed = {"icra": 1, "ral": 2, "platform": 2}[data["cameras"]]
     if data.get("camera_count", 1) > n_placed:
         raise _fail(source, "field 'camera_count'", f"must be 1..{n_placed} for cameras = {data['cameras']!r}")
+    n_ssm = n_placed + (data["cameras"] == "ral")  # (the "ral" cell has an optional third camera)
+    if data.get("ssm_camera_count", 1) > n_ssm:
+        raise _fail(source, "field 'ssm_camera_count'", f"must be 1..{n_ssm} for cameras = {data['cameras']!r}")
     movable = {b["name"] for b in data.get("boxes", []) if b.get("movable", False)}
     for i, p in enumerate(data.get("people", [])):
         for j, k in enumerate(p["keyframes"]):

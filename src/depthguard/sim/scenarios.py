@@ -260,6 +260,8 @@ def _run_one(
     from depthguard.sim.loop import LoopConfig, run_loop
     from depthguard.sim.pipeline import Controller, DistanceStage
 
+    if ssm and cameras is None:  # SSM needs a cell without blind pockets near the robot (docs/ssm.md)
+        cameras = sc.get("ssm_camera_count")
     cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras, demo=demo)
     if setup is not None:  # e.g. reactive people (depthguard.sim.ssm_approach)
         setup(cell)
