@@ -54,12 +54,13 @@ def test_sphere_clearance_empty_is_inf():
 
 @pytest.mark.slow
 def test_ral_hexagon_ssm_quick_contract():
-    """With three cameras (with two, a ray that neither camera measures crosses the shoulder's control
-    sphere from the start, docs/phantom-zero.md: the monitor stops the arm at once and for good, and the
-    person walks into the stopped arm; reported in docs/ssm.md)."""
+    """With the defaults, which for --ssm are the cell's three cameras (with two, a ray that neither camera
+    measures crosses the shoulder's control sphere from the start, docs/phantom-zero.md: the monitor never
+    lets the arm go; reported in docs/ssm.md)."""
     from depthguard.sim.scenarios import run_scenario
 
-    r = run_scenario("ral-hexagon", quick=True, variants=False, ssm=True, cameras=3)
+    r = run_scenario("ral-hexagon", quick=True, variants=False, ssm=True)
+    assert r["cameras"] == 3
     json.dumps(r)
     assert r["ssm"] is True
     assert r["collision_steps"] == 0, r
