@@ -37,7 +37,7 @@ import numpy as np
 
 from depthguard.control.body import body_bounds_inplace
 from depthguard.control.bounded import braking_step, enforce_bounds_kernel, enforce_velocity_bounds
-from depthguard.control.endeffector import commanded_task_velocity, dls_damping, repulsive_velocity
+from depthguard.control.endeffector import commanded_task_velocity, dls_apply, dls_damping, repulsive_velocity
 from depthguard.control.inputs import CheckedInput, check_inputs
 from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
 from depthguard.control.sns import sns_velocity_unchecked
@@ -273,7 +273,7 @@ def plan_motion(
     lam = dls_damping(J, cfg.dls_eps, cfg.dls_lambda_max)
     ssm = None
     if ctrl.monitor is not None and otg is not None:  # speed and separation monitoring scales the task
-        nominal = J.T @ np.linalg.solve(J @ J.T + (lam * lam + 1e-12) * np.eye(J.shape[0]), xdot_c)
+        nominal = dls_apply(J, lam, xdot_c)
         ssm = ctrl.monitor.update(cps.jacobians, otg.velocity, otg.acceleration, nominal, dist, dirs, data_age)
         if ssm.scale <= 0.0 and _evades(cfg):  # protective stop: no task, the repulsion may still evade
             xdot_c = commanded_task_velocity(np.zeros_like(xdot_c), v_rep)

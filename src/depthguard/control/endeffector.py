@@ -12,10 +12,12 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
-__all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_inverse"]
+__all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_inverse", "dls_apply"]
 
 
 def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
@@ -27,13 +29,16 @@ def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho
         v_max: largest repulsive speed, m/s; rho: m; alpha: steepness.
     """
     d = float(distance)
-    if not np.isfinite(d):
+    if not math.isfinite(d):
         return np.zeros(3)
-    mag = v_max / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
-    nrm = float(np.linalg.norm(direction))
+    x = (d * 2.0 / rho - 1.0) * alpha
+    mag = 0.0 if x > 700.0 else v_max / (1.0 + math.exp(x))  # (exp overflows past 709: the speed is 0 there)
+    dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
+    nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
     if nrm == 0.0:
         return np.zeros(3)
-    return (mag / nrm) * np.asarray(direction, dtype=float)
+    k = mag / nrm
+    return np.array((k * dx, k * dy, k * dz))
 
 
 def commanded_task_velocity(xdot_d: np.ndarray, v_repulsive: np.ndarray) -> np.ndarray:
@@ -65,3 +70,19 @@ def dls_inverse(J: np.ndarray, damping: float) -> np.ndarray:
         return np.linalg.pinv(J)
     m = J.shape[0]
     return J.T @ np.linalg.inv(J @ J.T + damping**2 * np.eye(m))
+
+
+@njit(cache=True)
+def _dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:
+    m = J.shape[0]
+    A = J @ J.T
+    for i in range(m):
+        A[i, i] += damping * damping + 1e-12
+    return J.T @ np.linalg.solve(A, x)
+
+
+def dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:
+    """(n,) ``J^T (J J^T + (damping^2 + 1e-12) I)^-1 x`` for J (m, n) and x (m,): the damped least-squares
+    joint velocity of task velocity x (the 1e-12 keeps a rank-deficient J solvable at zero damping)."""
+    c = np.ascontiguousarray
+    return _dls_apply(c(J, dtype=np.float64), float(damping), c(x, dtype=np.float64))
