@@ -62,14 +62,12 @@ def run_controller_node(
 ) -> dict:
     """Run the controller node until ``duration`` s or SIGTERM; returns counters and cycle times."""
     from depthguard.control.cycle import AvoidanceController, CycleInput
-    from depthguard.robot.control_points import ControlPointSet
-    from depthguard.runner.chain import _controller_config, load_cell_robot
+    from depthguard.runner.chain import _controller_config, cell_control_points, load_cell_robot
 
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     model = load_cell_robot(cell)
-    preset = cell.robot.control_points
-    points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+    points = cell_control_points(cell, model)
     config = _controller_config(cell)
     ctrl = AvoidanceController(points, config)
     N, n = points.n_points, len(model.joint_names)

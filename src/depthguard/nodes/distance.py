@@ -83,15 +83,13 @@ def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.robot.control_points import ControlPointSet
-    from depthguard.runner.chain import load_cell_robot
+    from depthguard.runner.chain import cell_control_points, load_cell_robot
     from depthguard.sim.pipeline import DistanceStage
 
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     model = load_cell_robot(cell)
-    preset = cell.robot.control_points
-    points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+    points = cell_control_points(cell, model)
     d = cell.distance
     rho = float(d["rho"])
     cams0 = [c.build() for c in cell.cameras]

@@ -22,7 +22,7 @@ from depthguard.robot.health import CameraHealth
 from depthguard.robot.model import RobotModel, load_lwr4
 from depthguard.robot.selffilter import self_filter
 
-__all__ = ["Chain", "load_cell_robot"]
+__all__ = ["Chain", "load_cell_robot", "cell_control_points"]
 
 
 def load_cell_robot(cell: CellFile) -> RobotModel:
@@ -31,6 +31,12 @@ def load_cell_robot(cell: CellFile) -> RobotModel:
     if r.model == "lwr4":
         return load_lwr4()
     return RobotModel.from_urdf(Path(r.urdf), ee_frame=r.ee_frame)
+
+
+def cell_control_points(cell: CellFile, model: RobotModel) -> ControlPointSet:
+    """The control points the cell file names for ``model`` (``"ee"``: the end effector only)."""
+    preset = cell.robot.control_points
+    return ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
 
 
 def _controller_config(cell: CellFile) -> ControllerConfig:
@@ -71,9 +77,7 @@ class Chain:
         self.cell = cell
         self.cameras = list(cameras)
         self.model = model
-        if points is None:
-            preset = cell.robot.control_points
-            points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+        points = cell_control_points(cell, model) if points is None else points
         self.points = points
         d = cell.distance
         self.rho, self.alpha = float(d["rho"]), float(cell.controller["alpha"])

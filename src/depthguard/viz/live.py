@@ -253,13 +253,11 @@ def run_view_node(
     from depthguard.io.cellfile import read_cell
     from depthguard.nodes.common import StopFlag, Topics, open_node
     from depthguard.nodes.distance import _mask_from_msg
-    from depthguard.robot.control_points import ControlPointSet
-    from depthguard.runner.chain import load_cell_robot
+    from depthguard.runner.chain import cell_control_points, load_cell_robot
 
     cell = read_cell(cell_path)
     model = load_cell_robot(cell)
-    preset = cell.robot.control_points
-    points = ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+    points = cell_control_points(cell, model)
     view = LiveView(cell, model, points, [c.build() for c in cell.cameras], port=port)
     top = Topics.of(cell)
     node = open_node(cell, "view", domain=domain, connect=connect)
