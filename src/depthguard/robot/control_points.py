@@ -170,6 +170,11 @@ class ControlPointSet:
                     joints.append(int(frame.parentJoint))
                     offsets.append(M.rotation @ c + M.translation)
                     radii.append(float(r))
+        return cls._from_lists(model, names, joints, offsets, radii)
+
+    @classmethod
+    def _from_lists(cls, model: RobotModel, names, joints, offsets, radii) -> ControlPointSet:
+        """The set from per-point lists: names, parent joints, offsets in the joint frame (m), radii (m)."""
         joints_a = np.array(joints, dtype=np.int64)
         support = np.array([model.joint_support_mask(j) for j in joints_a])
         return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)
@@ -198,9 +203,7 @@ class ControlPointSet:
                 joints.append(int(frame.parentJoint))
                 offsets.append(M.rotation @ c + M.translation)
                 radii.append(float(r))
-        joints_a = np.array(joints, dtype=np.int64)
-        support = np.array([model.joint_support_mask(j) for j in joints_a])
-        return cls(model, tuple(names), joints_a, np.array(offsets), np.array(radii), support)
+        return cls._from_lists(model, names, joints, offsets, radii)
 
     @cached_property
     def _unique_joints(self) -> list[int]:
