@@ -372,18 +372,12 @@ def run_scenario(
 
         prepare_out_dir(out_dir)
     t0 = time.perf_counter()
-    cell, log, task, cfg = _run_one(
-        sc,
-        quick=quick,
-        avoidance=avoidance,
-        cameras=cameras,
-        progress=progress,
-        label=f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})",
-        demo=demo,
-        backend=backend,
-        octree_res=octree_res,
-        ssm=ssm,
-    )
+    run_kw = dict(
+        quick=quick, avoidance=avoidance, cameras=cameras, progress=progress, backend=backend,
+        octree_res=octree_res, ssm=ssm,
+    )  # fmt: skip
+    label = f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})"
+    cell, log, task, cfg = _run_one(sc, label=label, demo=demo, **run_kw)
     result: dict[str, Any] = {
         "scenario": sc["name"],
         "description": sc.get("description", ""),
@@ -408,17 +402,7 @@ def run_scenario(
                 sv["people"] = []
             if v.get("remove_boxes"):
                 sv["boxes"] = []
-            _, vlog, vtask, vcfg = _run_one(
-                sv,
-                quick=quick,
-                avoidance=avoidance,
-                cameras=cameras,
-                progress=progress,
-                label=f"{sc['name']} [{v['name']}]",
-                backend=backend,
-                octree_res=octree_res,
-                ssm=ssm,
-            )
+            _, vlog, vtask, vcfg = _run_one(sv, label=f"{sc['name']} [{v['name']}]", **run_kw)
             result["variants"][v["name"]] = {**compute_metrics(vlog, vtask, vcfg), **_ssm_keys(vlog, vcfg, ssm)}
             runs[v["name"]] = (vlog, vtask)
     result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)
