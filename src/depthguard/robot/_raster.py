@@ -68,12 +68,10 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
             rows[v, 1] = ub
         row_n, row_f = snear[v], sfar[v]
         base = B * py + C
-        for u in range(ua, ub + 1):
+        for u in range(ua, ub + 1):  # branch-free, so that the compiler can vectorise the span
             iz = min(max(A * (u + 0.5) + base, w_lo), w_hi)  # clamp: rounding at the edges
-            if iz > row_n[u]:
-                row_n[u] = iz
-            if iz < row_f[u]:
-                row_f[u] = iz
+            row_n[u] = max(row_n[u], iz)
+            row_f[u] = min(row_f[u], iz)
 
 
 @njit(cache=True)
