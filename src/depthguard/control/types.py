@@ -66,7 +66,7 @@ class ControllerConfig:
         ssm: the :class:`depthguard.control.ssm.SsmConfig` (None = its defaults) when SSM is on.
         stop_evades: with ``avoidance`` "both", a protective stop halts the task but the end effector's
             repulsion (eq. 10) may still move the arm *away* from what approaches, within the body bounds
-            (which forbid every control point to approach an obstacle within ``rho_body``). False: the
+            (eqs. 12-14: each point's speed towards its obstacle is limited, to zero at contact). False: the
             plain jerk-limited stop, as in "ssm" mode. A person who walks into a stopped arm is then hit.
         resume_time: after any stop, motion resumes only once every input has been valid (and fresh)
             for this long in a row, s (cycles in a row and elapsed time both count); until then the
