@@ -10,9 +10,10 @@ from depthguard.bench.meshtruth import MeshRobotTruth, distance_to_robot
 __all__ = ["MeshRobotTruth", "distance_to_robot", "geometry_points"]
 
 
-def geometry_points(urdf: str, q: np.ndarray, n: int = 24) -> dict[str, np.ndarray]:
+def geometry_points(urdf: str, q: np.ndarray, n: int = 24, faces: int = 0) -> dict[str, np.ndarray]:
     """Per link, world points of its collision geometry at ``q`` read by pinocchio/coal: every mesh vertex,
-    box corners, and for cylinders, spheres and capsules points on their surfaces (``n`` around)."""
+    box corners, and for cylinders, spheres and capsules points on their surfaces (``n`` around). With
+    ``faces`` > 0, also a barycentric grid of ``faces`` steps on every mesh triangle (its surface)."""
     import coal
     import pinocchio as pin
 
@@ -40,6 +41,12 @@ def geometry_points(urdf: str, q: np.ndarray, n: int = 24) -> dict[str, np.ndarr
             p = np.vstack([u * g.radius + [0, 0, z] for z in np.linspace(-hl, hl, 5)])
         else:
             p = np.asarray(g.vertices(), float) * np.asarray(obj.meshScale)
+            if faces > 0:
+                t = [g.tri_indices(k) for k in range(g.num_tris)]
+                tri = p[np.array([[x[0], x[1], x[2]] for x in t])]  # (F, 3, 3)
+                ij = np.array([(a, b) for a in range(faces + 1) for b in range(faces + 1 - a)], float) / faces
+                w = np.c_[ij, 1.0 - ij.sum(axis=1)]
+                p = np.vstack([p, np.einsum("gk,tkd->tgd", w, tri).reshape(-1, 3)])
         M = gdata.oMg[i]
         link = model.frames[obj.parentFrame].name
         out.setdefault(link, []).append(p @ np.asarray(M.rotation).T + M.translation)

@@ -44,6 +44,17 @@ def test_auto_spheres_cover_every_mesh_vertex(name: str) -> None:
     assert cps.names[0] == "ee" and cps.n_points <= 1 + 3 * len(moving)
 
 
+@pytest.mark.parametrize("name", ["panda", "ur5"])
+def test_auto_spheres_cover_the_mesh_surfaces_between_the_vertices(name: str) -> None:
+    """Not only the vertices: a grid of 10 steps on every collision triangle (spheres fitted to points
+    sampled on a surface used to leave up to 3.4 mm of the Panda's and 7.7 mm of the UR5's surface out)."""
+    model = load_robot(name)
+    cps = ControlPointSet.build(model, "auto")
+    q = np.random.default_rng(7).uniform(np.maximum(model.q_min, -2.5), np.minimum(model.q_max, 2.5))
+    worst = _uncovered(cps, q, geometry_points(str(robot_urdf(name)), q, faces=10))
+    assert max(worst.values()) <= 1e-9, worst
+
+
 def test_auto_spheres_cover_the_primitives_of_the_shipped_arm() -> None:
     lwr = load_lwr4()
     cps = ControlPointSet.build(lwr, "auto", auto_spheres=4)

@@ -7,17 +7,19 @@ cell file are relative to the file's folder. Sections:
 * ``[cell]``: ``name``, ``description``;
 * ``[robot]``: ``model`` (a shipped model: ``"lwr4"``) or ``urdf`` (a path), ``ee_frame``, ``joint_names``
   (the order of ``q``; a JointState is reordered into it), ``control_points`` (a preset name such as
-  ``"ral-9"`` or ``"auto"``), ``ee_radius`` (m), ``[[robot.spheres]]`` (explicit control spheres:
-  ``link``, ``position`` in the link frame, ``radius``) and ``[[robot.attachments]]`` (tools and payloads:
-  ``name``, ``link``, ``shape`` = box | cylinder | sphere | mesh, ``size`` (box: full sizes x y z;
-  cylinder: radius, length; sphere: radius), ``mesh`` (path), ``xyz``, ``rpy`` (pose in the link frame));
+  ``"ral-9"`` or ``"auto"``), ``ee_radius`` (m), ``[[robot.spheres]]`` (explicit control spheres, added to
+  the preset's: ``link``, ``position`` in the link frame, ``radius``) and ``[[robot.attachments]]`` (tools and
+  payloads: ``name``, ``link``, ``shape`` = box | cylinder | sphere | mesh, ``size`` (box: full sizes x y z;
+  cylinder: radius, length; sphere: radius), ``mesh`` (path), ``xyz``, ``rpy`` (pose in the link frame)):
+  the self-filter removes them, and control spheres cover each one (``depthguard.runner.chain``);
 * ``[[cameras]]``: ``name``, ``topic`` and ``info_topic`` (recorded or live sources), ``frame_id``,
   intrinsics (``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy``; or ``intrinsics = "camera_info"`` to
   take them from the CameraInfo topic, ``"device"`` from a live device), ``min_depth``, ``max_depth``,
   ``depth_scale``, ``rate`` (Hz), extrinsics as ``R`` + ``t`` (``P_C = R P + t``) or ``matrix`` (4x4, the
   same map), or ``eye`` + ``target`` (+ ``up``: the camera centre and a point on its optical axis, m), or
-  ``extrinsics = "tf"`` (from the bag's TF), in the frame ``parent`` (``"world"`` or a robot
-  link, for a camera carried by the robot);
+  ``extrinsics = "tf"`` (from the bag's TF, read once), in the frame ``parent`` (only ``"world"`` for now:
+  a camera carried by the robot is refused with a clear error, since its pose would have to follow the
+  joint state every frame);
 * ``[distance]``: ``backend`` (``depthspace`` | ``octree``), ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
   ``octree_res`` (m), ``period`` (s between distance queries in ``--fast`` runs);
@@ -230,6 +232,12 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
             Camera(R=np.eye(3) if R is None else R, t=np.zeros(3) if t is None else t, **params)
         except ValueError as exc:
             raise CellError(f"{src}: {where}: {exc}") from None
+    if c["parent"] != "world":  # a pose on a link would have to follow the joint state every frame
+        raise CellError(
+            f"{src}: {where}.parent = {c['parent']!r}: cameras carried by the robot are not supported yet (the"
+            " self-filter and the distances would need the camera's pose at every frame's joint state); give"
+            " the extrinsics in 'world'"
+        )
     name = c["name"]
     return CellCamera(
         name=name,

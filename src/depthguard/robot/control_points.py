@@ -39,7 +39,7 @@ import numpy as np
 from numba import njit
 
 from depthguard.robot.model import RobotModel
-from depthguard.robot.spheres import cover_points
+from depthguard.robot.spheres import cover_points, grow_to_contain
 
 __all__ = ["PRESETS", "ControlPointSet", "ControlPointState", "bounding_spheres", "control_points"]
 
@@ -190,6 +190,7 @@ class ControlPointSet:
         ee = model.model.frames[model.ee_frame_id]
         names, joints = ["ee"], [int(ee.parentJoint)]
         offsets, radii = [np.array(ee.placement.translation)], [float(ee_radius)]
+        tris = model.geometry.link_triangles()
         for link, (pts, prad) in model.geometry.link_points().items():
             frame = model.model.frames[model.frame_id(link)]
             if not model.joint_support_mask(int(frame.parentJoint)).any():
@@ -197,6 +198,8 @@ class ControlPointSet:
             extent = float(np.max(np.ptp(pts, axis=0)) + 2 * np.max(prad))
             k = int(min(k_max, max(1, np.ceil(extent / length))))
             centres, rr = cover_points(pts, k, radii=prad)
+            if link in tris:  # the surface between the samples too
+                rr = grow_to_contain(centres, rr, tris[link])
             M = frame.placement
             for i, (c, r) in enumerate(zip(centres, rr, strict=True)):
                 names.append(f"{link}/{i}")
@@ -204,6 +207,23 @@ class ControlPointSet:
                 offsets.append(M.rotation @ c + M.translation)
                 radii.append(float(r))
         return cls._from_lists(model, names, joints, offsets, radii)
+
+    def with_spheres(self, spheres) -> ControlPointSet:
+        """A new set: these points plus ``spheres``, items ``(name, link, centre (3,) m in the link frame,
+        radius m)`` (explicit spheres of a cell file, covers of attached tools)."""
+        names, joints = list(self.names), [int(j) for j in self.joints]
+        offsets, radii = [np.asarray(o, float) for o in self.offsets], [float(r) for r in self.radii]
+        for name, link, centre, radius in spheres:
+            c = np.asarray(centre, float)
+            if c.shape != (3,) or not np.all(np.isfinite(c)) or not (np.isfinite(radius) and radius >= 0):
+                raise ValueError(f"control sphere '{name}': centre must be 3 finite numbers and radius >= 0")
+            frame = self.model.model.frames[self.model.frame_id(link)]  # ValueError naming an unknown link
+            M = frame.placement
+            names.append(str(name))
+            joints.append(int(frame.parentJoint))
+            offsets.append(M.rotation @ c + M.translation)
+            radii.append(float(radius))
+        return self._from_lists(self.model, names, joints, offsets, radii)
 
     @cached_property
     def _unique_joints(self) -> list[int]:

@@ -131,3 +131,14 @@ class RobotGeometry:
             r = np.zeros(len(g.source_vertices)) if g.source_radii is None else g.source_radii
             out.setdefault(g.shape.link, []).append((g.source_vertices, r))
         return {k: (np.vstack([p for p, _ in v]), np.concatenate([r for _, r in v])) for k, v in out.items()}
+
+    def link_triangles(self) -> dict[str, np.ndarray]:
+        """Per link, the triangles (F, 3, 3) of its mesh, box and cylinder shapes before any decimation, in
+        the link frame, m (a cylinder as the prism that circumscribes it; spheres and capsules have none:
+        :meth:`link_points` holds them exactly as balls)."""
+        out: dict[str, list[np.ndarray]] = {}
+        for g in self.geoms:
+            if g.shape.kind in ("mesh", "box", "cylinder"):
+                full = shape_geometry(g.shape)  # the geometry before decimation
+                out.setdefault(g.shape.link, []).append(full.vertices[full.faces])
+        return {k: np.concatenate(v) for k, v in out.items()}

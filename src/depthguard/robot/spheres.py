@@ -81,3 +81,102 @@ def volume_ratio(points: np.ndarray, radii: np.ndarray) -> float:
 
     hull = ConvexHull(np.asarray(points, float))
     return float(np.sum(4.0 / 3.0 * np.pi * np.asarray(radii) ** 3) / max(hull.volume, 1e-12))
+
+
+def shape_cover(shape, max_spheres: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_spheres`` spheres whose union contains the whole solid ``shape``
+    (:class:`depthguard.robot.shapes.Shape`), in its link's frame: centres (k, 3), radii (k,), m.
+
+    Exact constructions, not samples: a sphere is itself; a box or a cylinder is cut into k equal slabs
+    along its longest extent (a cylinder along its axis), each inside the sphere through its corners (radius
+    ``sqrt(r^2 + (h/2)^2)`` for a cylinder slab of height h); a capsule is cut along its segment the same
+    way (radius ``r + h/2``); a mesh's faces are grouped along its principal axis and each group's vertices
+    enclosed (a ball holding a triangle's corners holds the triangle, so the surface is covered).
+    """
+    from depthguard.robot.shapes import load_mesh
+
+    R, p = shape.rotation, np.asarray(shape.xyz, float)
+    s = tuple(float(x) for x in shape.size)
+    if shape.kind == "sphere":
+        return p[None].copy(), np.array([s[0]])
+    if shape.kind in ("cylinder", "capsule"):
+        r, length = s
+        k = int(min(max_spheres, max(1, np.ceil(length / (2.0 * r)))))
+        h = length / k
+        z = -0.5 * length + h * (np.arange(k) + 0.5)
+        rad = r + 0.5 * h if shape.kind == "capsule" else float(np.hypot(r, 0.5 * h))
+        return p + np.outer(z, R[:, 2]), np.full(k, rad)
+    if shape.kind == "box":
+        half = 0.5 * np.array(s)
+        ax = int(np.argmax(half))
+        k = int(min(max_spheres, max(1, np.ceil(half[ax] / max(np.delete(half, ax).max(), 1e-9)))))
+        h = 2.0 * half[ax] / k
+        rest = half.copy()
+        rest[ax] = 0.5 * h
+        z = -half[ax] + h * (np.arange(k) + 0.5)
+        return p + np.outer(z, R[:, ax]), np.full(k, float(np.linalg.norm(rest)))
+    v, f = load_mesh(shape.mesh, shape.scale)
+    v = v @ R.T + p
+    tri = v[f]  # (F, 3, 3)
+    cen = tri.mean(axis=1)
+    axis = np.linalg.svd(cen - cen.mean(axis=0), full_matrices=False)[2][0]
+    t = (cen - cen.mean(axis=0)) @ axis
+    k = int(min(max_spheres, max(1, len(f))))
+    edges = np.linspace(t.min(), t.max(), k + 1)
+    lab = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, k - 1)
+    out_c, out_r = [], []
+    for j in range(k):
+        pts = tri[lab == j].reshape(-1, 3)
+        if len(pts):
+            c, r = enclosing_sphere(pts)
+            out_c.append(c)
+            out_r.append(r)
+    return np.array(out_c), np.array(out_r)
+
+
+def subdivide_triangles(triangles: np.ndarray, max_edge: float) -> np.ndarray:
+    """(F', 3, 3): each triangle of ``triangles`` (F, 3, 3) cut into n^2 congruent ones whose edges are at
+    most ``max_edge`` m (n = ceil(longest edge / max_edge)); together they are the same surface."""
+    tri = np.asarray(triangles, float)
+    edge = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
+    n_of = np.maximum(np.ceil(edge / max_edge), 1).astype(int)
+    out = [tri[n_of == 1]]
+    for n in np.unique(n_of[n_of > 1]):
+        ij = [(i, j) for i in range(n + 1) for j in range(n + 1 - i)]
+        at = {v: k for k, v in enumerate(ij)}
+        up = [(at[i, j], at[i + 1, j], at[i, j + 1]) for i, j in ij if i + j <= n - 1]
+        down = [(at[i + 1, j], at[i + 1, j + 1], at[i, j + 1]) for i, j in ij if i + j <= n - 2]
+        w = np.array(ij, float) / n  # lattice point = A + w0 (B - A) + w1 (C - A)
+        t = tri[n_of == n]
+        pts = (
+            t[:, None, 0]
+            + w[None, :, :1] * (t[:, None, 1] - t[:, None, 0])
+            + w[None, :, 1:] * (t[:, None, 2] - t[:, None, 0])
+        )  # (f, G, 3)
+        out.append(pts[:, np.array(up + down)].reshape(-1, 3, 3))
+    return np.concatenate(out)
+
+
+def grow_to_contain(
+    centres: np.ndarray, radii: np.ndarray, triangles: np.ndarray, max_edge: float = 0.01
+) -> np.ndarray:
+    """Radii (k,) grown so that every triangle of ``triangles`` (F, 3, 3) lies inside the union of the
+    spheres ``centres`` (k, 3), m. The triangles are first cut to edges of at most ``max_edge``
+    (:func:`subdivide_triangles`); each piece goes to the sphere that needs the least growth to hold its three
+    corners (a ball holding a triangle's corners holds the triangle). Spheres fitted to points sampled on
+    a surface leave the surface between the samples partly outside; this closes that gap exactly."""
+    c = np.asarray(centres, float)
+    r = np.asarray(radii, float).copy()
+    tri = subdivide_triangles(triangles, max_edge) if len(triangles) else np.zeros((0, 3, 3))
+    if len(tri) == 0:
+        return r
+    need = np.zeros(len(tri))
+    best = np.zeros(len(tri), dtype=np.int64)
+    for s in range(0, len(tri), 8192):  # chunks: (F, 3, k) distances
+        t = tri[s : s + 8192]
+        far = np.linalg.norm(t[:, :, None, :] - c[None, None], axis=3).max(axis=1) - r[None]  # (f, k)
+        best[s : s + len(t)] = np.argmin(far, axis=1)
+        need[s : s + len(t)] = far[np.arange(len(t)), best[s : s + len(t)]]
+    grow = np.zeros(len(r))
+    np.maximum.at(grow, best, need)
+    return r + np.maximum(grow, 0.0) * (1.0 + 1e-12) + 1e-12 * (grow > 0)

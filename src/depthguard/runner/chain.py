@@ -16,27 +16,65 @@ import numpy as np
 from depthguard.camera import Camera
 from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput, CycleOutput
 from depthguard.depthspace import PointDistances
-from depthguard.io.cellfile import CellFile
+from depthguard.io.cellfile import CellError, CellFile
 from depthguard.robot.control_points import ControlPointSet
 from depthguard.robot.health import CameraHealth
 from depthguard.robot.model import RobotModel, load_lwr4
 from depthguard.robot.selffilter import self_filter
+from depthguard.robot.shapes import Shape
+from depthguard.robot.spheres import shape_cover
 
 __all__ = ["Chain", "load_cell_robot", "cell_control_points"]
 
 
+def _attachment_shapes(cell: CellFile) -> list[Shape]:
+    """The cell file's ``[[robot.attachments]]`` as shapes fixed to links."""
+    return [
+        Shape(
+            link=a.link,
+            kind=a.shape,
+            size=tuple(a.size),
+            mesh=None if a.mesh is None else str(a.mesh),
+            xyz=tuple(a.xyz),
+            rpy=tuple(a.rpy),
+            name=a.name,
+        )  # fmt: skip
+        for a in cell.robot.attachments
+    ]
+
+
 def load_cell_robot(cell: CellFile) -> RobotModel:
-    """The robot model named by the cell file (a shipped model or a URDF path)."""
+    """The robot model named by the cell file (a shipped model or a URDF path), with its attachments (tools,
+    payloads: the self-filter removes them)."""
     r = cell.robot
-    if r.model == "lwr4":
-        return load_lwr4()
-    return RobotModel.from_urdf(Path(r.urdf), ee_frame=r.ee_frame)
+    model = load_lwr4() if r.model == "lwr4" else RobotModel.from_urdf(Path(r.urdf), ee_frame=r.ee_frame)
+    for i, shape in enumerate(_attachment_shapes(cell)):
+        try:
+            model.attach(shape)
+        except ValueError as exc:
+            raise CellError(f"{cell.path}: robot.attachments[{i}] ('{shape.name}'): {exc}") from None
+    return model
 
 
 def cell_control_points(cell: CellFile, model: RobotModel) -> ControlPointSet:
-    """The control points the cell file names for ``model`` (``"ee"``: the end effector only)."""
-    preset = cell.robot.control_points
-    return ControlPointSet.build(model, {} if preset == "ee" else preset, cell.robot.ee_radius)
+    """The control points the cell file names for ``model`` (``"ee"``: the end effector only), plus its
+    explicit ``[[robot.spheres]]``, plus spheres that contain each attachment
+    (:func:`depthguard.robot.spheres.shape_cover`; a tool that no control point covers would be unprotected;
+    ``"auto"`` covers them already)."""
+    r = cell.robot
+    preset = r.control_points
+    points = ControlPointSet.build(model, {} if preset == "ee" else preset, r.ee_radius)
+    extra = [(f"{s.link}/sphere{i}", s.link, s.position, s.radius) for i, s in enumerate(r.spheres)]
+    if preset != "auto":
+        for shape in _attachment_shapes(cell):
+            covers = enumerate(zip(*shape_cover(shape), strict=True))
+            extra += [(f"{shape.name}/{j}", shape.link, c, rr) for j, (c, rr) in covers]
+    if not extra:
+        return points
+    try:
+        return points.with_spheres(extra)
+    except ValueError as exc:
+        raise CellError(f"{cell.path}: robot.spheres: {exc}") from None
 
 
 def _controller_config(cell: CellFile) -> ControllerConfig:

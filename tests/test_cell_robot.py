@@ -1,0 +1,124 @@
+"""The cell file's robot section reaches the chain: attachments are filtered and covered by control spheres,
+explicit spheres are added, and what is not supported (a camera carried by the robot) is refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pinocchio")
+
+from depthguard.io.cellfile import CellError, read_cell  # noqa: E402
+from depthguard.runner.chain import cell_control_points, load_cell_robot  # noqa: E402
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "cells"
+Q = np.array([0.3, 0.5, -0.2, -1.1, 0.4, 0.9, 0.1])
+
+
+def _cylinder_surface(R: np.ndarray, p: np.ndarray, radius: float, length: float, n: int = 40) -> np.ndarray:
+    """(M, 3) world points on a cylinder along the z axis of the pose (R, p), its ends included."""
+    a = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    z = np.linspace(-length / 2, length / 2, n)
+    ring = np.stack([np.cos(a), np.sin(a)], 1)
+    side = np.concatenate([np.column_stack([radius * ring, np.full(n, zz)]) for zz in z])
+    rr = np.linspace(0, radius, 6)
+    caps = np.concatenate([np.column_stack([r * ring, np.full(n, s * length / 2)]) for r in rr for s in (-1, 1)])
+    return np.concatenate([side, caps]) @ R.T + p
+
+
+def test_example_gripper_is_filtered_and_covered_by_control_spheres():
+    cell = read_cell(EXAMPLES / "realsense-d435.toml")
+    model = load_cell_robot(cell)
+    assert [s.name for s in model.attachments] == ["gripper"]
+    assert any(g.shape.name == "gripper" for g in model.geometry.geoms)  # the self-filter rasterises it
+    points = cell_control_points(cell, model)
+    grip = [i for i, n in enumerate(points.names) if n.startswith("gripper/")]
+    assert grip, points.names
+    st = points.evaluate(Q)
+    # the cylinder of the file (radius 0.045, length 0.12, 6 cm beyond the flange), from the flange's pose
+    Rf, pf = model.frame_pose(Q, "lwr_flange")
+    surf = _cylinder_surface(Rf, pf + Rf @ np.array([0.0, 0.0, 0.06]), 0.045, 0.12)
+    gap = np.linalg.norm(surf[:, None, :] - st.centres[grip][None], axis=2) - st.radii[grip][None]
+    assert gap.min(axis=1).max() <= 1e-9, "a point of the gripper lies outside every control sphere"
+
+
+def test_explicit_sphere_is_added_at_its_link_position(tmp_path):
+    text = (EXAMPLES / "realsense-d435.toml").read_text()
+    text = text.replace(
+        "[[robot.attachments]]",
+        '[[robot.spheres]]\nlink = "lwr_link_4"\nposition = [0.0, 0.05, 0.1]\nradius = 0.07\n\n[[robot.attachments]]',
+        1,
+    )
+    p = tmp_path / "cell.toml"
+    p.write_text(text)
+    cell = read_cell(p)
+    model = load_cell_robot(cell)
+    points = cell_control_points(cell, model)
+    k = points.names.index("lwr_link_4/sphere0")
+    st = points.evaluate(Q)
+    R4, p4 = model.frame_pose(Q, "lwr_link_4")
+    np.testing.assert_allclose(st.centres[k], p4 + R4 @ np.array([0.0, 0.05, 0.1]), atol=1e-12)
+    assert st.radii[k] == 0.07
+
+
+def test_attachment_on_an_unknown_link_names_it(tmp_path):
+    text = (EXAMPLES / "realsense-d435.toml").read_text().replace('link = "lwr_flange"', 'link = "lwr_flang"')
+    p = tmp_path / "cell.toml"
+    p.write_text(text)
+    with pytest.raises(CellError, match=r"robot\.attachments\[0\].*lwr_flang"):
+        load_cell_robot(read_cell(p))
+
+
+def test_camera_carried_by_the_robot_is_refused(tmp_path):
+    text = (EXAMPLES / "realsense-d435.toml").read_text()
+    text = text.replace("rate = 30.0\nmatrix", 'rate = 30.0\nparent = "lwr_link_7"\nmatrix', 1)
+    assert 'parent = "lwr_link_7"' in text
+    p = tmp_path / "cell.toml"
+    p.write_text(text)
+    with pytest.raises(CellError, match=r"parent = 'lwr_link_7'.*not supported"):
+        read_cell(p)
+
+
+def _solid_samples(kind: str, size, rng, n: int = 4000) -> np.ndarray:
+    """(n, 3) points inside the solid in its own frame (the boundary included), by its definition."""
+    u = rng.uniform(-1, 1, (n, 3))
+    if kind == "box":
+        return u * 0.5 * np.array(size)
+    r = size[0]
+    ang, rad = rng.uniform(0, 2 * np.pi, n), r * np.sqrt(rng.uniform(0, 1, n))
+    rad[: n // 4] = r  # a quarter on the mantle
+    disk = np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])
+    if kind == "cylinder":
+        return np.column_stack([disk, u[:, 2] * 0.5 * size[1]])
+    d = rng.normal(size=(n, 3))
+    d *= r * rng.uniform(0, 1, n)[:, None] ** (1 / 3) / np.linalg.norm(d, axis=1, keepdims=True)
+    if kind == "sphere":
+        return d
+    return d + np.outer(u[:, 2] * 0.5 * size[1], [0.0, 0.0, 1.0])  # capsule: balls along the segment
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("kind", ["box", "cylinder", "capsule", "sphere", "mesh"])
+def test_shape_cover_contains_the_whole_solid(kind, seed, tmp_path):
+    from depthguard.robot.shapes import Shape, rpy_to_matrix
+    from depthguard.robot.spheres import shape_cover
+
+    rng = np.random.default_rng(seed)
+    xyz, rpy = tuple(rng.uniform(-0.2, 0.2, 3)), tuple(rng.uniform(-np.pi, np.pi, 3))
+    if kind == "mesh":  # a box as a mesh file, covered through its faces
+        trimesh = pytest.importorskip("trimesh")
+        size = tuple(rng.uniform(0.02, 0.3, 3))
+        path = tmp_path / "part.stl"
+        trimesh.creation.box(extents=size).export(path)
+        shape, pts = Shape("l", "mesh", mesh=str(path), xyz=xyz, rpy=rpy), _solid_samples("box", size, rng)
+    else:
+        n = {"box": 3, "cylinder": 2, "capsule": 2, "sphere": 1}[kind]
+        size = tuple(rng.uniform(0.01, 0.3, n))
+        shape, pts = Shape("l", kind, size=size, xyz=xyz, rpy=rpy), _solid_samples(kind, size, rng)
+    world = pts @ rpy_to_matrix(rpy).T + np.array(xyz)
+    c, r = shape_cover(shape)
+    assert 1 <= len(r) <= 4
+    outside = (np.linalg.norm(world[:, None] - c[None], axis=2) - r[None]).min(axis=1)
+    assert outside.max() <= 1e-9, f"{kind}: a point {outside.max():.2e} m outside every sphere"
