@@ -122,3 +122,34 @@ def test_shape_cover_contains_the_whole_solid(kind, seed, tmp_path):
     assert 1 <= len(r) <= 4
     outside = (np.linalg.norm(world[:, None] - c[None], axis=2) - r[None]).min(axis=1)
     assert outside.max() <= 1e-9, f"{kind}: a point {outside.max():.2e} m outside every sphere"
+
+
+def _edited(tmp_path, old: str, new: str) -> Path:
+    text = (EXAMPLES / "realsense-d435.toml").read_text()
+    assert old in text
+    p = tmp_path / "cell.toml"
+    p.write_text(text.replace(old, new, 1))
+    return p
+
+
+def test_ssm_in_the_cell_file_turns_the_monitor_on(tmp_path):
+    from depthguard.control.cycle import AvoidanceController
+    from depthguard.runner.chain import _controller_config
+
+    cell = read_cell(_edited(tmp_path, "[controller]\n", "[controller]\nssm = true\n"))
+    cfg = _controller_config(cell)
+    assert cfg.avoidance == "both" and cfg.ssm.sensing_range == cell.distance["rho"]
+    model = load_cell_robot(cell)
+    assert AvoidanceController(cell_control_points(cell, model), cfg).monitor is not None
+    plain = _controller_config(read_cell(EXAMPLES / "realsense-d435.toml"))
+    assert plain.avoidance == "repulsion" and plain.ssm is None
+
+
+def test_octree_backend_is_refused_by_the_chain_not_replaced(tmp_path):
+    from depthguard.runner.chain import Chain
+
+    cell = read_cell(_edited(tmp_path, "[distance]\n", '[distance]\nbackend = "octree"\n'))
+    model = load_cell_robot(cell)
+    cams = [c.build(width=640, height=480, fx=600.0, fy=600.0, cx=320.0, cy=240.0) for c in cell.cameras]
+    with pytest.raises(CellError, match=r"distance\.backend = 'octree'"):
+        Chain(cell, cams, model)

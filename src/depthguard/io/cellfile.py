@@ -20,11 +20,13 @@ cell file are relative to the file's folder. Sections:
   ``extrinsics = "tf"`` (from the bag's TF, read once), in the frame ``parent`` (only ``"world"`` for now:
   a camera carried by the robot is refused with a clear error, since its pose would have to follow the
   joint state every frame);
-* ``[distance]``: ``backend`` (``depthspace`` | ``octree``), ``rho`` (m), ``mode`` (min | all | hybrid),
+* ``[distance]``: ``backend`` (``depthspace`` | ``octree``; ``run`` and the nodes refuse ``octree`` for now),
+  ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
   ``octree_res`` (m), ``period`` (s between distance queries in ``--fast`` runs);
 * ``[controller]``: ``rate`` (Hz), ``distance_timeout``, ``joint_timeout``, ``resume_time`` (s),
-  ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool);
+  ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool:
+  speed and separation monitoring with the repulsion, controller mode "both", docs/ssm.md);
 * ``calibration = "FILE"`` (top level): extrinsics from ``depthguard calibrate`` override the cameras' own;
 * ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
   (Float64MultiArray), ``distances``, ``status``, ``markers``;

@@ -83,9 +83,10 @@ def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.runner.chain import cell_control_points, load_cell_robot
+    from depthguard.runner.chain import cell_control_points, check_chain_support, load_cell_robot
     from depthguard.sim.pipeline import DistanceStage
 
+    check_chain_support(cell)
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     model = load_cell_robot(cell)

@@ -24,7 +24,7 @@ from depthguard.robot.selffilter import self_filter
 from depthguard.robot.shapes import Shape
 from depthguard.robot.spheres import shape_cover
 
-__all__ = ["Chain", "load_cell_robot", "cell_control_points"]
+__all__ = ["Chain", "load_cell_robot", "cell_control_points", "check_chain_support"]
 
 
 def _attachment_shapes(cell: CellFile) -> list[Shape]:
@@ -93,8 +93,25 @@ def _controller_config(cell: CellFile) -> ControllerConfig:
         joint_timeout=float(c["joint_timeout"]),
         resume_time=float(c["resume_time"]),
     )
+    if c["ssm"]:  # speed and separation monitoring with the repulsion (docs/ssm.md); +inf means "nothing
+        # within the query's rho", so the monitor takes it as rho (SsmConfig.sensing_range)
+        from depthguard.control.ssm import SsmConfig
+
+        values.update(avoidance="both", ssm=SsmConfig(sensing_range=float(cell.distance["rho"])))
     known = {f.name for f in dataclasses.fields(ControllerConfig)}
     return ControllerConfig(**{k: v for k, v in values.items() if k in known})
+
+
+def check_chain_support(cell: CellFile) -> None:
+    """Refuse what the chain (``depthguard run``, the nodes, the live view) cannot do yet, instead of
+    running something else: ``distance.backend = "octree"`` (the scenarios and ``depthguard distance`` have
+    it; the chain computes depth-space / depth-grid distances only)."""
+    if cell.distance["backend"] != "depthspace":
+        raise CellError(
+            f"{cell.path}: distance.backend = {cell.distance['backend']!r} is not available in `depthguard run`"
+            " and the nodes yet (only 'depthspace': depth space for one camera, the depth grid for several);"
+            " the octree backend runs in `depthguard scenario --backend octree` and `depthguard distance`"
+        )
 
 
 class Chain:
@@ -112,6 +129,7 @@ class Chain:
     ) -> None:
         from depthguard.sim.pipeline import DistanceStage
 
+        check_chain_support(cell)
         self.cell = cell
         self.cameras = list(cameras)
         self.model = model
