@@ -153,3 +153,20 @@ def test_octree_backend_is_refused_by_the_chain_not_replaced(tmp_path):
     cams = [c.build(width=640, height=480, fx=600.0, fy=600.0, cx=320.0, cy=240.0) for c in cell.cameras]
     with pytest.raises(CellError, match=r"distance\.backend = 'octree'"):
         Chain(cell, cams, model)
+
+
+def test_distance_settings_of_the_cell_file_reach_the_stage(tmp_path):
+    from depthguard.runner.chain import cell_distance_stage
+
+    one = read_cell(_edited(tmp_path, "[distance]\n", '[distance]\ninvalid = "ignore"\nfill_radius = 2\n'))
+    cams = [c.build(width=640, height=480, fx=600.0, fy=600.0, cx=320.0, cy=240.0) for c in one.cameras]
+    stage = cell_distance_stage(one, cams)
+    assert (stage.invalid, stage.fill_radius) == ("ignore", 2)
+    hexagon = (EXAMPLES / "sim-hexagon.toml").read_text()
+    p = tmp_path / "two.toml"
+    p.write_text(hexagon.replace("fill_radius = 4\n", "fill_radius = 3\n", 1))
+    two = read_cell(p)
+    assert cell_distance_stage(two, [c.build() for c in two.cameras]).fusion.fill_radius == 3
+    p.write_text(hexagon.replace('invalid = "conservative"', 'invalid = "ignore"', 1))
+    with pytest.raises(CellError, match="conservative"):
+        cell_distance_stage(read_cell(p), [c.build() for c in read_cell(p).cameras])

@@ -83,8 +83,7 @@ def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.runner.chain import cell_control_points, check_chain_support, load_cell_robot
-    from depthguard.sim.pipeline import DistanceStage
+    from depthguard.runner.chain import cell_control_points, cell_distance_stage, check_chain_support, load_cell_robot
 
     check_chain_support(cell)
     stop = stop if stop is not None else StopFlag()
@@ -129,10 +128,7 @@ def run_distance_node(
             depths, masks = [s[1] for s in sets], [s[2] for s in sets]
             if stage is None:
                 cams = [camera_at_size(c, dd.shape[1], dd.shape[0]) for c, dd in zip(cams0, depths, strict=True)]
-                stage = DistanceStage(
-                    cams, rho=rho, mode=d["mode"], alpha=float(cell.controller["alpha"]),
-                    workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]),
-                )  # fmt: skip
+                stage = cell_distance_stage(cell, cams)
             w0 = time.perf_counter()
             stage.update(depths, masks)
             cps = points.evaluate(q)

@@ -24,7 +24,7 @@ from depthguard.robot.selffilter import self_filter
 from depthguard.robot.shapes import Shape
 from depthguard.robot.spheres import shape_cover
 
-__all__ = ["Chain", "load_cell_robot", "cell_control_points", "check_chain_support"]
+__all__ = ["Chain", "load_cell_robot", "cell_control_points", "cell_distance_stage", "check_chain_support"]
 
 
 def _attachment_shapes(cell: CellFile) -> list[Shape]:
@@ -102,6 +102,22 @@ def _controller_config(cell: CellFile) -> ControllerConfig:
     return ControllerConfig(**{k: v for k, v in values.items() if k in known})
 
 
+def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
+    """The distance stage (:class:`depthguard.sim.pipeline.DistanceStage`) with every ``[distance]`` setting
+    of the cell file: rho, mode, missing-depth policy, hole filling, depth-grid step and workspace."""
+    from depthguard.sim.pipeline import DistanceStage
+
+    d = cell.distance
+    try:
+        return DistanceStage(
+            list(cameras), rho=float(d["rho"]), mode=d["mode"], alpha=float(cell.controller["alpha"]),
+            workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]), invalid=d["invalid"],
+            fill_radius=int(d["fill_radius"]),
+        )  # fmt: skip
+    except ValueError as exc:
+        raise CellError(f"{cell.path}: distance: {exc}") from None
+
+
 def check_chain_support(cell: CellFile) -> None:
     """Refuse what the chain (``depthguard run``, the nodes, the live view) cannot do yet, instead of
     running something else: ``distance.backend = "octree"`` (the scenarios and ``depthguard distance`` have
@@ -127,7 +143,6 @@ class Chain:
     def __init__(
         self, cell: CellFile, cameras: list[Camera], model: RobotModel, points: ControlPointSet | None = None
     ) -> None:
-        from depthguard.sim.pipeline import DistanceStage
 
         check_chain_support(cell)
         self.cell = cell
@@ -137,14 +152,7 @@ class Chain:
         self.points = points
         d = cell.distance
         self.rho, self.alpha = float(d["rho"]), float(cell.controller["alpha"])
-        self.stage = DistanceStage(
-            self.cameras,
-            rho=self.rho,
-            mode=d["mode"],
-            alpha=self.alpha,
-            workspace=tuple(d["workspace"]),
-            dd=float(d["grid_dd"]),
-        )
+        self.stage = cell_distance_stage(cell, self.cameras)
         self.config = _controller_config(cell)
         self.controller = AvoidanceController(points, self.config)
         self.latest: tuple[float, PointDistances] | None = None

@@ -172,14 +172,22 @@ class DistanceStage:
         alpha: float = 6.0,
         workspace: tuple[float, ...] = (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5),
         dd: float = 0.01,
+        invalid: str = "conservative",
+        fill_radius: int = 4,
     ) -> None:
         self.cameras = list(cameras)
         self.rho, self.mode, self.alpha = float(rho), mode, float(alpha)
+        self.invalid, self.fill_radius = invalid, fill_radius
         self.frames = None
         self.fusion = None
         self._updated = False
         if len(self.cameras) > 1:
-            self.fusion = DepthGridFusion(self.cameras, dd=dd, workspace=workspace)
+            if invalid != "conservative":
+                raise ValueError(
+                    f"invalid = {invalid!r}: the depth grid (several cameras) treats a missing pixel as unknown"
+                    " space only ('conservative')"
+                )
+            self.fusion = DepthGridFusion(self.cameras, dd=dd, workspace=workspace, fill_radius=fill_radius)
 
     def update(
         self,
@@ -212,7 +220,9 @@ class DistanceStage:
                 windows = None
             self.fusion.update(depths, masks, windows=windows)
         else:
-            self.frames = [prepare_frame(self.cameras[0], depths[0], masks[0])]
+            self.frames = [
+                prepare_frame(self.cameras[0], depths[0], masks[0], invalid=self.invalid, fill_radius=self.fill_radius)
+            ]
         self._updated = True
 
     @property
