@@ -133,12 +133,11 @@ def limit_robot_votes(cameras, depths, masks, votes, margin: float) -> None:
         for k, ck in enumerate(cameras):
             if k == j:
                 continue
-            pc = ck.world_to_camera(pw)
-            z = pc[:, 2]
-            front = z > 1e-6
-            pu = np.floor(ck.fx * pc[front, 0] / z[front] + ck.cx).astype(np.int64)
-            pv = np.floor(ck.fy * pc[front, 1] / z[front] + ck.cy).astype(np.int64)
-            zf = z[front]
+            proj = ck.project(pw)
+            front = proj[:, 2] > 1e-6
+            pu = np.floor(proj[front, 0]).astype(np.int64)
+            pv = np.floor(proj[front, 1]).astype(np.int64)
+            zf = proj[front, 2]
             inside = (pu >= 0) & (pv >= 0) & (pu < ck.width) & (pv < ck.height)
             pu, pv, zf = pu[inside], pv[inside], zf[inside]
             vk = votes[k]

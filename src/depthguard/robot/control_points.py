@@ -107,6 +107,12 @@ class ControlPointState(NamedTuple):
     names: tuple[str, ...]
 
 
+def _in_joint_frame(frame, centre: np.ndarray) -> np.ndarray:
+    """A point given in a link's (pinocchio BODY) frame, expressed in its parent joint's frame, m."""
+    M = frame.placement
+    return M.rotation @ np.asarray(centre, float) + M.translation
+
+
 @dataclass(frozen=True)
 class ControlPointSet:
     """A fixed set of control spheres on a robot; build once, evaluate every cycle.
@@ -160,7 +166,6 @@ class ControlPointSet:
         offsets, radii = [np.array(ee.placement.translation)], [float(ee_radius)]
         for link, k in counts.items():
             frame = model.model.frames[model.frame_id(link)]
-            M = frame.placement
             caps = [c for c in model.capsules if c.link == link]
             for ci, cap in enumerate(caps):
                 centres, rr = bounding_spheres(cap.a, cap.b, cap.radius, int(k))
@@ -168,7 +173,7 @@ class ControlPointSet:
                     suffix = f"{i}" if len(caps) == 1 else f"{ci}.{i}"
                     names.append(f"{link}/{suffix}")
                     joints.append(int(frame.parentJoint))
-                    offsets.append(M.rotation @ c + M.translation)
+                    offsets.append(_in_joint_frame(frame, c))
                     radii.append(float(r))
         return cls._from_lists(model, names, joints, offsets, radii)
 
@@ -200,11 +205,10 @@ class ControlPointSet:
             centres, rr = cover_points(pts, k, radii=prad)
             if link in tris:  # the surface between the samples too
                 rr = grow_to_contain(centres, rr, tris[link])
-            M = frame.placement
             for i, (c, r) in enumerate(zip(centres, rr, strict=True)):
                 names.append(f"{link}/{i}")
                 joints.append(int(frame.parentJoint))
-                offsets.append(M.rotation @ c + M.translation)
+                offsets.append(_in_joint_frame(frame, c))
                 radii.append(float(r))
         return cls._from_lists(model, names, joints, offsets, radii)
 
@@ -218,10 +222,9 @@ class ControlPointSet:
             if c.shape != (3,) or not np.all(np.isfinite(c)) or not (np.isfinite(radius) and radius >= 0):
                 raise ValueError(f"control sphere '{name}': centre must be 3 finite numbers and radius >= 0")
             frame = self.model.model.frames[self.model.frame_id(link)]  # ValueError naming an unknown link
-            M = frame.placement
             names.append(str(name))
             joints.append(int(frame.parentJoint))
-            offsets.append(M.rotation @ c + M.translation)
+            offsets.append(_in_joint_frame(frame, c))
             radii.append(float(radius))
         return self._from_lists(self.model, names, joints, offsets, radii)
 

@@ -34,11 +34,12 @@ CALIBRATION_POSES = (
 
 def _sim_frames(scenario: str, quick: bool) -> tuple[list, list[list[tuple[np.ndarray, np.ndarray]]]]:
     from depthguard.sim.depthcam import KinectSim
-    from depthguard.sim.scenarios import _build, load_scenario
+    from depthguard.sim.scenario_setup import build_scenario_cell
+    from depthguard.sim.scenarios import load_scenario
 
     sc = load_scenario(scenario)
     sc["people"] = []
-    cell, _, _ = _build(sc, quick=quick, cameras=None)
+    cell, _, _ = build_scenario_cell(sc, quick=quick, cameras=None)
     sims = [KinectSim(cell.model, c, i, seed=11 + i) for i, c in enumerate(cell.cameras)]
     per_cam: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in sims]
     for q in CALIBRATION_POSES:

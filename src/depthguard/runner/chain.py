@@ -58,7 +58,7 @@ def load_cell_robot(cell: CellFile) -> RobotModel:
 
 def cell_control_points(cell: CellFile, model: RobotModel) -> ControlPointSet:
     """The control points the cell file names for ``model`` (``"ee"``: the end effector only), plus its
-    explicit ``[[robot.spheres]]``, plus spheres that contain each attachment
+    explicit ``[[robot.spheres]]``, plus spheres that contain each of the model's attachments
     (:func:`depthguard.robot.spheres.shape_cover`; a tool that no control point covers would be unprotected;
     ``"auto"`` covers them already)."""
     r = cell.robot
@@ -66,7 +66,7 @@ def cell_control_points(cell: CellFile, model: RobotModel) -> ControlPointSet:
     points = ControlPointSet.build(model, {} if preset == "ee" else preset, r.ee_radius)
     extra = [(f"{s.link}/sphere{i}", s.link, s.position, s.radius) for i, s in enumerate(r.spheres)]
     if preset != "auto":
-        for shape in _attachment_shapes(cell):
+        for shape in model.attachments:
             covers = enumerate(zip(*shape_cover(shape), strict=True))
             extra += [(f"{shape.name}/{j}", shape.link, c, rr) for j, (c, rr) in covers]
     if not extra:
@@ -143,7 +143,6 @@ class Chain:
     def __init__(
         self, cell: CellFile, cameras: list[Camera], model: RobotModel, points: ControlPointSet | None = None
     ) -> None:
-
         check_chain_support(cell)
         self.cell = cell
         self.cameras = list(cameras)

@@ -74,11 +74,12 @@ class SimSource:
         seed: int = 0,
     ) -> None:
         from depthguard.sim.depthcam import KinectSim
-        from depthguard.sim.scenarios import _build, _task, load_scenario
+        from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task
+        from depthguard.sim.scenarios import load_scenario
 
         self.sc = load_scenario(scenario)
-        self.cell, self.kin, ee0 = _build(self.sc, quick=quick, cameras=None)
-        self.task = _task(self.sc, ee0)
+        self.cell, self.kin, ee0 = build_scenario_cell(self.sc, quick=quick, cameras=None)
+        self.task = scenario_task(self.sc, ee0)
         self.cams = [KinectSim(self.cell.model, c, i, seed=seed + i) for i, c in enumerate(self.cell.cameras)]
         self.cameras = list(self.cell.cameras)
         self.joint_names = tuple(self.cell.joint_names)

@@ -35,13 +35,13 @@ def _build(sc: dict, quick: bool):
     from depthguard.sim.cell import BoxSpec, CellSpec, build_cell
     from depthguard.sim.people import Keyframe, PersonScript
     from depthguard.sim.pipeline import Kinematics
-    from depthguard.sim.scenarios import _ik
+    from depthguard.sim.scenario_setup import solve_ik
 
     w, h = sc["quick_resolution"] if quick else sc["resolution"]
     floor_z = float(sc["floor_z"])
     cams, scanners = platform_sensors(np.zeros(3), int(w), int(h), z0=floor_z)
     kin = Kinematics(sc.get("control_points", "ral-9"), ee_radius=float(sc.get("ee_radius", 0.1)))
-    q0 = _ik(kin, np.asarray(sc["q0"], float), np.asarray(sc["ee_start"], float))
+    q0 = solve_ik(kin, np.asarray(sc["q0"], float), np.asarray(sc["ee_start"], float))
     people = [
         PersonScript(
             p["name"],
@@ -98,7 +98,7 @@ def _run_one(sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, 
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
     from depthguard.sim.pipeline import Controller
-    from depthguard.sim.scenarios import _task
+    from depthguard.sim.scenario_setup import scenario_task
 
     cell, kin, scanners = _build(sc, quick)
     cams = [KinectSim(cell.model, c, i, seed=i) for i, c in enumerate(cell.cameras)]
@@ -110,7 +110,7 @@ def _run_one(sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, 
         rho_body=float(av.get("rho_body", 0.3)), alpha_body=alpha,
     )  # fmt: skip
     ee0 = kin.evaluate(cell.q()).centres[0]
-    task = _task(sc, ee0)
+    task = scenario_task(sc, ee0)
     cfg = LoopConfig(
         duration=float(sc["quick_duration"] if quick else sc["duration"]), avoid=avoidance,
         rho=float(av.get("rho", 0.4)), vmax=float(av.get("vmax", 1.0)), alpha=float(av.get("alpha", 6.0)),

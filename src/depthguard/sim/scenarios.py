@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from depthguard.sim.accuracy import accuracy_metrics
+from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task
 
 __all__ = ["list_scenarios", "load_scenario", "run_scenario", "compute_metrics"]
 
@@ -85,100 +86,6 @@ def _set_path(d: dict, dotted: str, value: Any) -> None:
     for k in keys[:-1]:
         d = d.setdefault(k, {})
     d[keys[-1]] = value
-
-
-def _build(sc: dict, *, quick: bool, cameras: int | None, demo: bool = False):
-    from depthguard.sim.cell import BoxSpec, CellSpec, build_cell
-    from depthguard.sim.depthcam import placement
-    from depthguard.sim.people import Keyframe, PersonScript
-    from depthguard.sim.pipeline import Kinematics
-
-    res = sc.get("quick_resolution", [160, 120]) if quick else sc.get("resolution", [640, 480])
-    if demo:
-        res = sc.get("demo_resolution", res)
-    cams = placement(sc["cameras"], int(res[0]), int(res[1]))
-    if sc["cameras"] == "ral" and cameras is not None and cameras > len(cams):
-        cams = placement("ral3", int(res[0]), int(res[1]))  # the third camera (docs/phantom-zero.md)
-    n_cams = cameras if cameras is not None else sc.get("camera_count", len(cams))
-    if n_cams < 1 or n_cams > len(cams):
-        raise ValueError(f"scenario {sc['name']}: cameras must be 1..{len(cams)} for placement {sc['cameras']!r}")
-    cams = cams[:n_cams]
-    q0 = np.array(sc.get("q0", [0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0]), float)
-    robot = str(sc.get("robot", "lwr4"))  # the arm, simulated from its own meshes (depthguard.robot.robots)
-    kin = Kinematics(
-        sc.get("control_points", "ral-9"), float(sc.get("ee_radius", 0.12)), robot, int(sc.get("auto_spheres", 3))
-    )
-    if "ee_start" in sc:
-        q0 = _ik(kin, q0, np.asarray(sc["ee_start"], float))
-    ee0 = kin.evaluate(q0).centres[0]
-    floor_z = float(sc.get("floor_z", -0.8))
-
-    def hand(kf: dict, side: str):
-        if f"{side}_hand" in kf:
-            return tuple(kf[f"{side}_hand"])
-        if f"{side}_hand_rel_ee" in kf:
-            return tuple(ee0 + np.asarray(kf[f"{side}_hand_rel_ee"], float))
-        return None
-
-    people = []
-    for p in sc.get("people", []):
-        kfs = [
-            Keyframe(
-                t=float(k["t"]),
-                base=tuple(k["base"]),
-                yaw=float(k.get("yaw", 0.0)),
-                left_hand=hand(k, "left"),
-                right_hand=hand(k, "right"),
-                carry=k.get("carry"),
-                carry_hand=k.get("carry_hand", "right"),
-            )
-            for k in p["keyframes"]
-        ]
-        people.append(PersonScript(p["name"], kfs, floor_z=floor_z))
-    boxes = [
-        BoxSpec(b["name"], tuple(b["center"]), tuple(b["half"]), bool(b.get("movable", False)))
-        for b in sc.get("boxes", [])
-    ]
-    room = tuple(sc.get("room", (-1.1, 2.0, -1.1, 2.0) if sc["cameras"] == "ral" else (-1.5, 2.3, -1.6, 2.3)))
-    spec = CellSpec(cameras=cams, boxes=boxes, people=people, q0=tuple(q0), floor_z=floor_z, room=room, robot=robot)
-    cell = build_cell(spec)
-    return cell, kin, ee0
-
-
-def _ik(kin, q: np.ndarray, target: np.ndarray, iters: int = 200) -> np.ndarray:
-    """Joint positions putting the end effector at ``target`` (damped least squares from ``q``)."""
-    q = q.copy()
-    for _ in range(iters):
-        s = kin.evaluate(q)
-        e = target - s.centres[0]
-        if np.linalg.norm(e) < 1e-5:
-            break
-        J = s.jacobians[0]
-        q += J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(3), e) * 0.5
-        q = np.clip(q, kin.q_min + 0.05, kin.q_max - 0.05)
-    return q
-
-
-def _task(sc: dict, ee0: np.ndarray):
-    from depthguard.sim.loop import Task
-
-    t = sc["task"]
-    kind = t.get("kind", "points")
-    if kind not in ("points", "cycle", "hold"):
-        raise ValueError(f"scenario {sc['name']}: task.kind must be points, cycle or hold, got {kind!r}")
-    if kind == "hold":
-        wps = np.array([ee0])
-    else:
-        wps = np.array(t["waypoints"], float)
-        if t.get("relative", False):
-            wps = wps + ee0
-    return Task(
-        kind=kind,
-        waypoints=wps,
-        speed=float(t.get("speed", 0.4)),
-        tol=float(t.get("tol", 0.02)),
-        kp=float(t.get("kp", 3.0)),
-    )
 
 
 def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
@@ -262,7 +169,7 @@ def _run_one(
 
     if ssm and cameras is None:  # SSM needs a cell without blind pockets near the robot (docs/ssm.md)
         cameras = sc.get("ssm_camera_count")
-    cell, kin, ee0 = _build(sc, quick=quick, cameras=cameras, demo=demo)
+    cell, kin, ee0 = build_scenario_cell(sc, quick=quick, cameras=cameras, demo=demo)
     if setup is not None:  # e.g. reactive people (depthguard.sim.ssm_approach)
         setup(cell)
     av = sc.get("avoidance", {})
@@ -292,7 +199,7 @@ def _run_one(
 
         stage = BackgroundFilter(stage, cell, cams)
         ctrl = SsmRecorder(ctrl, cell)
-    task = _task(sc, ee0)
+    task = scenario_task(sc, ee0)
     duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
     if demo:
         duration = float(sc.get("demo_duration", duration))
@@ -393,43 +300,55 @@ def run_scenario(
     result.update(_ssm_keys(log, cfg, ssm and avoidance))
     runs = {"main": (log, task)}
     if variants and avoidance:
-        result["variants"] = {}
-        for v in sc.get("variants", []):
-            sv = copy.deepcopy(sc)
-            for k, val in v.get("set", {}).items():
-                _set_path(sv, k, val)
-            if v.get("remove_people"):
-                sv["people"] = []
-            if v.get("remove_boxes"):
-                sv["boxes"] = []
-            _, vlog, vtask, vcfg = _run_one(sv, label=f"{sc['name']} [{v['name']}]", **run_kw)
-            result["variants"][v["name"]] = {**compute_metrics(vlog, vtask, vcfg), **_ssm_keys(vlog, vcfg, ssm)}
-            runs[v["name"]] = (vlog, vtask)
+        result["variants"] = _run_variants(sc, run_kw, runs)
     result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)
     if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        result["out_dir"] = str(out)
-        files = {}
-        try:
-            from depthguard.viz.plots import plot_run
-
-            files.update(plot_run(out, runs, sc["name"], float(sc.get("avoidance", {}).get("rho", 0.4))))
-        except ImportError as exc:  # matplotlib missing
-            result["plots_error"] = f"plots skipped: {exc} (pip install depthguard[viz])"
-        try:
-            from depthguard.sim.recorder import record_run
-
-            files["recording"] = str(record_run(out / "recording.mcap", cell, log))
-        except ImportError as exc:
-            result["recording_error"] = f"recording skipped: {exc} (pip install depthguard[sim])"
-        if getattr(log, "ssm", None) is not None:
-            from depthguard.sim.ssm_metrics import plot_ssm
-
-            files["ssm"] = plot_ssm(out, log.ssm, log.point_names, result.get("binding_point"), sc["name"])
-        result["files"] = files
-        (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
+        _write_outputs(Path(out_dir), sc, cell, log, runs, result)
     return result
+
+
+def _run_variants(sc: dict, run_kw: dict, runs: dict) -> dict[str, Any]:
+    """Run the scenario's ``[[variants]]`` (settings changed, people or boxes removed) with the main run's
+    arguments; returns their metrics by name and adds their logs to ``runs``."""
+    out = {}
+    for v in sc.get("variants", []):
+        sv = copy.deepcopy(sc)
+        for k, val in v.get("set", {}).items():
+            _set_path(sv, k, val)
+        if v.get("remove_people"):
+            sv["people"] = []
+        if v.get("remove_boxes"):
+            sv["boxes"] = []
+        _, vlog, vtask, vcfg = _run_one(sv, label=f"{sc['name']} [{v['name']}]", **run_kw)
+        out[v["name"]] = {**compute_metrics(vlog, vtask, vcfg), **_ssm_keys(vlog, vcfg, run_kw["ssm"])}
+        runs[v["name"]] = (vlog, vtask)
+    return out
+
+
+def _write_outputs(out: Path, sc: dict, cell, log, runs: dict, result: dict) -> None:
+    """``metrics.json``, the plots and ``recording.mcap`` of a run in ``out``; ``result`` gains ``out_dir``,
+    ``files`` and, when an extra is missing, ``plots_error`` / ``recording_error``."""
+    out.mkdir(parents=True, exist_ok=True)
+    result["out_dir"] = str(out)
+    files = {}
+    try:
+        from depthguard.viz.plots import plot_run
+
+        files.update(plot_run(out, runs, sc["name"], float(sc.get("avoidance", {}).get("rho", 0.4))))
+    except ImportError as exc:  # matplotlib missing
+        result["plots_error"] = f"plots skipped: {exc} (pip install depthguard[viz])"
+    try:
+        from depthguard.sim.recorder import record_run
+
+        files["recording"] = str(record_run(out / "recording.mcap", cell, log))
+    except ImportError as exc:
+        result["recording_error"] = f"recording skipped: {exc} (pip install depthguard[sim])"
+    if getattr(log, "ssm", None) is not None:
+        from depthguard.sim.ssm_metrics import plot_ssm
+
+        files["ssm"] = plot_ssm(out, log.ssm, log.point_names, result.get("binding_point"), sc["name"])
+    result["files"] = files
+    (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
 
 
 def _ssm_config(av: dict):
