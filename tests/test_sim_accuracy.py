@@ -52,11 +52,12 @@ def test_accuracy_metrics_on_a_hand_made_log():
 
 
 def test_point_clearance_matches_the_analytic_primitives():
+    from depthguard.sim import scenario_setup as setup
     from depthguard.sim import scenarios as S
     from depthguard.sim.pointtruth import PointClearance
 
     sc = S.load_scenario("ral-hexagon")
-    cell, _, _ = S._build(sc, quick=True, cameras=1)
+    cell, _, _ = setup.build_scenario_cell(sc, quick=True, cameras=1)
     pc = PointClearance(cell)
     snap = pc.snapshot(cell.data)
     m, d = cell.model, cell.data
@@ -103,6 +104,7 @@ def test_principal_camera_sees_the_space_of_interest():
     every control point along the ral scenarios' task (above 0.35 m; below, a sliver of space low in front
     of the camera near the end effector's lowest waypoints lies under the image's bottom edge, see
     docs/phantom-zero.md). Aimed at 0.35 m, the space above the arm was cut by the top edge."""
+    from depthguard.sim import scenario_setup as setup
     from depthguard.sim import scenarios as S
     from depthguard.sim.depthcam import kinect_camera, placement
     from depthguard.sim.pipeline import Kinematics
@@ -112,9 +114,9 @@ def test_principal_camera_sees_the_space_of_interest():
     pts = []
     for name in ("ral-hexagon", "ral-shadow", "ral-hidden"):
         sc = S.load_scenario(name)
-        q = S._ik(kin, np.array(sc["q0"], float), np.asarray(sc["ee_start"], float))
+        q = setup.solve_ik(kin, np.array(sc["q0"], float), np.asarray(sc["ee_start"], float))
         for wp in [sc["ee_start"], *sc["task"]["waypoints"]]:
-            q = S._ik(kin, q, np.asarray(wp, float))
+            q = setup.solve_ik(kin, q, np.asarray(wp, float))
             cp = kin.evaluate(q)
             for c, r in zip(cp.centres, cp.radii, strict=True):
                 x = rng.normal(size=(400, 3))
