@@ -20,6 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from depthguard.sim import scenario_setup as setup  # noqa: E402
 from depthguard.sim import scenarios as S  # noqa: E402
 from depthguard.sim.cell import CellSpec, build_cell  # noqa: E402
 from depthguard.sim.depthcam import KinectSim, placement  # noqa: E402
@@ -52,8 +53,8 @@ def _px(cam, p):
 
 def main(out: Path = OUT) -> Path:
     sc = S.load_scenario("ral-hexagon")
-    _, kin, _ = S._build(sc, quick=True, cameras=2)
-    q = S._ik(kin, np.array(sc["q0"], float), np.asarray(WAYPOINT, float))
+    _, kin, _ = setup.build_scenario_cell(sc, quick=True, cameras=2)
+    q = setup.solve_ik(kin, np.array(sc["q0"], float), np.asarray(WAYPOINT, float))
     cams3 = placement("ral3", 160, 120)
     two, truth, depths, masks = _evaluate(cams3[:2], q, kin)
     three, _, _, _ = _evaluate(cams3, q, kin)
