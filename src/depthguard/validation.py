@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["check_positive", "check_finite_array", "check_rotation", "check_points"]
@@ -19,7 +21,12 @@ def check_positive(value: object, name: str) -> float:
 
 
 def check_finite_array(value: object, shape: tuple[int, ...], name: str) -> np.ndarray:
-    """Return ``value`` as a float array of ``shape`` (-1 = any length), or raise."""
+    """Return ``value`` as a float array of ``shape`` (-1 = any length), a copy, or raise."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape:
+        # fast path of the control-rate callers (about 2 µs instead of 5): a sum is finite only if every
+        # element is (NaN and inf propagate; a finite sum that overflows falls through to the full check)
+        if math.isfinite(value.sum()):
+            return value.copy()
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError, OverflowError):

@@ -89,8 +89,7 @@ def run_control_benchmark(quick: bool = False) -> dict:
             name = m.state.name if m is not None else "none"
             states[name] = states.get(name, 0) + 1
 
-        model.update(q)
-        st = points.evaluate(q, updated=True)
+        st = points.evaluate(q)
         J = np.ascontiguousarray(st.jacobians[0])
         lo, hi = -ctrl.v_max.copy(), ctrl.v_max.copy()
         body_bounds_inplace(st.jacobians, dist, dirs, ctrl.body_use, ctrl.v_max, 0.4, 6.0, 0.0, 1e-6, lo, hi)
@@ -107,8 +106,8 @@ def run_control_benchmark(quick: bool = False) -> dict:
             np.clip(np.linalg.pinv(J) @ xc, lo, hi)
 
         parts = {
-            "forward_kinematics_and_jacobians": lambda: model.update(q),
-            "control_points": lambda: points.evaluate(q, updated=True),
+            "forward_kinematics_and_jacobians": lambda: model.joint_kinematics(q),
+            "control_points": lambda: points.evaluate(q),
             "body_bounds": body,
             "sns": lambda J=J, lo=lo, hi=hi, lam=lam, xc=xc: sns_velocity_unchecked(J, xc, lo, hi, lam),
             "ruckig": lambda ctrl=ctrl, s=otg_state, tg=target: ctrl.otg.step(s, tg),

@@ -255,8 +255,7 @@ def plan_motion(
     ``otg`` is the current motion, ``data_age`` the age of the distances, s) and SNS within
     ``b.lo_s``/``b.hi_s``."""
     cfg = ctrl.config
-    ctrl.points.model.update(chk.q)
-    cps = ctrl.points.evaluate(chk.q, updated=True)
+    cps = ctrl.points.evaluate(chk.q)
     dist, dirs = chk.distances, chk.directions
     if cfg.avoidance == "ssm":
         xdot_c = np.asarray(chk.xdot_d, dtype=float).copy()

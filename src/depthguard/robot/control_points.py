@@ -36,8 +36,8 @@ from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
+from depthguard.robot.fk import fixed_points
 from depthguard.robot.model import RobotModel
 from depthguard.robot.spheres import cover_points, grow_to_contain
 
@@ -65,30 +65,6 @@ def bounding_spheres(a: np.ndarray, b: np.ndarray, radius: float, k: int) -> tup
     t = np.linspace(0.0, 1.0, k)
     centres = a + t[:, None] * (b - a)
     return centres, np.full(k, np.hypot(radius, 0.5 * L / (k - 1)))
-
-
-@njit(cache=True)
-def _assemble(
-    H: np.ndarray, slot: np.ndarray, offsets: np.ndarray, Jw: np.ndarray, support: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Centres (N, 3) and Jacobians (N, 3, n) from the parent joints' poses H (U, 4, 4) and the WORLD
-    joint Jacobian Jw (6, n): a body point c moves with ``v_O + w x c``, so ``J_c = J_lin + J_ang x c``
-    over the joints that support it."""
-    N, n = slot.shape[0], Jw.shape[1]
-    centres = np.empty((N, 3))
-    jac = np.zeros((N, 3, n))
-    for k in range(N):
-        M = H[slot[k]]
-        for i in range(3):
-            centres[k, i] = M[i, 0] * offsets[k, 0] + M[i, 1] * offsets[k, 1] + M[i, 2] * offsets[k, 2] + M[i, 3]
-        c0, c1, c2 = centres[k, 0], centres[k, 1], centres[k, 2]
-        for j in range(n):
-            if support[k, j]:
-                w0, w1, w2 = Jw[3, j], Jw[4, j], Jw[5, j]
-                jac[k, 0, j] = Jw[0, j] + w1 * c2 - w2 * c1
-                jac[k, 1, j] = Jw[1, j] + w2 * c0 - w0 * c2
-                jac[k, 2, j] = Jw[2, j] + w0 * c1 - w1 * c0
-    return centres, jac
 
 
 class ControlPointState(NamedTuple):
@@ -246,14 +222,18 @@ class ControlPointSet:
 
         Args:
             q: joint positions (n,), rad.
-            updated: True if ``model.update(q)`` has already run for this ``q`` (skips it).
+            updated: True if ``model.update(q)`` has already run for this ``q``: the poses are then read
+                from the model's pinocchio buffer. Otherwise they come from
+                :meth:`RobotModel.joint_kinematics` (compiled; the pinocchio buffer is left as it is).
         """
         if not updated:
-            self.model.update(self.model.check_q(q))
+            H, Jw = self.model.joint_kinematics(self.model.check_q(q))  # (njoints, 4, 4), (6, n)
+            centres, jac = fixed_points(H, self.joints, self.offsets, Jw, self.support)
+            return ControlPointState(centres, self.radii.copy(), jac, self.names)
         oMi = self.model.data.oMi
         H = np.array([oMi[j].homogeneous for j in self._unique_joints])  # (U, 4, 4)
         Jw = np.asarray(self.model.data.J)  # (6, n): linear part at the world origin, angular part
-        centres, jac = _assemble(H, self._joint_slot, self.offsets, Jw, self.support)
+        centres, jac = fixed_points(H, self._joint_slot, self.offsets, Jw, self.support)
         return ControlPointState(centres, self.radii.copy(), jac, self.names)
 
 

@@ -131,14 +131,33 @@ def discrete_time_constant(gain: float | np.ndarray, dt: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _observer_step(M, C, g, qd, tau, damping, gain, h, average, integral, p0, beta_prev, tau_prev, r_prev):
-    """One discrete residual update (module docstring): returns (r, integral, beta), each (n,)."""
-    p = M @ qd
-    beta = C.T @ qd - g - damping * qd
-    tau_int = tau * h if average else 0.5 * h * (tau + tau_prev)
-    partial = integral + tau_int + 0.5 * h * (beta + beta_prev) + 0.5 * h * r_prev
-    r = gain * (p - p0 - partial) / (1.0 + 0.5 * gain * h)
-    return r, partial + 0.5 * h * r, beta
+def _observer_step(M, C, g, qd, tau, par, h, average, first, state):  # pragma: no cover - compiled
+    """One discrete residual update (module docstring), in place on ``state`` (5, n): the integral I,
+    p(0), β of the previous sample, τ of the previous sample, r. ``par`` (3, n): armature, damping D,
+    gain K_I. ``M`` is read from its upper triangle (what pinocchio's crba always fills); ``first``
+    initialises p(0) and β and gives r = 0. Returns a copy of r (n,)."""
+    n = qd.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        p = par[0, i] * qd[i]  # (M + diag(armature)) q̇
+        beta = -g[i] - par[1, i] * qd[i]  # Cᵀ q̇ - g - D q̇
+        for j in range(n):
+            p += (M[i, j] if i <= j else M[j, i]) * qd[j]
+            beta += C[j, i] * qd[j]
+        if first:
+            state[0, i], state[1, i], state[2, i], state[3, i], state[4, i] = 0.0, p, beta, tau[i], 0.0
+        else:
+            tau_int = tau[i] * h if average else 0.5 * h * (tau[i] + state[3, i])
+            partial = state[0, i] + tau_int + 0.5 * h * (beta + state[2, i]) + 0.5 * h * state[4, i]
+            gain = par[2, i]
+            r = gain * (p - state[1, i] - partial) / (1.0 + 0.5 * gain * h)
+            state[0, i], state[2, i], state[3, i], state[4, i] = partial + 0.5 * h * r, beta, tau[i], r
+        out[i] = state[4, i]
+    return out
+
+
+def _is_vector(x: object, n: int) -> bool:
+    return type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,)
 
 
 class MomentumObserver:
@@ -165,51 +184,37 @@ class MomentumObserver:
         if tau_mode not in ("sample", "average"):
             raise ValueError(f"tau_mode must be 'sample' or 'average', got {tau_mode!r}")
         self.tau_mode = tau_mode
+        self._average = tau_mode == "average"
+        self._par = np.array([dynamics.armature, dynamics.damping, self.gain])
         self.reset()
 
     def reset(self) -> None:
         """Forget the history: the next :meth:`update` re-initialises ``p(0)``."""
-        n = self.dyn.n_dof
-        self.r = np.zeros(n)
-        self._integral = np.zeros(n)
-        self._p0: np.ndarray | None = None
-        self._beta_prev = np.zeros(n)
-        self._tau_prev = np.zeros(n)
+        self._state = np.zeros((5, self.dyn.n_dof))  # I, p(0), β_prev, τ_prev, r
+        self._started = False
+
+    @property
+    def r(self) -> np.ndarray:
+        """(n,) the latest residual, N m."""
+        return self._state[4].copy()
 
     def update(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float | None = None) -> np.ndarray:
         """One cycle: joint positions ``q`` (n,) rad, velocities ``qd`` (n,) rad/s, motor torques ``tau``
         (n,) N m. Returns the residual ``r`` (n,) N m (an estimate of τ_ext). Non-finite input raises
         ``ValueError`` (the caller should then treat the robot as in contact, i.e. stop)."""
         n = self.dyn.n_dof
-        q, qd, tau = (np.asarray(x, dtype=float) for x in (q, qd, tau))
-        if q.shape != (n,) or qd.shape != (n,) or tau.shape != (n,) or not np.isfinite(q.sum() + qd.sum() + tau.sum()):
-            for x, name in ((q, "q"), (qd, "qd"), (tau, "tau")):
-                check_finite_array(x, (n,), name)  # raises with the field's name
+        if not (_is_vector(q, n) and _is_vector(qd, n) and _is_vector(tau, n)) or not math.isfinite(
+            q.sum() + qd.sum() + tau.sum()
+        ):
+            q, qd, tau = (check_finite_array(x, (n,), name) for x, name in ((q, "q"), (qd, "qd"), (tau, "tau")))
         h = self.dt if dt is None else check_positive(dt, "dt")
-        M, C, g = self.dyn.terms(q, qd)
-        if self._p0 is None:
-            self._p0 = M @ qd
-            self._beta_prev = C.T @ qd - g - self.dyn.damping * qd
-            self._tau_prev = tau
-            return self.r.copy()
-        self.r, self._integral, self._beta_prev = _observer_step(
-            M,
-            C,
-            g,
-            qd,
-            tau,
-            self.dyn.damping,
-            self.gain,
-            h,
-            self.tau_mode == "average",
-            self._integral,
-            self._p0,
-            self._beta_prev,
-            self._tau_prev,
-            self.r,
-        )
-        self._tau_prev = tau
-        return self.r.copy()
+        dyn, pin = self.dyn, self.dyn._pin
+        M = pin.crba(dyn.model, dyn.data, q)  # upper triangle at least; the kernel mirrors it
+        C = pin.computeCoriolisMatrix(dyn.model, dyn.data, q, qd)
+        g = pin.computeGeneralizedGravity(dyn.model, dyn.data, q)
+        r = _observer_step(M, C, g, qd, tau, self._par, h, self._average, not self._started, self._state)
+        self._started = True
+        return r
 
 
 class ContactEvidence(NamedTuple):
@@ -289,7 +294,7 @@ class ContactDetector:
         """Feed one residual ``r`` (n,) N m of period ``dt`` s. Non-finite ``r`` counts as a contact
         (safety: the caller cannot trust the robot state)."""
         r = np.asarray(r, float)
-        norm = math.sqrt(float(np.dot(r, r)))  # BLAS: overflow gives inf without a warning; NaN stays NaN
+        norm = math.hypot(*r.tolist())  # no overflow below inf; NaN or inf -> not finite
         if not math.isfinite(norm):
             norm = math.inf
         rate = (norm - self._prev_norm) / dt if math.isfinite(norm) else math.inf

@@ -2,9 +2,9 @@
 
 A :class:`SensorArray` takes a :class:`~depthguard.robot.model.RobotModel` and
 :class:`~depthguard.sensors.mount.SensorMount` s. Each mount is converted once into its parent joint's
-frame, so that one forward-kinematics pass (``RobotModel.update``) serves every sensor and the end
-effector: for a point ``p`` fixed to a link, ``J_p = J_lin + J_ang x p`` over the joints that support the
-link (WORLD-frame spatial Jacobian), the ``d p_sk / d q`` of SAPHARI eq. 5.7.
+frame, so that one forward-kinematics pass (:meth:`RobotModel.joint_kinematics`, compiled) serves every
+sensor and the end effector: for a point ``p`` fixed to a link, ``J_p = J_lin + J_ang x p`` over the
+joints that support the link (WORLD-frame spatial Jacobian), the ``d p_sk / d q`` of SAPHARI eq. 5.7.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from depthguard.robot.fk import fixed_directions, fixed_points
 from depthguard.robot.model import RobotModel
 from depthguard.sensors.mount import check_mounts
 
@@ -62,11 +63,8 @@ class SensorArray:
             self._joint[k] = int(fr.parentJoint)
             self._p[k] = M.rotation @ p + M.translation
             self._a[k] = M.rotation @ a
-        self._mask = np.array([model.joint_support_mask(j) for j in self._joint], dtype=float)  # (N+1, n)
+        self._mask = np.array([model.joint_support_mask(j) for j in self._joint], dtype=bool)  # (N+1, n)
         self.max_range = np.array([m.max_range for m in self.mounts])
-        self._joint_list = [int(j) for j in self._joint]
-        self._joints_used = sorted(set(self._joint_list))
-        self._use_idx = np.array([self._joints_used.index(j) for j in self._joint_list])
 
     @property
     def n_sensors(self) -> int:
@@ -78,25 +76,7 @@ class SensorArray:
         qa = np.asarray(q, dtype=float)
         if qa.shape != (m.n_dof,) or not np.isfinite(qa).all():
             qa = m.check_q(q)  # raises with the field named
-        m.update(qa)
-        oMi = m.data.oMi
-        Ru = np.empty((len(self._joints_used), 3, 3))
-        ou = np.empty((len(self._joints_used), 3))
-        for u, j in enumerate(self._joints_used):
-            M = oMi[j]
-            Ru[u] = M.rotation
-            ou[u] = M.translation
-        R, o = Ru[self._use_idx], ou[self._use_idx]  # (N+1, 3, 3), (N+1, 3)
-        pos = np.matmul(R, self._p[:, :, None])[:, :, 0] + o
-        ax = np.matmul(R, self._a[:, :, None])[:, :, 0]
-        J = np.asarray(m.data.J)  # (6, n) WORLD
-        Jl, Ja = J[:3], J[3:]
-        # J_p[k] = Jl + Ja x p_k  (column-wise cross product), masked by the link's support
-        px, py, pz = pos[:, 0:1], pos[:, 1:2], pos[:, 2:3]  # (N+1, 1)
-        wx, wy, wz = Ja[0], Ja[1], Ja[2]  # (n,)
-        Jp = np.empty((len(pos), 3, J.shape[1]))
-        Jp[:, 0] = Jl[0] + wy * pz - wz * py
-        Jp[:, 1] = Jl[1] + wz * px - wx * pz
-        Jp[:, 2] = Jl[2] + wx * py - wy * px
-        Jp *= self._mask[:, None, :]
+        H, Jw = m.joint_kinematics(qa)  # (njoints, 4, 4), (6, n) WORLD
+        pos, Jp = fixed_points(H, self._joint, self._p, Jw, self._mask)  # J_p = J_lin + J_ang x p, masked
+        ax = fixed_directions(H, self._joint, self._a)
         return SensorState(pos[:-1], ax[:-1], Jp[:-1], pos[-1], Jp[-1])

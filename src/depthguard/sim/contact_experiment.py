@@ -290,10 +290,7 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
         P, n_un = np.eye(3 * max(1, len(adm.contacts))), 0
         if state.active and adm.contacts:
             R, p = robot.joint_poses(q)
-            Js = [
-                point_jacobian(robot, q, c.link, R[c.joint] @ c.local + p[c.joint], update=(i == 0))
-                for i, c in enumerate(adm.contacts)
-            ]
+            Js = [point_jacobian(robot, q, c.link, R[c.joint] @ c.local + p[c.joint]) for c in adm.contacts]
             est = estimate_contact_forces(Js, r)
             f_hat, P, n_un = est.forces, est.projector, est.unobservable.shape[1]
         ee_t, ee_v = _free_target(setup, ee0, t)
