@@ -111,15 +111,15 @@ class RobotGeometry:
         """Analytic capsules in the world frame from joint poses ``R`` (J+1, 3, 3), ``p`` (J+1, 3):
         ``a``, ``b`` (C, 3) m, ``radius`` (C,) m."""
         Rj, pj = R[self.cap_joint], p[self.cap_joint]
-        a = np.einsum("kij,kj->ki", Rj, self.cap_a) + pj
-        b = np.einsum("kij,kj->ki", Rj, self.cap_b) + pj
+        a = np.matmul(Rj, self.cap_a[:, :, None])[:, :, 0] + pj
+        b = np.matmul(Rj, self.cap_b[:, :, None])[:, :, 0] + pj
         return a, b, self.cap_r.copy()
 
     def mesh_transforms(self, R: np.ndarray, p: np.ndarray, Rc: np.ndarray, tc: np.ndarray) -> np.ndarray:
         """(S, 3, 4) camera-from-joint transforms of the meshes; camera pose ``P_C = Rc P_W + tc``."""
         Rj, pj = R[self.mesh_joint], p[self.mesh_joint]
         T = np.empty((len(self.mesh_joint), 3, 4))
-        T[:, :, :3] = np.einsum("ij,kjl->kil", Rc, Rj)
+        T[:, :, :3] = np.matmul(Rc, Rj)
         T[:, :, 3] = pj @ Rc.T + tc
         return T
 

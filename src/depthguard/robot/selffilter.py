@@ -53,6 +53,7 @@ class SelfFilterResult(NamedTuple):
 
 
 _WORK = threading.local()
+_NO_CAPSULES = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
 
 
 def _work_buffers(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,9 +170,10 @@ def self_filter(
     """
     model = _DefaultModel.get() if model is None else model
     d = _check(camera, depth, margin, pad_px)
-    R, p = model.joint_poses(model.check_q(q))
+    H, _ = model.joint_kinematics(model.check_q(q))  # (J+1, 4, 4) joint poses
+    R, p = H[:, :3, :3], H[:, :3, 3]
     g = model.geometry
-    caps = _capsules_in_camera(camera, *g.world_capsules(R, p))
+    caps = _capsules_in_camera(camera, *g.world_capsules(R, p)) if len(g.cap_r) else _NO_CAPSULES
     meshes = (g, g.mesh_transforms(R, p, camera.R, camera.t)) if g.n_triangles else None
     return _run(camera, d, margin, caps, meshes)
 
