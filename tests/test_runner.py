@@ -324,3 +324,28 @@ def test_frozen_camera_stops_the_controller_with_its_name(tmp_path):
     i = log.status.index("STOP_SENSOR_FAULT")
     assert log.t[i] == pytest.approx(0.066, abs=0.002)  # the third identical frame
     assert np.all(np.abs(log.qdot_cmd[-1]) < np.abs(log.qdot_cmd[i]).max() + 1e-12)
+
+
+def test_run_chain_corrects_for_the_robots_interior():
+    """``run`` (and the distance node) apply the robot-interior corrections of the depth grid, as the
+    simulated scenarios do (docs/phantom-zero.md): with the joint state, the cells right behind the arm
+    are not unseen space. On the first frames of the simulated ``ral-hexagon`` cell every distance is at
+    least the uncorrected one and some are larger (without them, at 640x480 the end effector read 0)."""
+    from depthguard.io.cellfile import read_cell
+    from depthguard.runner import open_source
+    from depthguard.runner.chain import Chain, load_cell_robot
+
+    cell = read_cell(HEX_CELL)
+    model = load_cell_robot(cell)
+    src = open_source("sim:ral-hexagon", cell, model.joint_names, quick=True)
+    try:
+        tick = next(t for t in src.ticks() if t.frames is not None)
+        chain = Chain(cell, src.cameras, model)
+        chain.on_frames(tick.frames, tick.q, tick.t)
+        corrected = np.asarray(chain.query(tick.t, tick.q).distance)
+        chain.stage.update(tick.frames, chain.masks)  # without the joint state: no correction
+        plain = np.asarray(chain.query(tick.t, tick.q).distance)
+    finally:
+        src.close()
+    assert np.all(corrected >= plain - 1e-9)
+    assert np.any(corrected > plain + 0.005)

@@ -19,12 +19,9 @@ import numpy as np
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
-from depthguard.nodes.common import JsonLog, StopFlag, Topics, camera_at_size, open_node
+from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
 
 __all__ = ["run_camera_node", "mask_msg"]
-
-#: A frame is self-filtered only with joint states at most this far (s) from its stamp.
-MAX_JOINT_SKEW = 0.05
 
 
 def mask_msg(t: float, frame_id: str, mask: np.ndarray):

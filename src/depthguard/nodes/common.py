@@ -32,6 +32,10 @@ __all__ = [
 
 _FIXED = ("distance", "controller", "monitor", "run", "view")
 
+#: A frame is self-filtered (camera nodes) or corrected for the robot's interior (distance node) only with
+#: joint states at most this far (s) from its stamp.
+MAX_JOINT_SKEW = 0.05
+
 
 def node_names(cell: CellFile) -> list[str]:
     """All node names of ``cell`` in port order."""

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
-from depthguard.nodes.common import JsonLog, StopFlag, Topics, camera_at_size, open_node
+from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
 
 __all__ = ["run_distance_node"]
 
@@ -42,6 +43,7 @@ class _FrameSets:
         self.mask: dict[str, dict] = {n: {} for n in names}
         self.ready: dict[str, tuple] = {}
         self.joint: dict = {"q": None}
+        self.joints: deque = deque(maxlen=400)  # (stamp s, q): the joint state of each frame set
 
     def _pair(self, n: str, t: float, pub: float) -> None:
         depth, mask = self.depth[n], self.mask[n]
@@ -77,6 +79,15 @@ class _FrameSets:
         if q.shape == (self.n_joints,) and np.all(np.isfinite(q)):
             with self.lock:
                 self.joint["q"] = q
+                self.joints.append((ros2.to_seconds(msg.header.stamp), q))
+
+    def q_at(self, t: float) -> np.ndarray | None:
+        """The joint state nearest to stamp ``t`` (s), None if none lies within ``MAX_JOINT_SKEW`` (call
+        under :attr:`lock`)."""
+        if not self.joints:
+            return None
+        tj, q = min(self.joints, key=lambda x: abs(x[0] - t))
+        return q if abs(tj - t) <= MAX_JOINT_SKEW else None
 
 
 def run_distance_node(
@@ -125,12 +136,14 @@ def run_distance_node(
                     continue
                 sets = [ready.pop(n) for n in names]
                 q = joint["q"].copy()
+                q_frames = fs.q_at(sets[0][0])  # the robot where the principal frame saw it
             depths, masks = [s[1] for s in sets], [s[2] for s in sets]
             if stage is None:
                 cams = [camera_at_size(c, dd.shape[1], dd.shape[0]) for c, dd in zip(cams0, depths, strict=True)]
                 stage = cell_distance_stage(cell, cams)
             w0 = time.perf_counter()
-            stage.update(depths, masks)
+            # robot-interior corrections (runner.chain) at the frames' joint state; none without one (conservative)
+            stage.update(depths, masks, q_frames, points.model)
             cps = points.evaluate(q)
             res = stage.query(cps.centres, cps.radii)
             w1 = time.perf_counter()

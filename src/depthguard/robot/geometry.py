@@ -18,7 +18,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from depthguard.robot.shapes import Shape, ShapeGeometry, capsule_idiom, inflation_directions, shape_geometry
+from depthguard.robot.shapes import (
+    Shape,
+    ShapeGeometry,
+    capsule_idiom,
+    inflation_directions,
+    rpy_to_matrix,
+    shape_geometry,
+)
 
 __all__ = ["RobotGeometry"]
 
@@ -49,6 +56,35 @@ def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np
         res.clear()
         worst = max(worst, coal.distance(bvh, eye, dot, coal.Transform3s(np.eye(3), p), req, res))
     return v2, f2, worst
+
+
+def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """Capsules inside a box or a cylinder shape, link frame: ends ``a``, ``b`` (3,) m and radius (m).
+
+    Cylinder (radius r, length L, axis z): radius r and the segment shortened by r at each end; when
+    L < 2r (a disc), balls of radius L/2: one on the axis and a ring of them ``r - L/2`` from it, 30° apart.
+    Box (half extents h): along its longest axis, radius the smaller of the other two half extents, the
+    segment shortened by that radius at each end. None for other kinds.
+    """
+    Rs, ps = rpy_to_matrix(shape.rpy), np.asarray(shape.xyz, float)
+    if shape.kind == "cylinder":
+        r, half = float(shape.size[0]), 0.5 * float(shape.size[1])
+        if half >= r:
+            ends = [(np.array([0.0, 0.0, half - r]), np.array([0.0, 0.0, r - half]))]
+            radius = r
+        else:
+            ring = [(r - half) * np.array([np.cos(t), np.sin(t), 0.0]) for t in np.radians(np.arange(0, 360, 30))]
+            ends = [(c, c) for c in [np.zeros(3), *ring]]
+            radius = half
+    elif shape.kind == "box":
+        h = 0.5 * np.asarray(shape.size, float)
+        k = int(np.argmax(h))
+        radius = float(min(h[i] for i in range(3) if i != k))
+        reach = max(float(h[k]) - radius, 0.0)
+        ends = [(-reach * np.eye(3)[k], reach * np.eye(3)[k])]
+    else:
+        return []
+    return [(Rs @ a + ps, Rs @ b + ps, radius) for a, b in ends]
 
 
 class RobotGeometry:
@@ -106,6 +142,29 @@ class RobotGeometry:
         self.fr = np.array(fr, dtype=np.int64).reshape(-1, 2)
         self.slack = np.array(slack, float)
         self.n_triangles = int(len(self.F))
+        ij, ia, ib, ir = [], [], [], []
+        for g in self.geoms:  # capsules inscribed in the mesh-rendered boxes and cylinders
+            frame = model.model.frames[model.frame_id(g.shape.link)]
+            Rl, pl = np.array(frame.placement.rotation), np.array(frame.placement.translation)
+            for a, b, r in _inscribed_capsules(g.shape) if g.is_mesh else []:
+                ij.append(int(frame.parentJoint))
+                ia.append(Rl @ a + pl)
+                ib.append(Rl @ b + pl)
+                ir.append(r)
+        self.inscribed_joint = np.array(ij, dtype=np.int64)
+        self.inscribed_a = np.array(ia, float).reshape(-1, 3)
+        self.inscribed_b = np.array(ib, float).reshape(-1, 3)
+        self.inscribed_r = np.array(ir, float)
+
+    def inner_capsules(self, R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Capsules that lie inside the collision geometry, world frame, from joint poses ``R`` (J+1, 3, 3),
+        ``p`` (J+1, 3): the analytic capsules themselves and one capsule inscribed in every box and
+        cylinder (:func:`_inscribed_capsules`); none for meshes. ``a``, ``b`` (C, 3) m, ``radius`` (C,) m."""
+        a, b, r = self.world_capsules(R, p)
+        Rj, pj = R[self.inscribed_joint], p[self.inscribed_joint]
+        ai = np.matmul(Rj, self.inscribed_a[:, :, None])[:, :, 0] + pj
+        bi = np.matmul(Rj, self.inscribed_b[:, :, None])[:, :, 0] + pj
+        return np.vstack([a, ai]), np.vstack([b, bi]), np.concatenate([r, self.inscribed_r])
 
     def world_capsules(self, R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Analytic capsules in the world frame from joint poses ``R`` (J+1, 3, 3), ``p`` (J+1, 3):

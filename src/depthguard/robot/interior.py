@@ -31,7 +31,28 @@ from numba import njit
 
 from depthguard.camera import Camera
 
-__all__ = ["principal_robot_pixels", "robot_windows"]
+__all__ = ["interior_capsules", "principal_robot_pixels", "robot_windows"]
+
+
+def interior_capsules(model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The capsules that the two corrections may use: world ends ``a``, ``b`` (L, 3) m and radii (L,) m.
+
+    Both corrections skip or clear space inside these capsules inflated by the self-filter's margin, so
+    they are sound only where that space lies within the self-filter's own geometry inflated by the same
+    margin (where it already removes every measured point). That holds for capsules *inside* the robot's
+    collision geometry (:meth:`RobotGeometry.inner_capsules`: the analytic capsules and spheres, which the
+    self-filter renders exactly, and a capsule inscribed in every box and cylinder), and not for
+    :meth:`RobotModel.link_capsules`: for a mesh robot those are a coarse fallback along the kinematic chain,
+    r = 0.05 m, and up to 4 cm of them (plus the margin) lies outside a Panda's, a UR5's or an xArm's
+    collision meshes (measured with coal; ``tests/test_robot_interior.py``); a URDF cylinder becomes a
+    capsule there, whose end caps stick out of it. A mesh link gets no correction: conservative, as if
+    these corrections did not exist there.
+
+    Args:
+        model: a :class:`~depthguard.robot.model.RobotModel`.  q: (n,) joint positions.
+    """
+    H, _ = model.joint_kinematics(model.check_q(q))
+    return model.geometry.inner_capsules(H[:, :3, :3], H[:, :3, 3])
 
 
 @njit(cache=True, inline="always")
@@ -80,6 +101,43 @@ def _capsule_chord(x, y, A, B, r):
     return s_in, s_out
 
 
+@njit(cache=True)
+def _capsule_boxes(A, B, R, fx, fy, cx, cy, W, H):
+    """(L, 4) int pixel boxes ``(u0, u1, v0, v1)`` (inclusive, clipped to the image; ``u0 > u1`` when
+    empty) that hold every pixel whose centre ray meets capsule k (A, B, R), camera frame. From the
+    capsule's axis-aligned bounding box: ``x / z`` and ``y / z`` are monotone in each coordinate for
+    ``z > 0``, so their extremes over the box lie at its corners; the whole image when the box reaches
+    ``z <= 1 mm``. One pixel of slack on every side."""
+    L = A.shape[0]
+    out = np.empty((L, 4), dtype=np.int64)
+    for k in range(L):
+        r = R[k]
+        x0, x1 = min(A[k, 0], B[k, 0]) - r, max(A[k, 0], B[k, 0]) + r
+        y0, y1 = min(A[k, 1], B[k, 1]) - r, max(A[k, 1], B[k, 1]) + r
+        z0, z1 = min(A[k, 2], B[k, 2]) - r, max(A[k, 2], B[k, 2]) + r
+        if r < 0.0 or z1 <= 0.0:
+            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = 0, -1, 0, -1
+        elif z0 <= 1e-3:
+            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = 0, W - 1, 0, H - 1
+        else:
+            out[k, 0] = max(0, int(math.floor(fx * min(x0 / z0, x0 / z1) + cx - 0.5)) - 1)
+            out[k, 1] = min(W - 1, int(math.ceil(fx * max(x1 / z0, x1 / z1) + cx - 0.5)) + 1)
+            out[k, 2] = max(0, int(math.floor(fy * min(y0 / z0, y0 / z1) + cy - 0.5)) - 1)
+            out[k, 3] = min(H - 1, int(math.ceil(fy * max(y1 / z0, y1 / z1) + cy - 0.5)) + 1)
+    return out
+
+
+@njit(cache=True, inline="always")
+def _chords(x, y, u, v, A, B, R, grow, box, ins, outs):
+    """Chords of the pixel-centre ray ``(x, y, 1)`` of pixel (u, v) through every capsule (radius
+    ``R[k] + grow``) into ``ins``/``outs``; ``(inf, -inf)`` for a capsule whose ``box`` excludes the pixel."""
+    for k in range(A.shape[0]):
+        if box[k, 0] <= u <= box[k, 1] and box[k, 2] <= v <= box[k, 3]:
+            ins[k], outs[k] = _capsule_chord(x, y, A[k], B[k], R[k] + grow)
+        else:
+            ins[k], outs[k] = np.inf, -np.inf
+
+
 @njit(cache=True, inline="always")
 def _exit_from(s, ins, outs):
     """Extend depth ``s`` through every chord ``[ins[k], outs[k]]`` that contains it (their union)."""
@@ -99,6 +157,7 @@ def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy,
     n = A.shape[0]
     ins = np.empty(n)
     outs = np.empty(n)
+    box = _capsule_boxes(A, B, R + margin, fx, fy, cx, cy, W, H)  # (the inflated capsules hold the others)
     for v in range(H):
         for u in range(W):
             d = depth[v, u]
@@ -109,16 +168,15 @@ def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy,
             x = (u + 0.5 - cx) / fx
             y = (v + 0.5 - cy) / fy
             if d > 0.0 and d < np.inf:
-                for k in range(n):
-                    ins[k], outs[k] = _capsule_chord(x, y, A[k], B[k], R[k] + margin)
+                _chords(x, y, u, v, A, B, R, margin, box, ins, outs)
                 out_depth[v, u] = _exit_from(d, ins, outs)
                 continue
             # no reading: robot only if the ray meets the capsules themselves (not just the margin)
             entry = np.inf
+            _chords(x, y, u, v, A, B, R, 0.0, box, ins, outs)
             for k in range(n):
-                a, b = _capsule_chord(x, y, A[k], B[k], R[k])
-                if a <= b and b > 0.0:
-                    entry = min(entry, a)
+                if ins[k] <= outs[k] and outs[k] > 0.0:
+                    entry = min(entry, ins[k])
             if entry == np.inf:
                 out_mask[v, u] = False  # a hole next to the robot: filled like any other hole
                 continue
@@ -135,8 +193,7 @@ def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy,
                         valid = True
                         if not mask[vv, uu] and dv < best:
                             best = dv
-            for k in range(n):
-                ins[k], outs[k] = _capsule_chord(x, y, A[k], B[k], R[k] + margin)
+            _chords(x, y, u, v, A, B, R, margin, box, ins, outs)
             s_in = np.inf
             for k in range(n):
                 if ins[k] <= outs[k]:
@@ -195,38 +252,48 @@ def principal_robot_pixels(
 
 
 @njit(cache=True)
-def _windows_kernel(A, B, Reff, fx, fy, cx, cy, gap, lo, hi):
-    H, W = lo.shape
+def _windows_kernel(A, B, Reff, fx, fy, cx, cy, gap, lo_out, hi_out):
+    """Fill ``lo_out``/``hi_out`` (H, W) float32 (NaN: no window), the windows of :func:`robot_windows`."""
+    H, W = lo_out.shape
+    box = _capsule_boxes(A, B, Reff, fx, fy, cx, cy, W, H)
+    u_lo, u_hi, v_lo, v_hi = W, -1, H, -1  # the union of the boxes: only there is anything to do
+    for k in range(A.shape[0]):
+        if Reff[k] > 0.0 and box[k, 0] <= box[k, 1] and box[k, 2] <= box[k, 3]:
+            u_lo, u_hi = min(u_lo, box[k, 0]), max(u_hi, box[k, 1])
+            v_lo, v_hi = min(v_lo, box[k, 2]), max(v_hi, box[k, 3])
+    lo_out[:, :] = np.nan
+    hi_out[:, :] = np.nan
+    if u_lo > u_hi:
+        return
+    lo = np.full((v_hi - v_lo + 1, u_hi - u_lo + 1), np.inf)  # the union box, float64 while sweeping
+    hi = np.full((v_hi - v_lo + 1, u_hi - u_lo + 1), -np.inf)
     for sweep in range(2):  # the second sweep joins chords that the first met out of order
         for k in range(A.shape[0]):
             r = Reff[k]
             if r <= 0.0:
                 continue
-            # image bounding box of the capsule's bounding sphere (whole image if it reaches behind the camera)
-            mx, my, mz = 0.5 * (A[k, 0] + B[k, 0]), 0.5 * (A[k, 1] + B[k, 1]), 0.5 * (A[k, 2] + B[k, 2])
-            rb = 0.5 * math.sqrt((A[k, 0] - B[k, 0]) ** 2 + (A[k, 1] - B[k, 1]) ** 2 + (A[k, 2] - B[k, 2]) ** 2) + r
-            if mz - rb <= 1e-3:
-                u0, u1, v0, v1 = 0, W - 1, 0, H - 1
-            else:
-                zn, zf = mz - rb, mz + rb
-                u0 = max(0, int(math.floor(fx * min((mx - rb) / zn, (mx - rb) / zf) + cx)) - 1)
-                u1 = min(W - 1, int(math.ceil(fx * max((mx + rb) / zn, (mx + rb) / zf) + cx)) + 1)
-                v0 = max(0, int(math.floor(fy * min((my - rb) / zn, (my - rb) / zf) + cy)) - 1)
-                v1 = min(H - 1, int(math.ceil(fy * max((my + rb) / zn, (my + rb) / zf) + cy)) + 1)
+            u0, u1, v0, v1 = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
             for v in range(v0, v1 + 1):
                 y = (v + 0.5 - cy) / fy
+                j = v - v_lo
                 for u in range(u0, u1 + 1):
                     x = (u + 0.5 - cx) / fx
                     a, b = _capsule_chord(x, y, A[k], B[k], r)
                     if not (a <= b) or b <= 0.0:
                         continue
                     a = max(a, 0.0)
-                    if lo[v, u] <= hi[v, u] and a <= hi[v, u] + gap and b >= lo[v, u] - gap:
-                        lo[v, u] = min(lo[v, u], a)  # meets the window so far (within gap): union
-                        hi[v, u] = max(hi[v, u], b)
-                    elif sweep == 0 and (not (lo[v, u] <= hi[v, u]) or a < lo[v, u]):
-                        lo[v, u] = a  # the first window, or a nearer disjoint one
-                        hi[v, u] = b
+                    i = u - u_lo
+                    if lo[j, i] <= hi[j, i] and a <= hi[j, i] + gap and b >= lo[j, i] - gap:
+                        lo[j, i] = min(lo[j, i], a)  # meets the window so far (within gap): union
+                        hi[j, i] = max(hi[j, i], b)
+                    elif sweep == 0 and (not (lo[j, i] <= hi[j, i]) or a < lo[j, i]):
+                        lo[j, i] = a  # the first window, or a nearer disjoint one
+                        hi[j, i] = b
+    for j in range(lo.shape[0]):
+        for i in range(lo.shape[1]):
+            if lo[j, i] <= hi[j, i]:
+                lo_out[v_lo + j, u_lo + i] = lo[j, i]
+                hi_out[v_lo + j, u_lo + i] = hi[j, i]
 
 
 def robot_windows(
@@ -268,8 +335,7 @@ def robot_windows(
         raise ValueError(f"capsules: a and b must be (L, 3) and radius (L,), got {A.shape}, {B.shape}, {R.shape}")
     zfar = np.maximum(A[:, 2], B[:, 2]) + R
     Reff = R + float(margin) - float(shrink_px) * np.maximum(zfar, 0.0) / min(camera.fx, camera.fy)
-    lo = np.full(camera.shape, np.inf)
-    hi = np.full(camera.shape, -np.inf)
+    lo = np.empty(camera.shape, dtype=np.float32)
+    hi = np.empty(camera.shape, dtype=np.float32)
     _windows_kernel(A, B, np.ascontiguousarray(Reff), camera.fx, camera.fy, camera.cx, camera.cy, float(gap), lo, hi)
-    ok = lo <= hi
-    return np.where(ok, lo, np.nan).astype(np.float32), np.where(ok, hi, np.nan).astype(np.float32)
+    return lo, hi

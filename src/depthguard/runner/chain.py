@@ -177,7 +177,9 @@ class Chain:
             "; ".join(f"{k}: {v}" for k, v in self.faults.items()) if self.faults else None
         )
         masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
-        self.stage.update(depths, masks)
+        # with the joint state, the principal camera's robot pixels and the secondary cameras' robot windows
+        # come from the robot's analytic capsules (robot.interior; no phantom zeros behind the arm)
+        self.stage.update(depths, masks, q, self.model)
         self.masks = masks
         self.t_frames = t_frames
         return masks

@@ -16,7 +16,7 @@ from depthguard.control.cycle import AvoidanceController, ControllerConfig, Cycl
 from depthguard.depthgrid import DepthGridFusion
 from depthguard.depthspace import PointDistances, prepare_frame, query_distances
 from depthguard.robot.control_points import ControlPointSet, ControlPointState
-from depthguard.robot.interior import principal_robot_pixels, robot_windows
+from depthguard.robot.interior import interior_capsules, principal_robot_pixels, robot_windows
 from depthguard.robot.robots import load_robot
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
 
@@ -199,8 +199,9 @@ class DistanceStage:
     ) -> None:
         """Frame stage: take one depth image and robot mask per camera.
 
-        With several cameras and the measured joints ``q`` and the model ``kin``, the principal camera's
-        robot pixels are corrected from the robot's capsules first
+        With several cameras and the measured joints ``q`` and ``kin`` (a :class:`RobotModel`, or anything
+        with one as ``model``), the principal camera's robot pixels are corrected from the robot's analytic
+        capsules first (:func:`depthguard.robot.interior.interior_capsules`: none for mesh links)
         (:func:`depthguard.robot.interior.principal_robot_pixels`): case iv starts where a ray leaves the
         robot's inflated capsules, and a missing pixel whose ray misses the robot is a hole, not robot;
         the secondary cameras get their robot windows (``robot_windows``): the robot's own body, even
@@ -208,8 +209,9 @@ class DistanceStage:
         the self-filter margins the masks were made with (default 3 cm each, :func:`filter_margin`).
         """
         if self.fusion is not None:
-            if q is not None and kin is not None:
-                a, b, r = kin.model.link_capsules(q)
+            model = kin if kin is None or hasattr(kin, "joint_kinematics") else kin.model  # a RobotModel, or its holder
+            a, b, r = interior_capsules(model, q) if q is not None and model is not None else (None, None, [])
+            if len(r):
                 ms = list(margins) if margins is not None else [SELF_FILTER_MARGIN] * len(self.cameras)
                 d0, m0 = principal_robot_pixels(self.cameras[0], depths[0], masks[0], a, b, r, margin=ms[0])
                 depths, masks = [d0, *depths[1:]], [m0, *masks[1:]]
