@@ -71,14 +71,29 @@ def test_attachment_on_an_unknown_link_names_it(tmp_path):
         load_cell_robot(read_cell(p))
 
 
-def test_camera_carried_by_the_robot_is_refused(tmp_path):
+def test_camera_carried_by_the_robot_runs_in_run_only(tmp_path):
+    """A camera on a link is read; ``run``'s chain checks the link; the nodes and calibrate refuse it."""
+    from depthguard.nodes import run_node
+    from depthguard.runner.calibrate import calibrate_cell
+    from depthguard.runner.chain import Chain
+
     text = (EXAMPLES / "realsense-d435.toml").read_text()
     text = text.replace("rate = 30.0\nmatrix", 'rate = 30.0\nparent = "lwr_link_7"\nmatrix', 1)
     assert 'parent = "lwr_link_7"' in text
     p = tmp_path / "cell.toml"
     p.write_text(text)
-    with pytest.raises(CellError, match=r"parent = 'lwr_link_7'.*not supported"):
-        read_cell(p)
+    cell = read_cell(p)
+    assert cell.cameras[0].parent == "lwr_link_7"
+    model = load_cell_robot(cell)
+    cam = cell.cameras[0].build(width=640, height=480, fx=600.0, fy=600.0, cx=320.0, cy=240.0)
+    chain = Chain(cell, [cam], model)
+    assert chain.parents == ["lwr_link_7"]
+    with pytest.raises(CellError, match=r"cameras\[0\]\.parent = 'lwr_link_77' is not a link"):
+        Chain(cell, [cam], model, parents=["lwr_link_77"])
+    with pytest.raises(CellError, match=r"parent = 'lwr_link_7'.*the nodes take"):
+        run_node("distance", str(p), duration=0.1)
+    with pytest.raises(CellError, match=r"parent = 'lwr_link_7'.*calibrate"):
+        calibrate_cell(p, "sim:ral-hexagon", quick=True)
 
 
 def _solid_samples(kind: str, size, rng, n: int = 4000) -> np.ndarray:

@@ -349,3 +349,91 @@ def test_run_chain_corrects_for_the_robots_interior():
         src.close()
     assert np.all(corrected >= plain - 1e-9)
     assert np.any(corrected > plain + 0.005)
+
+
+def _wall_and_post(cam):
+    """Depth (H, W) float32 of the wall at x = -0.5 and the post of :func:`_scene`, seen by ``cam``."""
+    ray = cam.unproject_image(np.full(cam.shape, 1.0)) - cam.position  # unit-depth rays
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_wall = (-0.5 - cam.position[0]) / ray[..., 0]
+        s_post = (0.35 - cam.position[0]) / ray[..., 0]
+    hit = s_post[..., None] * ray + cam.position
+    post = (s_post > 0) & (hit[..., 1] > -0.3) & (hit[..., 1] < -0.2) & (hit[..., 2] < 1.2)
+    depth = np.where(post, s_post, s_wall)
+    return np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
+
+
+def test_camera_carried_by_a_link_follows_the_joint_state(tmp_path):
+    """A bag whose TF hangs the camera on a robot link (``lwr_link_2``), two frames at two joint states: ``run``
+    moves the camera with the link and gives, for each frame, the distances of the same frame seen by a
+    camera placed at that pose by hand (the link's pose from pinocchio, composed here)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.robot.model import load_lwr4
+    from depthguard.robot.selffilter import self_filter
+    from depthguard.runner.chain import cell_distance_stage
+    from depthguard.sim.depthcam import kinect_camera
+    from depthguard.sim.recorder import camera_tf
+
+    model = load_lwr4()
+    link = "lwr_link_2"
+    qa, qb = np.zeros(7), np.zeros(7)
+    qa[3], qb[0], qb[1], qb[3] = 0.6, 0.5, 0.3, 0.9
+    cam_a = kinect_camera((1.6, 0.2, 0.8), (0.0, 0.0, 0.6), width=160, height=120)  # its pose at qa
+    Rl, pl = model.frame_pose(qa, link)
+    Rw, pw = camera_tf(cam_a.R, cam_a.t)  # camera -> world at qa
+    R_lc, p_lc = Rl.T @ Rw, Rl.T @ (pw - pl)  # camera -> link: fixed
+
+    def cam_at(q):
+        R_l, p_l = model.frame_pose(q, link)
+        R_wc, p_wc = R_l @ R_lc, R_l @ p_lc + p_l
+        return cam_a.with_pose(R_wc.T, -R_wc.T @ p_wc)
+
+    frames = {10: qa, 30: qb}
+    ts = ros2.typestore()
+    bag = tmp_path / "bag"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c_img = w.add_connection("/cam/depth", "sensor_msgs/msg/Image", typestore=ts)
+        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        c_js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        w.write(
+            c_tf, 0, ts.serialize_cdr(ros2.tf_msg(0.0, [(link, "cam_optical", R_lc, p_lc)]), "tf2_msgs/msg/TFMessage")
+        )
+        for k in range(45):
+            t, ns = 0.001 * k, int(round(0.001 * k * 1e9))
+            q = qa if k < 20 else qb
+            if k in frames:
+                img = ros2.image_msg(t, "cam_optical", _wall_and_post(cam_at(frames[k])), "32FC1")
+                w.write(c_img, ns, ts.serialize_cdr(img, "sensor_msgs/msg/Image"))
+                info = ros2.camera_info_msg(t, "cam_optical", cam_a)
+                w.write(c_info, ns, ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
+            js = ros2.joint_state_msg(t, list(model.joint_names), q, np.zeros(7))
+            w.write(c_js, ns, ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    log = RunLog()
+    summary = run_cell(cell, f"bag:{bag}", out_dir=tmp_path / "out", log=log)
+    assert summary["frames"] == 2
+    from depthguard.io.cellfile import read_cell
+
+    cellf = read_cell(cell)
+    points = ControlPointSet.build(model, "ral-9", 0.12)
+    for k, q in frames.items():  # the last query at this frame's joint state (qa until 20 ms)
+        i = max(j for j, t in enumerate(log.t_query) if t < (0.020 if k == 10 else 1.0) - 1e-9)
+        assert log.t_query[i] >= 0.001 * k
+        cam = cam_at(q)
+        depth = _wall_and_post(cam)
+        stage = cell_distance_stage(cellf, [cam])
+        stage.update([depth], [np.asarray(self_filter(cam, depth, q, model)[0])])
+        cps = points.evaluate(q)
+        ref = np.asarray(stage.query(cps.centres, cps.radii).distance)
+        assert np.isfinite(ref).sum() >= 2
+        np.testing.assert_allclose(log.distances[i], ref, atol=1e-6)
+    # the two frames really saw the scene from two places
+    assert np.linalg.norm(cam_at(qa).position - cam_at(qb).position) > 0.3
+    # run's recording hangs the camera on the link too: its replay gives the same distances
+    replay = RunLog()
+    run_cell(cell, f"bag:{tmp_path / 'out' / 'recording.mcap'}", log=replay)
+    np.testing.assert_allclose(np.array(replay.distances), np.array(log.distances), rtol=0, atol=1e-12)

@@ -17,9 +17,11 @@ cell file are relative to the file's folder. Sections:
   take them from the CameraInfo topic, ``"device"`` from a live device), ``min_depth``, ``max_depth``,
   ``depth_scale``, ``rate`` (Hz), extrinsics as ``R`` + ``t`` (``P_C = R P + t``) or ``matrix`` (4x4, the
   same map), or ``eye`` + ``target`` (+ ``up``: the camera centre and a point on its optical axis, m), or
-  ``extrinsics = "tf"`` (from the bag's TF, read once), in the frame ``parent`` (only ``"world"`` for now:
-  a camera carried by the robot is refused with a clear error, since its pose would have to follow the
-  joint state every frame);
+  ``extrinsics = "tf"`` (from the bag's TF, read once), in the frame ``parent``: ``"world"`` or a link of
+  the robot (a camera carried by the robot, e.g. on the wrist: its extrinsics map points of that link's
+  frame, ``P_C = R P_link + t``, and ``depthguard run`` moves it with the link at every frame's joint
+  state; the link is checked against the robot when the chain is built; the simulated cell, the nodes and
+  ``calibrate`` take world cameras only and say so);
 * ``[distance]``: ``backend`` (``depthspace`` | ``octree``; ``run`` and the nodes refuse ``octree`` for now),
   ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
@@ -234,12 +236,6 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
             Camera(R=np.eye(3) if R is None else R, t=np.zeros(3) if t is None else t, **params)
         except ValueError as exc:
             raise CellError(f"{src}: {where}: {exc}") from None
-    if c["parent"] != "world":  # a pose on a link would have to follow the joint state every frame
-        raise CellError(
-            f"{src}: {where}.parent = {c['parent']!r}: cameras carried by the robot are not supported yet (the"
-            " self-filter and the distances would need the camera's pose at every frame's joint state); give"
-            " the extrinsics in 'world'"
-        )
     name = c["name"]
     return CellCamera(
         name=name,

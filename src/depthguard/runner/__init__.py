@@ -27,10 +27,18 @@ def _check_sim_cameras(cell: CellFile, cameras: list, scenario: str) -> None:
             )
 
 
-def open_source(spec: str, cell: CellFile, joint_names: tuple[str, ...], *, quick: bool = False):
-    """A source from ``bag:PATH``, ``sim:SCENARIO`` or ``realsense``."""
+def open_source(
+    spec: str, cell: CellFile, joint_names: tuple[str, ...], *, quick: bool = False, links: frozenset[str] = frozenset()
+):
+    """A source from ``bag:PATH``, ``sim:SCENARIO`` or ``realsense``. ``links``: the robot's frame names (a
+    bag's TF that reaches one of them carries the camera on that link)."""
     kind, _, arg = spec.partition(":")
     if kind == "sim":
+        carried = [f"'{c.name}' on '{c.parent}'" for c in cell.cameras if c.parent != "world"]
+        if carried:
+            raise ValueError(
+                f"{cell.path}: the simulated cell has world cameras only; the cell file carries {', '.join(carried)}"
+            )
         from depthguard.runner.sources import SimSource
 
         src = SimSource(arg, quick=quick, control_dt=1.0 / float(cell.controller["rate"]))
@@ -43,7 +51,7 @@ def open_source(spec: str, cell: CellFile, joint_names: tuple[str, ...], *, quic
     if kind == "bag":
         from depthguard.runner.bag import BagSource
 
-        return BagSource(Path(arg), cell, joint_names)
+        return BagSource(Path(arg), cell, joint_names, links)
     if kind == "realsense":
         from depthguard.runner.realsense import RealSenseSource
 
@@ -75,8 +83,8 @@ def run_cell(
 
     cell = read_cell(cell_path)
     model = load_cell_robot(cell)
-    src = open_source(source, cell, model.joint_names, quick=quick)
-    chain = Chain(cell, src.cameras, model)
+    src = open_source(source, cell, model.joint_names, quick=quick, links=frozenset(f.name for f in model.model.frames))
+    chain = Chain(cell, src.cameras, model, parents=getattr(src, "camera_parents", None))
     if transport not in ("none", "zenoh"):
         raise ValueError(f"--transport must be 'none' or 'zenoh', got {transport!r}")
     sinks: list[Any] = []

@@ -68,8 +68,15 @@ def _apply_map(img: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> np.ndarr
     return out
 
 
-def _pose_from_tf(tf_tree: dict[str, tuple[str, np.ndarray, np.ndarray]], frame: str, root: str = "world"):
-    """World pose (R_wc, p_wc) of ``frame`` by chaining parent links up to ``root``; None if not connected."""
+def _pose_from_tf(
+    tf_tree: dict[str, tuple[str, np.ndarray, np.ndarray]],
+    frame: str,
+    root: str = "world",
+    links: frozenset[str] = frozenset(),
+):
+    """Pose ``(parent, R, p)`` of ``frame`` by chaining TF parents up to ``root``, or up to the first of
+    the robot's ``links`` met on the way (a camera carried by the robot: its pose in that link's frame,
+    which then follows the joint state, not the bag's first transform of it); None if not connected."""
     R, p = np.eye(3), np.zeros(3)
     seen = set()
     while frame != root:
@@ -79,7 +86,9 @@ def _pose_from_tf(tf_tree: dict[str, tuple[str, np.ndarray, np.ndarray]], frame:
         parent, Rl, pl = tf_tree[frame]
         R, p = Rl @ R, Rl @ p + pl
         frame = parent
-    return R, p
+        if frame in links:
+            return frame, R, p
+    return root, R, p
 
 
 class BagSource:
@@ -95,10 +104,13 @@ class BagSource:
             and the topic.
     """
 
-    def __init__(self, path: str | Path, cell: CellFile, joint_names: tuple[str, ...]) -> None:
+    def __init__(
+        self, path: str | Path, cell: CellFile, joint_names: tuple[str, ...], links: frozenset[str] = frozenset()
+    ) -> None:
         self.path = Path(path)
         self.cell = cell
         self.joint_names = tuple(joint_names)
+        self.links = frozenset(links)
         self._scan()
 
     # ------------------------------------------------------------------ set-up pass: topics, intrinsics, TF
@@ -134,6 +146,7 @@ class BagSource:
                 f"{name}: no sensor_msgs/JointState on '{topics['joint_states']}' (cell topics.joint_states)"
             )
         self.cameras: list[Camera] = []
+        self.camera_parents: list[str] = []  # "world" or the robot link that carries the camera
         self._maps: list[tuple[np.ndarray, np.ndarray] | None] = []
         for c in cams:
             if not seen.get(c.topic):
@@ -162,18 +175,20 @@ class BagSource:
                     )
                 p = c.params  # the same sensor at a reduced resolution: scale the intrinsics
                 params = dict(width=w, height=h, fx=p["fx"] * sx, fy=p["fy"] * sx, cx=p["cx"] * sx, cy=p["cy"] * sx)
+            parent = c.parent
             if c.extrinsics == "tf":
-                pose = _pose_from_tf(tf_tree, c.frame_id)
+                pose = _pose_from_tf(tf_tree, c.frame_id, links=self.links)
                 if pose is None:
                     raise ValueError(
                         f"{name}: TF never connects 'world' to camera frame '{c.frame_id}' (topics"
                         f" {topics['tf']}, {topics['tf_static']}); known frames: {sorted(tf_tree)}"
                     )
-                Rw, pw = pose
+                parent, Rw, pw = pose
                 cam = c.build(**params).with_pose(Rw.T, -Rw.T @ pw)
             else:
                 cam = c.build(**params)
             self.cameras.append(cam)
+            self.camera_parents.append(parent)
             dm = str(getattr(info, "distortion_model", "")) if info is not None else ""
             D = np.asarray(getattr(info, "d", np.zeros(0)), float) if info is not None else np.zeros(0)
             if info is not None and np.any(D != 0):

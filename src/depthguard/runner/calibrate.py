@@ -79,9 +79,10 @@ def calibrate_cell(
     when every camera is accepted. Returns a JSON-ready summary; raises ``ValueError`` when refused."""
     from depthguard.robot.calibration import calibrate_extrinsics, moving_pixels
     from depthguard.robot.selffilter import self_filter
-    from depthguard.runner.chain import load_cell_robot
+    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
 
     cell = read_cell(cell_path)
+    refuse_carried_cameras(cell, "`depthguard calibrate`")
     model = load_cell_robot(cell)
     kind, _, arg = source.partition(":")
     if kind == "sim":

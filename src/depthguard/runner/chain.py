@@ -118,6 +118,17 @@ def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
         raise CellError(f"{cell.path}: distance: {exc}") from None
 
 
+def refuse_carried_cameras(cell: CellFile, what: str) -> None:
+    """Refuse a camera carried by a robot link where ``what`` (the nodes, ``calibrate``) takes world cameras
+    only (``depthguard run`` moves carried cameras with their link)."""
+    carried = [f"cameras[{i}].parent = {c.parent!r}" for i, c in enumerate(cell.cameras) if c.parent != "world"]
+    if carried:
+        raise CellError(
+            f"{cell.path}: {', '.join(carried)}: {what} takes cameras fixed in the world only for now (a camera"
+            " carried by the robot runs in `depthguard run`)"
+        )
+
+
 def check_chain_support(cell: CellFile) -> None:
     """Refuse what the chain (``depthguard run``, the nodes, the live view) cannot do yet, instead of
     running something else: ``distance.backend = "octree"`` (the scenarios and ``depthguard distance`` have
@@ -136,16 +147,41 @@ class Chain:
     Args:
         cell: the cell file.
         cameras: the cameras (principal first) with the intrinsics and poses in use (a source may resolve
-            them from CameraInfo / TF / the device).
+            them from CameraInfo / TF / the device); a camera carried by a link has its pose in that link's
+            frame.
         model: the robot model; ``points``: its control points (default: the cell file's preset).
+        parents: per camera, ``"world"`` or the robot link that carries it (default: the cell file's
+            ``parent``). A carried camera's world pose is set at every frame set from the frames' joint
+            state (:meth:`on_frames`), and the distance stage is rebuilt for it (the depth grid's stored
+            map depends on the cameras' poses: about 20 ms for two 640x480 cameras).
+    Attributes:
+        cameras: the cameras in the world frame, as of the latest frame set.
+        local_cameras: the cameras as given (a carried camera's pose in its link's frame).
     """
 
     def __init__(
-        self, cell: CellFile, cameras: list[Camera], model: RobotModel, points: ControlPointSet | None = None
+        self,
+        cell: CellFile,
+        cameras: list[Camera],
+        model: RobotModel,
+        points: ControlPointSet | None = None,
+        parents: list[str] | None = None,
     ) -> None:
         check_chain_support(cell)
         self.cell = cell
         self.cameras = list(cameras)
+        self.local_cameras = list(cameras)
+        self.parents = list(parents) if parents is not None else [c.parent for c in cell.cameras]
+        self._carried = []
+        for i, link in enumerate(self.parents):
+            if link == "world":
+                continue
+            if not model.model.existFrame(link):
+                raise CellError(
+                    f"{cell.path}: cameras[{i}].parent = {link!r} is not a link of the robot; links:"
+                    f" {[f.name for f in model.model.frames]}"
+                )
+            self._carried.append((i, link))
         self.model = model
         points = cell_control_points(cell, model) if points is None else points
         self.points = points
@@ -169,6 +205,8 @@ class Chain:
         ``q``; returns the robot masks (H, W) bool. A faulty camera stops the controller
         (``STOP_SENSOR_FAULT``, :attr:`faults` names it)."""
         self.faults = {}
+        if self._carried:
+            self._place_carried_cameras(q)
         for h, d in zip(self.health, depths, strict=True):
             fault = h.check(d, q)
             if fault is not None:
@@ -183,6 +221,17 @@ class Chain:
         self.masks = masks
         self.t_frames = t_frames
         return masks
+
+    def _place_carried_cameras(self, q: np.ndarray) -> None:
+        """World pose of every camera carried by a link at joint positions ``q``: with the link's pose
+        ``P_W = R_l P_L + p_l`` and the camera's ``P_C = R P_L + t``, ``P_C = (R R_lᵀ) P_W + t - R R_lᵀ p_l``."""
+        for i, link in self._carried:
+            R_l, p_l = self.model.frame_pose(q, link)
+            loc = self.local_cameras[i]
+            R = loc.R @ R_l.T
+            self.cameras[i] = loc.with_pose(R, loc.t - R @ p_l)
+            self.health[i].camera = self.cameras[i]
+        self.stage = cell_distance_stage(self.cell, self.cameras)
 
     @property
     def ready(self) -> bool:

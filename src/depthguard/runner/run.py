@@ -57,8 +57,9 @@ class _Recorder:
 
         self.w = Ros2McapWriter(path)
         self.chain, self.cell = chain, cell
-        tfs = [
-            ("world", c.frame_id, *camera_tf(cam.R, cam.t)) for c, cam in zip(cell.cameras, chain.cameras, strict=True)
+        tfs = [  # a camera carried by a link hangs on that link (its pose then follows the joint states)
+            (parent, c.frame_id, *camera_tf(cam.R, cam.t))
+            for c, cam, parent in zip(cell.cameras, chain.local_cameras, chain.parents, strict=True)
         ]
         self.w.write(cell.topics["tf_static"], "tf2_msgs/msg/TFMessage", ros2.tf_msg(0.0, tfs), 0.0)
         self.types = ros2.typestore().types
