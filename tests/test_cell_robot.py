@@ -72,10 +72,9 @@ def test_attachment_on_an_unknown_link_names_it(tmp_path):
 
 
 def test_camera_carried_by_the_robot_runs_in_run_only(tmp_path):
-    """A camera on a link is read; ``run``'s chain checks the link; the nodes and calibrate refuse it."""
-    from depthguard.nodes import run_node
+    """A camera on a link is read; ``run``'s chain and the nodes check the link; calibrate refuses it."""
     from depthguard.runner.calibrate import calibrate_cell
-    from depthguard.runner.chain import Chain
+    from depthguard.runner.chain import Chain, carried_camera, check_camera_parents
 
     text = (EXAMPLES / "realsense-d435.toml").read_text()
     text = text.replace("rate = 30.0\nmatrix", 'rate = 30.0\nparent = "lwr_link_7"\nmatrix', 1)
@@ -90,8 +89,15 @@ def test_camera_carried_by_the_robot_runs_in_run_only(tmp_path):
     assert chain.parents == ["lwr_link_7"]
     with pytest.raises(CellError, match=r"cameras\[0\]\.parent = 'lwr_link_77' is not a link"):
         Chain(cell, [cam], model, parents=["lwr_link_77"])
-    with pytest.raises(CellError, match=r"parent = 'lwr_link_7'.*the nodes take"):
-        run_node("distance", str(p), duration=0.1)
+    assert check_camera_parents(cell, model) == [(0, "lwr_link_7")]
+    # the camera moves with its link: a point fixed to the link keeps its camera coordinates
+    q0, q1 = np.zeros(7), np.linspace(0.3, -0.4, 7)
+    c0, c1 = (carried_camera(cam, model, q, "lwr_link_7") for q in (q0, q1))
+    (R0, p0), (R1, p1) = (model.frame_pose(q, "lwr_link_7") for q in (q0, q1))
+    x_link = np.array([0.05, -0.02, 0.3])
+    np.testing.assert_allclose(c0.world_to_camera((R0 @ x_link + p0)[None]), cam.world_to_camera(x_link[None]))
+    np.testing.assert_allclose(c1.world_to_camera((R1 @ x_link + p1)[None]), cam.world_to_camera(x_link[None]))
+    assert np.linalg.norm(c0.position - c1.position) > 0.05
     with pytest.raises(CellError, match=r"parent = 'lwr_link_7'.*calibrate"):
         calibrate_cell(p, "sim:ral-hexagon", quick=True)
 
@@ -185,3 +191,24 @@ def test_distance_settings_of_the_cell_file_reach_the_stage(tmp_path):
     p.write_text(hexagon.replace('invalid = "conservative"', 'invalid = "ignore"', 1))
     with pytest.raises(CellError, match="conservative"):
         cell_distance_stage(read_cell(p), [c.build() for c in read_cell(p).cameras])
+
+
+def test_distance_node_places_the_cameras_the_robot_carries():
+    """The distance node's cameras of one frame set: world cameras at the image size, a carried one where its
+    link was at its frame's joint state, and none at all without that joint state (no distances)."""
+    from depthguard.nodes.distance import frame_set_cameras
+    from depthguard.runner.chain import carried_camera
+
+    cell = read_cell(EXAMPLES / "sim-hexagon.toml")
+    model = load_cell_robot(cell)
+    cams0 = [c.build() for c in cell.cameras]
+    depths = [np.zeros((120, 160)), np.zeros((240, 320))]
+    q = np.linspace(-0.5, 0.5, 7)
+    cams = frame_set_cameras(cams0, depths, model, [(1, "lwr_link_4")], {1: q})
+    assert (cams[0].width, cams[1].width) == (160, 320)
+    np.testing.assert_allclose(cams[0].R, cams0[0].R)
+    placed = carried_camera(cams0[1], model, q, "lwr_link_4")
+    np.testing.assert_allclose(cams[1].R, placed.R)
+    np.testing.assert_allclose(cams[1].t, placed.t)
+    assert not np.allclose(cams[1].t, cams0[1].t)
+    assert frame_set_cameras(cams0, depths, model, [(1, "lwr_link_4")], {1: None}) is None

@@ -156,10 +156,10 @@ def test_view_node_draws_what_the_nodes_publish(tmp_path):
 
 
 @pytest.mark.slow
-def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
+def _drive_camera_node(cell, mm: np.ndarray, q: np.ndarray, out_topic: str, base: int) -> list:
     """A ROS 2 camera driver on rmw_zenoh, written by hand (key expression by string formatting, CDR from a
-    fresh rosbags Jazzy store, attachment by ``struct``): the camera node self-filters its 16UC1 frames and
-    publishes the prepared depth (32FC1, same stamp, metres)."""
+    fresh rosbags Jazzy store, attachment by ``struct``) publishing the 16UC1 frame ``mm`` and the joint
+    state ``q`` to camera node ``camera0``; returns the node's messages on ``out_topic`` (an Image topic)."""
     zenoh = pytest.importorskip("zenoh")
     from rosbags.typesys import Stores, get_typestore
 
@@ -167,14 +167,12 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
     from depthguard.nodes.camera import run_camera_node
     from depthguard.nodes.common import StopFlag
 
-    base = random.randint(48000, 52000)
-    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
     ts = get_typestore(Stores.ROS2_JAZZY)
     T = ts.types
     drv = zenoh.open(session_config([f"tcp/127.0.0.1:{base}"], [f"tcp/127.0.0.1:{base + 1}"]))  # the 'sim' port
     got = []
     sub = drv.declare_subscriber(
-        f"0/depthguard/camera0/depth/sensor_msgs::msg::dds_::Image_/{IMAGE_HASH}",
+        f"0/{out_topic}/sensor_msgs::msg::dds_::Image_/{IMAGE_HASH}",
         lambda s: got.append(ts.deserialize_cdr(s.payload.to_bytes(), "sensor_msgs/msg/Image")),
     )
     stop = StopFlag()
@@ -182,8 +180,7 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
     th = threading.Thread(target=lambda: result.update(run_camera_node(cell, "camera0", duration=40, stop=stop)))
     th.start()
     gid = bytes(range(16))
-    mm = np.full((120, 160), 2500, np.uint16)  # 2.5 m everywhere
-    mm[:10] = 0  # no reading
+    h, w = mm.shape
     try:
         end, seq = time.time() + 30, 0
         while time.time() < end and not got:
@@ -192,21 +189,21 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
             hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="c0")
             js = T["sensor_msgs/msg/JointState"](
                 header=hdr,
-                name=[f"j{i}" for i in range(7)],
-                position=np.zeros(7),
-                velocity=np.zeros(7),
+                name=[f"j{i}" for i in range(len(q))],
+                position=np.asarray(q, float),
+                velocity=np.zeros(len(q)),
                 effort=np.zeros(0),
             )
             img = T["sensor_msgs/msg/Image"](
-                header=hdr, height=120, width=160, encoding="16UC1", is_bigendian=0, step=320,
+                header=hdr, height=h, width=w, encoding="16UC1", is_bigendian=0, step=2 * w,
                 data=np.frombuffer(mm.astype("<u2").tobytes(), np.uint8),
             )  # fmt: skip
             for topic, typ, msg in (("joint_states", "JointState", js), ("camera0/depth/image_raw", "Image", img)):
                 seq += 1
-                h = JOINT_STATE_HASH if typ == "JointState" else IMAGE_HASH
+                hh = JOINT_STATE_HASH if typ == "JointState" else IMAGE_HASH
                 att = struct.pack("<qqB", seq, time.time_ns(), 16) + gid
                 drv.put(
-                    f"0/{topic}/sensor_msgs::msg::dds_::{typ}_/{h}",
+                    f"0/{topic}/sensor_msgs::msg::dds_::{typ}_/{hh}",
                     bytes(ts.serialize_cdr(msg, f"sensor_msgs/msg/{typ}")),
                     attachment=att,
                 )
@@ -216,11 +213,55 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
         th.join(30)
         sub.undeclare()
         drv.close()
-    assert got, f"the camera node published no prepared frame ({result})"
-    out = got[-1]
+    assert got, f"the camera node published nothing on {out_topic} ({result})"
+    return got
+
+
+def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
+    """The camera node self-filters a ROS 2 driver's 16UC1 frames and publishes the prepared depth (32FC1,
+    same stamp, metres)."""
+    base = random.randint(48000, 52000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    mm = np.full((120, 160), 2500, np.uint16)  # 2.5 m everywhere
+    mm[:10] = 0  # no reading
+    out = _drive_camera_node(cell, mm, np.zeros(7), "depthguard/camera0/depth", base)[-1]
     assert out.encoding == "32FC1" and (out.width, out.height) == (160, 120)
     d = np.frombuffer(bytes(out.data), "<f4").reshape(120, 160)
     assert np.all(np.isnan(d[:10])) and np.allclose(d[10:][np.isfinite(d[10:])], 2.5)
+
+
+def test_camera_node_moves_a_carried_camera_with_its_link(tmp_path):
+    """camera0 on ``lwr_link_3`` (extrinsics in that link's frame): the node self-filters each frame with the
+    camera where the link was at the frame's joint state, so its robot mask is the one of a camera placed
+    there by hand (and not of the link-frame pose taken as a world pose)."""
+    from depthguard.camera import look_at
+    from depthguard.nodes.common import camera_at_size
+    from depthguard.robot.model import load_lwr4
+    from depthguard.robot.selffilter import render_robot_depth, self_filter
+
+    model = load_lwr4()
+    q = np.array([0.4, 0.5, 0.0, -0.8, 0.0, 0.6, 0.0])
+    R_w, t_w = look_at(np.array([1.75, -0.95, 1.5]), np.array([0.0, 0.0, 0.45]))  # the world pose at q
+    R_l, p_l = model.frame_pose(q, "lwr_link_3")
+    R_loc, t_loc = R_w @ R_l, t_w + R_w @ p_l  # P_C = R_w (R_l P_L + p_l) + t_w
+    text = CELL.read_text().replace(
+        "eye = [1.75, -0.95, 1.5]\ntarget = [0.0, 0.0, 0.45]",
+        f'parent = "lwr_link_3"\nR = {R_loc.tolist()}\nt = {t_loc.tolist()}',
+        1,
+    )
+    base = random.randint(52000, 56000)
+    p = tmp_path / "cell.toml"
+    p.write_text(text + f"\n[network]\nbase_port = {base}\nconnect = []\n")
+    cell = read_cell(p)
+    assert cell.cameras[0].parent == "lwr_link_3"
+    cam = camera_at_size(cell.cameras[0].build(), 160, 120).with_pose(R_w, t_w)
+    robot = render_robot_depth(cam, q, model)
+    mm = np.round(np.where(np.isfinite(robot), robot, 3.0) * 1000).astype(np.uint16)
+    expected = np.asarray(self_filter(cam, mm.astype(float) / 1000, q, model)[0])
+    assert expected.sum() > 300  # the arm is in view
+    out = _drive_camera_node(cell, mm, q, "depthguard/camera0/robot_mask", base)[-1]
+    got = np.frombuffer(bytes(out.data), np.uint8).reshape(120, 160) > 0
+    assert np.array_equal(got, expected)
 
 
 @pytest.mark.slow

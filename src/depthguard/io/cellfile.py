@@ -20,8 +20,8 @@ cell file are relative to the file's folder. Sections:
   ``extrinsics = "tf"`` (from the bag's TF, read once), in the frame ``parent``: ``"world"`` or a link of
   the robot (a camera carried by the robot, e.g. on the wrist: its extrinsics map points of that link's
   frame, ``P_C = R P_link + t``, and ``depthguard run`` moves it with the link at every frame's joint
-  state; the link is checked against the robot when the chain is built; the simulated cell, the nodes and
-  ``calibrate`` take world cameras only and say so);
+  state, as the camera and distance nodes do; the link is checked against the robot when the chain is
+  built; the simulated cell and ``calibrate`` take world cameras only and say so);
 * ``[distance]``: ``backend`` (``depthspace`` | ``octree``; ``run`` and the nodes refuse ``octree`` for now),
   ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),

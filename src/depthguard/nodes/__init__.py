@@ -33,10 +33,7 @@ def run_node(
     watchdog: float = 0.05,
 ) -> dict[str, Any]:
     """Run node ``name`` of the cell file until ``duration`` s (None: until SIGTERM / Ctrl-C)."""
-    from depthguard.runner.chain import refuse_carried_cameras
-
     cell = read_cell(cell_path)
-    refuse_carried_cameras(cell, "the nodes")
     kw: dict[str, Any] = dict(duration=duration, log=log, domain=domain, connect=connect)
     if name == "sim":
         from depthguard.nodes.sim import run_sim_node

@@ -44,7 +44,7 @@ def run_camera_node(
 ) -> dict:
     """Run camera node ``name`` until ``duration`` s or SIGTERM; returns counters."""
     from depthguard.robot.selffilter import self_filter
-    from depthguard.runner.chain import load_cell_robot
+    from depthguard.runner.chain import carried_camera, check_camera_parents, load_cell_robot
 
     cc = {c.name: c for c in cell.cameras}.get(name)
     if cc is None:
@@ -52,7 +52,8 @@ def run_camera_node(
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     model = load_cell_robot(cell)
-    cam0 = cc.build()
+    check_camera_parents(cell, model)
+    cam0 = cc.build()  # (in its parent link's frame when the robot carries it)
     top = Topics.of(cell)
     node = open_node(cell, name, **kw)
     joints: deque = deque(maxlen=400)
@@ -96,6 +97,8 @@ def run_camera_node(
             try:
                 depth = ros2.image_to_depth(msg)
                 cam = camera_at_size(cam0, depth.shape[1], depth.shape[0])
+                if cc.parent != "world":  # carried by the robot: where the link was at this frame
+                    cam = carried_camera(cam, model, q, cc.parent)
             except ValueError as exc:
                 jl.write(ev="bad_frame", error=str(exc))
                 skipped += 1

@@ -19,7 +19,7 @@ from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
 
-__all__ = ["run_distance_node"]
+__all__ = ["run_distance_node", "frame_set_cameras"]
 
 
 def _mask_from_msg(msg) -> np.ndarray:
@@ -90,17 +90,38 @@ class _FrameSets:
         return q if abs(tj - t) <= MAX_JOINT_SKEW else None
 
 
+def frame_set_cameras(cams0: list, depths: list, model, carried: list, q_cams: dict) -> list | None:
+    """The cameras of one frame set in the world frame: each one at the size of its image, and each one that
+    the robot carries (``carried``: ``(index, link)``) where its link was at the joint state of its frame
+    (``q_cams[index]``); None when such a joint state is missing."""
+    from depthguard.runner.chain import carried_camera
+
+    cams = [camera_at_size(c, d.shape[1], d.shape[0]) for c, d in zip(cams0, depths, strict=True)]
+    for k, link in carried:
+        if q_cams.get(k) is None:
+            return None
+        cams[k] = carried_camera(cams[k], model, q_cams[k], link)
+    return cams
+
+
 def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.runner.chain import cell_control_points, cell_distance_stage, check_chain_support, load_cell_robot
+    from depthguard.runner.chain import (
+        cell_control_points,
+        cell_distance_stage,
+        check_camera_parents,
+        check_chain_support,
+        load_cell_robot,
+    )
 
     check_chain_support(cell)
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     model = load_cell_robot(cell)
     points = cell_control_points(cell, model)
+    carried = check_camera_parents(cell, model)
     d = cell.distance
     rho = float(d["rho"])
     cams0 = [c.build() for c in cell.cameras]
@@ -137,9 +158,14 @@ def run_distance_node(
                 sets = [ready.pop(n) for n in names]
                 q = joint["q"].copy()
                 q_frames = fs.q_at(sets[0][0])  # the robot where the principal frame saw it
+                q_cams = {k: fs.q_at(sets[k][0]) for k, _ in carried}
             depths, masks = [s[1] for s in sets], [s[2] for s in sets]
-            if stage is None:
-                cams = [camera_at_size(c, dd.shape[1], dd.shape[0]) for c, dd in zip(cams0, depths, strict=True)]
+            if stage is None or carried:
+                cams = frame_set_cameras(cams0, depths, model, carried, q_cams)
+                if cams is None:
+                    jl.write(ev="skipped", reason="no joint state for a carried camera's frame")
+                    stage = None  # no distances from this frame set: they go stale, the controller stops
+                    continue
                 stage = cell_distance_stage(cell, cams)
             w0 = time.perf_counter()
             # robot-interior corrections (runner.chain) at the frames' joint state; none without one (conservative)

@@ -118,6 +118,31 @@ def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
         raise CellError(f"{cell.path}: distance: {exc}") from None
 
 
+def carried_camera(local: Camera, model: RobotModel, q: np.ndarray, link: str) -> Camera:
+    """The world-frame camera of ``local`` (its pose ``P_C = R P_L + t`` in ``link``'s frame) at joint
+    positions ``q`` (n,): with the link's pose ``P_W = R_l P_L + p_l``, ``P_C = (R R_lᵀ) P_W + t - R R_lᵀ p_l``."""
+    R_l, p_l = model.frame_pose(q, link)
+    R = local.R @ R_l.T
+    return local.with_pose(R, local.t - R @ p_l)
+
+
+def check_camera_parents(cell: CellFile, model: RobotModel, parents: list[str] | None = None) -> list[tuple[int, str]]:
+    """``(index, link)`` of every camera carried by a robot link (``parents``: default the cell file's);
+    a parent that is neither ``"world"`` nor a frame of ``model`` raises :class:`CellError` naming the key."""
+    parents = list(parents) if parents is not None else [c.parent for c in cell.cameras]
+    carried = []
+    for i, link in enumerate(parents):
+        if link == "world":
+            continue
+        if not model.model.existFrame(link):
+            raise CellError(
+                f"{cell.path}: cameras[{i}].parent = {link!r} is not a link of the robot; links:"
+                f" {[f.name for f in model.model.frames]}"
+            )
+        carried.append((i, link))
+    return carried
+
+
 def refuse_carried_cameras(cell: CellFile, what: str) -> None:
     """Refuse a camera carried by a robot link where ``what`` (the nodes, ``calibrate``) takes world cameras
     only (``depthguard run`` moves carried cameras with their link)."""
@@ -172,16 +197,7 @@ class Chain:
         self.cameras = list(cameras)
         self.local_cameras = list(cameras)
         self.parents = list(parents) if parents is not None else [c.parent for c in cell.cameras]
-        self._carried = []
-        for i, link in enumerate(self.parents):
-            if link == "world":
-                continue
-            if not model.model.existFrame(link):
-                raise CellError(
-                    f"{cell.path}: cameras[{i}].parent = {link!r} is not a link of the robot; links:"
-                    f" {[f.name for f in model.model.frames]}"
-                )
-            self._carried.append((i, link))
+        self._carried = check_camera_parents(cell, model, self.parents)
         self.model = model
         points = cell_control_points(cell, model) if points is None else points
         self.points = points
@@ -223,13 +239,9 @@ class Chain:
         return masks
 
     def _place_carried_cameras(self, q: np.ndarray) -> None:
-        """World pose of every camera carried by a link at joint positions ``q``: with the link's pose
-        ``P_W = R_l P_L + p_l`` and the camera's ``P_C = R P_L + t``, ``P_C = (R R_lᵀ) P_W + t - R R_lᵀ p_l``."""
+        """World pose of every camera carried by a link at joint positions ``q`` (:func:`carried_camera`)."""
         for i, link in self._carried:
-            R_l, p_l = self.model.frame_pose(q, link)
-            loc = self.local_cameras[i]
-            R = loc.R @ R_l.T
-            self.cameras[i] = loc.with_pose(R, loc.t - R @ p_l)
+            self.cameras[i] = carried_camera(self.local_cameras[i], self.model, q, link)
             self.health[i].camera = self.cameras[i]
         self.stage = cell_distance_stage(self.cell, self.cameras)
 
