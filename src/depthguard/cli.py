@@ -310,8 +310,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------------- cell
 def _cmd_cell(args: argparse.Namespace) -> int:
     from depthguard.io.cellfile import describe_cell, read_cell
+    from depthguard.runner.chain import check_camera_parents, load_cell_robot
 
     cell = read_cell(args.cell)
+    check_camera_parents(cell, load_cell_robot(cell))  # the links named by attachments and cameras exist
     if args.json:
         print(json.dumps({"name": cell.name, "cameras": [c.name for c in cell.cameras], "ok": True}))
     else:
