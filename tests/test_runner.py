@@ -98,6 +98,16 @@ def _scene(encoding):
     return cam, depth, q, model, mask
 
 
+def _connections(w, ts, topic_image: str = "/cam/depth"):
+    """The bag connections of the test bags: depth images, CameraInfo, joint states, static TF."""
+    return (
+        w.add_connection(topic_image, "sensor_msgs/msg/Image", typestore=ts),
+        w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts),
+        w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts),
+        w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts),
+    )
+
+
 def _write_bag(
     path,
     cam,
@@ -117,10 +127,7 @@ def _write_bag(
 
     ts = ros2.typestore()
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        c_img = w.add_connection(topic_image, "sensor_msgs/msg/Image", typestore=ts)
-        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
-        c_js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
-        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        c_img, c_info, c_js, c_tf = _connections(w, ts, topic_image)
         if tf:  # the camera hangs on a link ("mount") that is fixed in the world
             Rw, pw = camera_tf(cam.R, cam.t)
             mount_R, mount_p = np.eye(3), np.array([1.0, 0.0, 0.0])
@@ -285,10 +292,7 @@ def test_frozen_camera_stops_the_controller_with_its_name(tmp_path):
     bag = tmp_path / "bag"
     ts = ros2.typestore()
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        c_img = w.add_connection("/cam/depth", "sensor_msgs/msg/Image", typestore=ts)
-        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
-        c_js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
-        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        c_img, c_info, c_js, c_tf = _connections(w, ts)
         from depthguard.sim.recorder import camera_tf
 
         w.write(
@@ -394,10 +398,7 @@ def test_camera_carried_by_a_link_follows_the_joint_state(tmp_path):
     ts = ros2.typestore()
     bag = tmp_path / "bag"
     with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        c_img = w.add_connection("/cam/depth", "sensor_msgs/msg/Image", typestore=ts)
-        c_info = w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts)
-        c_js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
-        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        c_img, c_info, c_js, c_tf = _connections(w, ts)
         w.write(
             c_tf, 0, ts.serialize_cdr(ros2.tf_msg(0.0, [(link, "cam_optical", R_lc, p_lc)]), "tf2_msgs/msg/TFMessage")
         )
