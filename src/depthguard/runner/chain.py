@@ -232,7 +232,7 @@ class Chain:
         )
         masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
         # with the joint state, the principal camera's robot pixels and the secondary cameras' robot windows
-        # come from the robot's analytic capsules (robot.interior; no phantom zeros behind the arm)
+        # come from the robot's inner capsules (robot.interior; no phantom zeros behind the arm)
         self.stage.update(depths, masks, q, self.model)
         self.masks = masks
         self.t_frames = t_frames
