@@ -438,3 +438,19 @@ def test_camera_carried_by_a_link_follows_the_joint_state(tmp_path):
     replay = RunLog()
     run_cell(cell, f"bag:{tmp_path / 'out' / 'recording.mcap'}", log=replay)
     np.testing.assert_allclose(np.array(replay.distances), np.array(log.distances), rtol=0, atol=1e-12)
+
+
+def test_bag_with_non_finite_joint_positions_stops_instead_of_raising(tmp_path):
+    """A NaN joint position cannot place the robot: ``run`` skips the frame stage and the queries for it,
+    counts the fault, and the controller stops (it raised ``ValueError`` from the self-filter before)."""
+    cam, depth, q, model, _ = _scene("32FC1")
+    q = q.copy()
+    q[2] = np.nan
+    _write_bag(tmp_path / "bag", cam, depth, q, model, "32FC1")
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    log = RunLog()
+    summary = run_cell(cell, f"bag:{tmp_path / 'bag'}", log=log)
+    assert summary["frames"] == 0 and summary["commands"] == 40
+    assert set(summary["statuses"]) == {"STOP_INVALID_INPUT"}
+    assert summary["sensor_faults"]["joint state: not finite or wrong size"] == 1

@@ -50,6 +50,11 @@ class RunLog:
         self.faults: Counter = Counter()  # "camera: fault" -> frames
 
 
+def _usable_q(q: np.ndarray | None, n: int) -> bool:
+    """``q`` is an (n,) array of finite joint positions."""
+    return q is not None and np.shape(q) == (n,) and bool(np.all(np.isfinite(q)))
+
+
 class _Recorder:
     def __init__(self, path: Path, chain: Chain, cell: CellFile) -> None:
         from depthguard.io.mcap_ros2 import Ros2McapWriter
@@ -170,7 +175,12 @@ def run_chain(
                 rec.inputs(tick, tick.frames)
             for s in sinks:
                 s.inputs(tick, tick.frames)
-            if tick.frames is not None and tick.q is not None:
+            # a joint state that is missing, of the wrong size or not finite cannot place the robot: no frame
+            # stage and no query with it (the controller gets it as it is and stops: STOP_INVALID_INPUT)
+            q_ok = _usable_q(tick.q, len(chain.joint_names))
+            if tick.frames is not None and not q_ok and tick.q is not None:
+                log.faults["joint state: not finite or wrong size"] += 1
+            if tick.frames is not None and q_ok:
                 masks = chain.on_frames(tick.frames, tick.q, tick.t_frames)
                 log.frames += 1
                 log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
@@ -178,7 +188,7 @@ def run_chain(
                     rec.masks(tick.t, masks)
                 for s in sinks:
                     s.masks(tick.t, masks)
-            if chain.ready and tick.q is not None and tick.t >= next_query - 1e-9:
+            if chain.ready and q_ok and tick.t >= next_query - 1e-9:
                 next_query = tick.t + period if next_query == -np.inf else next_query + period
                 w0 = time.perf_counter()
                 res = chain.query(tick.t, tick.q)
