@@ -454,3 +454,36 @@ def test_bag_with_non_finite_joint_positions_stops_instead_of_raising(tmp_path):
     assert summary["frames"] == 0 and summary["commands"] == 40
     assert set(summary["statuses"]) == {"STOP_INVALID_INPUT"}
     assert summary["sensor_faults"]["joint state: not finite or wrong size"] == 1
+
+
+def test_image_of_another_size_mid_run_stops_with_the_camera_named(tmp_path):
+    """A driver that changes its resolution mid-run (or a corrupt message): ``STOP_SENSOR_FAULT`` naming the
+    camera and the shapes, not an exception from the array arithmetic of the health check."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from depthguard.sim.recorder import camera_tf
+
+    cam, depth, q, model, _ = _scene("32FC1")
+    ts = ros2.typestore()
+    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c_img, c_info, c_js, c_tf = _connections(w, ts)
+        Rw, pw = camera_tf(cam.R, cam.t)
+        tfm = ros2.tf_msg(0.0, [("world", "cam_optical", Rw, pw)])
+        w.write(c_tf, 0, ts.serialize_cdr(tfm, "tf2_msgs/msg/TFMessage"))
+        for k in range(60):
+            t, ns = 0.001 * k, int(round(0.001 * k * 1e9))
+            if k in (10, 40):
+                d = depth if k == 10 else depth[:60, :80].copy()
+                img = ros2.image_msg(t, "cam_optical", d, "32FC1")
+                w.write(c_img, ns, ts.serialize_cdr(img, "sensor_msgs/msg/Image"))
+                info = ros2.camera_info_msg(t, "cam_optical", cam)
+                w.write(c_info, ns, ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
+            js = ros2.joint_state_msg(t, list(model.joint_names), q, np.zeros(7))
+            w.write(c_js, ns, ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    log = RunLog()
+    summary = run_cell(cell, f"bag:{tmp_path / 'bag'}", log=log)
+    assert summary["sensor_faults"] == {"cam: image of shape (60, 80), expected (120, 160)": 1}
+    i = log.t.index(0.04)
+    assert "STOP_SENSOR_FAULT" not in log.status[:i] and set(log.status[i:]) == {"STOP_SENSOR_FAULT"}

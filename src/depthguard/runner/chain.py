@@ -220,7 +220,14 @@ class Chain:
         """Frame stage: health check and self-filter of every camera's depth (H, W) m at the joint positions
         ``q``; returns the robot masks (H, W) bool. A faulty camera stops the controller
         (``STOP_SENSOR_FAULT``, :attr:`faults` names it)."""
-        self.faults = {}
+        self.faults = {
+            h.name: f"image of shape {np.shape(d)}, expected {c.shape}"
+            for h, c, d in zip(self.health, self.cameras, depths, strict=True)
+            if np.ndim(d) != 2 or np.shape(d) != c.shape
+        }
+        if self.faults:  # (a driver that changed its resolution mid-run): stop, keep the last good frames
+            self.controller.set_sensor_fault("; ".join(f"{k}: {v}" for k, v in self.faults.items()))
+            return self.masks if self.masks is not None else [np.zeros(c.shape, dtype=bool) for c in self.cameras]
         if self._carried:
             self._place_carried_cameras(q)
         for h, d in zip(self.health, depths, strict=True):
