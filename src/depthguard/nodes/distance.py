@@ -144,7 +144,7 @@ def run_distance_node(
         subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n)))
         subs.append(node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n)))
     pub = node.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
-    stage = None
+    stage, stage_sizes = None, []
     queries = 0
     t_start = time.time()
     try:
@@ -160,18 +160,24 @@ def run_distance_node(
                 q_frames = fs.q_at(sets[0][0])  # the robot where the principal frame saw it
                 q_cams = {k: fs.q_at(sets[k][0]) for k, _ in carried}
             depths, masks = [s[1] for s in sets], [s[2] for s in sets]
-            if stage is None or carried:
+            sizes = [np.shape(d) for d in depths]
+            if stage is None or carried or sizes != stage_sizes:  # (a camera may change its resolution)
                 cams = frame_set_cameras(cams0, depths, model, carried, q_cams)
                 if cams is None:
                     jl.write(ev="skipped", reason="no joint state for a carried camera's frame")
                     stage = None  # no distances from this frame set: they go stale, the controller stops
                     continue
-                stage = cell_distance_stage(cell, cams)
+                stage, stage_sizes = cell_distance_stage(cell, cams), sizes
             w0 = time.perf_counter()
-            # robot-interior corrections (runner.chain) at the frames' joint state; none without one (conservative)
-            stage.update(depths, masks, q_frames, points.model)
-            cps = points.evaluate(q)
-            res = stage.query(cps.centres, cps.radii)
+            try:
+                # robot-interior corrections (runner.chain) at the frames' joint state; none without one
+                stage.update(depths, masks, q_frames, points.model)
+                cps = points.evaluate(q)
+                res = stage.query(cps.centres, cps.radii)
+            except ValueError as exc:  # a malformed frame set (a mask of another size...): no distances from it
+                jl.write(ev="skipped", reason=str(exc))
+                stage = None
+                continue
             w1 = time.perf_counter()
             t_data = min(s[0] for s in sets)
             dist = np.asarray(res.distance, float)
