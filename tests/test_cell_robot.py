@@ -212,3 +212,33 @@ def test_distance_node_places_the_cameras_the_robot_carries():
     np.testing.assert_allclose(cams[1].t, placed.t)
     assert not np.allclose(cams[1].t, cams0[1].t)
     assert frame_set_cameras(cams0, depths, model, [(1, "lwr_link_4")], {1: None}) is None
+
+
+def test_live_view_draws_a_carried_camera_where_its_link_is(tmp_path):
+    """A camera carried by a link (pose given in the link's frame) is drawn at the pose of the latest joint
+    state; without a usable joint state its cloud is not drawn at all (None), rather than misplaced."""
+    pytest.importorskip("viser")
+    from depthguard.runner.chain import carried_camera, cell_control_points, load_cell_robot
+    from depthguard.viz.live import LiveView
+
+    text = (EXAMPLES / "sim-hexagon.toml").read_text()
+    text = text.replace("eye = [1.75, -0.95, 1.5]", 'parent = "lwr_link_4"\neye = [1.75, -0.95, 1.5]', 1)
+    p = tmp_path / "cell.toml"
+    p.write_text(text)
+    cell = read_cell(p)
+    model = load_cell_robot(cell)
+    local = [c.build() for c in cell.cameras]
+    view = LiveView(
+        cell, model, cell_control_points(cell, model), local, port=int(np.random.default_rng().integers(18900, 19700))
+    )
+    try:
+        q = np.linspace(-0.4, 0.4, 7)
+        cams = view._world_cameras(q)
+        placed = carried_camera(local[0], model, q, "lwr_link_4")
+        np.testing.assert_allclose(cams[0].R, placed.R)
+        np.testing.assert_allclose(cams[0].t, placed.t)
+        np.testing.assert_allclose(cams[1].t, local[1].t)  # a world camera stays
+        assert view._world_cameras(None) is None
+        assert view._world_cameras(np.full(7, np.nan)) is None
+    finally:
+        view.close()

@@ -95,7 +95,7 @@ def run_cell(
     if view:
         from depthguard.viz.live import LiveView
 
-        sinks.append(LiveView(cell, model, chain.points, chain.cameras))
+        sinks.append(LiveView(cell, model, chain.points, chain.local_cameras))  # (it places carried cameras)
     summary = run_chain(
         cell, src, chain, realtime=realtime, out_dir=out_dir, progress=progress, label=source, log=log, sinks=sinks
     )

@@ -126,6 +126,17 @@ def carried_camera(local: Camera, model: RobotModel, q: np.ndarray, link: str) -
     return local.with_pose(R, local.t - R @ p_l)
 
 
+def place_carried(
+    cameras: list[Camera], carried: list[tuple[int, str]], model: RobotModel, q: np.ndarray
+) -> list[Camera]:
+    """``cameras`` with each carried one (``carried``: ``(index, link)``, its pose in the link's frame) placed
+    where its link is at joint positions ``q`` (:func:`carried_camera`); a new list."""
+    out = list(cameras)
+    for i, link in carried:
+        out[i] = carried_camera(cameras[i], model, q, link)
+    return out
+
+
 def check_camera_parents(cell: CellFile, model: RobotModel, parents: list[str] | None = None) -> list[tuple[int, str]]:
     """``(index, link)`` of every camera carried by a robot link (``parents``: default the cell file's);
     a parent that is neither ``"world"`` nor a frame of ``model`` raises :class:`CellError` naming the key."""
@@ -144,13 +155,13 @@ def check_camera_parents(cell: CellFile, model: RobotModel, parents: list[str] |
 
 
 def refuse_carried_cameras(cell: CellFile, what: str) -> None:
-    """Refuse a camera carried by a robot link where ``what`` (the nodes, ``calibrate``) takes world cameras
-    only (``depthguard run`` moves carried cameras with their link)."""
+    """Refuse a camera carried by a robot link where ``what`` (``calibrate``) takes world cameras only
+    (``depthguard run`` and the nodes move carried cameras with their link)."""
     carried = [f"cameras[{i}].parent = {c.parent!r}" for i, c in enumerate(cell.cameras) if c.parent != "world"]
     if carried:
         raise CellError(
             f"{cell.path}: {', '.join(carried)}: {what} takes cameras fixed in the world only for now (a camera"
-            " carried by the robot runs in `depthguard run`)"
+            " carried by the robot runs in `depthguard run` and the nodes)"
         )
 
 
@@ -247,8 +258,8 @@ class Chain:
 
     def _place_carried_cameras(self, q: np.ndarray) -> None:
         """World pose of every camera carried by a link at joint positions ``q`` (:func:`carried_camera`)."""
-        for i, link in self._carried:
-            self.cameras[i] = carried_camera(self.local_cameras[i], self.model, q, link)
+        self.cameras[:] = place_carried(self.local_cameras, self._carried, self.model, q)  # (in place: shared)
+        for i, _ in self._carried:
             self.health[i].camera = self.cameras[i]
         self.stage = cell_distance_stage(self.cell, self.cameras)
 

@@ -70,6 +70,8 @@ class LiveView:
         from viser.extras import ViserUrdf
 
         self.cell, self.model, self.points, self.cameras = cell, model, points, list(cameras)
+        # cameras carried by a link (given in its frame) are drawn where the link is at the latest joint state
+        self._carried = [(i, c.parent) for i, c in enumerate(cell.cameras) if c.parent != "world"]
         self.rho = float(cell.distance["rho"])
         self.stride, self.period = stride, 1.0 / float(max_hz)
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
@@ -182,6 +184,18 @@ class LiveView:
         elif f"robot{k}" in self.clouds:
             self.clouds.pop(f"robot{k}").remove()
 
+    def _world_cameras(self, q) -> list[Camera] | None:
+        """The cameras in the world frame at joint positions ``q``; None when a carried camera cannot be
+        placed (no usable joint state yet)."""
+        if not self._carried:
+            return self.cameras
+        from depthguard.runner.chain import place_carried
+
+        try:
+            return place_carried(self.cameras, self._carried, self.model, np.asarray(q, float))
+        except (ValueError, TypeError):
+            return None
+
     def draw(self) -> None:
         """Push the newest state to the page (called by the view thread)."""
         with self.lock:
@@ -189,9 +203,10 @@ class LiveView:
             rates = {k: _rate(v) for k, v in self.times.items()}
         if st["q"] is not None and self._idx:
             self.urdf.update_cfg(np.asarray(st["q"])[self._idx])
-        if st["frames"] is not None:
+        cams = self._world_cameras(st["q"])
+        if st["frames"] is not None and cams is not None:
             masks = st["masks"] or [None] * len(st["frames"])
-            for k, (cam, dep) in enumerate(zip(self.cameras, st["frames"], strict=False)):
+            for k, (cam, dep) in enumerate(zip(cams, st["frames"], strict=False)):
                 self._cloud(cam, dep, masks[k] if k < len(masks) else None, k)
         dmin = None
         if st["res"] is not None:
