@@ -108,6 +108,19 @@ def _connections(w, ts, topic_image: str = "/cam/depth"):
     )
 
 
+def _write_tick(w, ts, conns, t: float, cam, frame, q, joint_names) -> None:
+    """One tick of a test bag at ``t`` s: the depth ``frame`` (32FC1) and its CameraInfo when not None, then
+    the joint state ``q``; ``conns``: the image, info and joint-state connections of :func:`_connections`."""
+    c_img, c_info, c_js = conns
+    ns = int(round(t * 1e9))
+    if frame is not None:
+        w.write(c_img, ns, ts.serialize_cdr(ros2.image_msg(t, "cam_optical", frame, "32FC1"), "sensor_msgs/msg/Image"))
+        info = ros2.camera_info_msg(t, "cam_optical", cam)
+        w.write(c_info, ns, ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
+    js = ros2.joint_state_msg(t, list(joint_names), q, np.zeros(len(q)))
+    w.write(c_js, ns, ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+
+
 def _write_bag(
     path,
     cam,
@@ -403,15 +416,10 @@ def test_camera_carried_by_a_link_follows_the_joint_state(tmp_path):
             c_tf, 0, ts.serialize_cdr(ros2.tf_msg(0.0, [(link, "cam_optical", R_lc, p_lc)]), "tf2_msgs/msg/TFMessage")
         )
         for k in range(45):
-            t, ns = 0.001 * k, int(round(0.001 * k * 1e9))
+            t = 0.001 * k
             q = qa if k < 20 else qb
-            if k in frames:
-                img = ros2.image_msg(t, "cam_optical", _wall_and_post(cam_at(frames[k])), "32FC1")
-                w.write(c_img, ns, ts.serialize_cdr(img, "sensor_msgs/msg/Image"))
-                info = ros2.camera_info_msg(t, "cam_optical", cam_a)
-                w.write(c_info, ns, ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
-            js = ros2.joint_state_msg(t, list(model.joint_names), q, np.zeros(7))
-            w.write(c_js, ns, ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+            frame = _wall_and_post(cam_at(frames[k])) if k in frames else None
+            _write_tick(w, ts, (c_img, c_info, c_js), t, cam_a, frame, q, model.joint_names)
     cell = tmp_path / "cell.toml"
     cell.write_text(BAG_CELL)
     log = RunLog()
@@ -471,15 +479,9 @@ def test_image_of_another_size_mid_run_stops_with_the_camera_named(tmp_path):
         tfm = ros2.tf_msg(0.0, [("world", "cam_optical", Rw, pw)])
         w.write(c_tf, 0, ts.serialize_cdr(tfm, "tf2_msgs/msg/TFMessage"))
         for k in range(60):
-            t, ns = 0.001 * k, int(round(0.001 * k * 1e9))
-            if k in (10, 40):
-                d = depth if k == 10 else depth[:60, :80].copy()
-                img = ros2.image_msg(t, "cam_optical", d, "32FC1")
-                w.write(c_img, ns, ts.serialize_cdr(img, "sensor_msgs/msg/Image"))
-                info = ros2.camera_info_msg(t, "cam_optical", cam)
-                w.write(c_info, ns, ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
-            js = ros2.joint_state_msg(t, list(model.joint_names), q, np.zeros(7))
-            w.write(c_js, ns, ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+            t = 0.001 * k
+            frame = {10: depth, 40: depth[:60, :80].copy()}.get(k)
+            _write_tick(w, ts, (c_img, c_info, c_js), t, cam, frame, q, model.joint_names)
     cell = tmp_path / "cell.toml"
     cell.write_text(BAG_CELL)
     log = RunLog()
