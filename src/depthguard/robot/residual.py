@@ -100,6 +100,13 @@ class RigidBodyDynamics:
             M = np.triu(M) + np.triu(M, 1).T
         return M + self._arm
 
+    def raw_terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """pinocchio's ``M`` (without the armature; its upper triangle is always filled, the lower one only
+        by some versions), ``C`` and ``g`` at ``(q, q̇)``, as pinocchio returns them (no copies): the
+        control-rate path of :class:`MomentumObserver`."""
+        pin, m, d = self._pin, self.model, self.data
+        return pin.crba(m, d, q), pin.computeCoriolisMatrix(m, d, q, qd), pin.computeGeneralizedGravity(m, d, q)
+
     def terms(self, q: np.ndarray, qd: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``M`` (n, n), ``C`` (n, n) with ``Ṁ = C + Cᵀ``, and ``g`` (n,) N m at ``(q, q̇)``."""
         M = self.mass_matrix(q)
@@ -208,10 +215,7 @@ class MomentumObserver:
         ):
             q, qd, tau = (check_finite_array(x, (n,), name) for x, name in ((q, "q"), (qd, "qd"), (tau, "tau")))
         h = self.dt if dt is None else check_positive(dt, "dt")
-        dyn, pin = self.dyn, self.dyn._pin
-        M = pin.crba(dyn.model, dyn.data, q)  # upper triangle at least; the kernel mirrors it
-        C = pin.computeCoriolisMatrix(dyn.model, dyn.data, q, qd)
-        g = pin.computeGeneralizedGravity(dyn.model, dyn.data, q)
+        M, C, g = self.dyn.raw_terms(q, qd)  # (M: upper triangle at least; the kernel mirrors it)
         r = _observer_step(M, C, g, qd, tau, self._par, h, self._average, not self._started, self._state)
         self._started = True
         return r

@@ -212,7 +212,7 @@ def run_loop(
                 self_filter(c.camera, dimg, q_meas, kin, margin=m)
                 for c, dimg, m in zip(cams, depths, margins, strict=True)
             ]
-            stage.update(depths, masks, q_meas, kin, margins)
+            stage.update(depths, masks, q_meas, kin.model, margins)
             w2 = time.perf_counter()
             snap = ptruth.snapshot(cell.data)  # the obstacles as this frame saw them (metrics only)
             log.wall_camera.append(w1 - w0)

@@ -194,22 +194,21 @@ class DistanceStage:
         depths: list[np.ndarray],
         masks: list[np.ndarray],
         q: np.ndarray | None = None,
-        kin=None,
+        model=None,
         margins: list[float] | None = None,
     ) -> None:
         """Frame stage: take one depth image and robot mask per camera.
 
-        With several cameras and the measured joints ``q`` and ``kin`` (a :class:`RobotModel`, or anything
-        with one as ``model``), the principal camera's robot pixels are corrected from the robot's analytic
-        capsules first (:func:`depthguard.robot.interior.interior_capsules`: none for mesh links)
-        (:func:`depthguard.robot.interior.principal_robot_pixels`): case iv starts where a ray leaves the
+        With several cameras, the measured joints ``q`` and the robot ``model`` (a :class:`RobotModel`), the
+        principal camera's robot pixels are corrected first from the capsules inside the robot's collision
+        geometry (:func:`depthguard.robot.interior.interior_capsules`: none for mesh links;
+        :func:`depthguard.robot.interior.principal_robot_pixels`): case iv starts where a ray leaves the
         robot's inflated capsules, and a missing pixel whose ray misses the robot is a hole, not robot;
         the secondary cameras get their robot windows (``robot_windows``): the robot's own body, even
         where something in front of it hides it, holds no obstacle. ``margins`` (m, one per camera) are
         the self-filter margins the masks were made with (default 3 cm each, :func:`filter_margin`).
         """
         if self.fusion is not None:
-            model = kin if kin is None or hasattr(kin, "joint_kinematics") else kin.model  # a RobotModel, or its holder
             a, b, r = interior_capsules(model, q) if q is not None and model is not None else (None, None, [])
             if len(r):
                 ms = list(margins) if margins is not None else [SELF_FILTER_MARGIN] * len(self.cameras)
