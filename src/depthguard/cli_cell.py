@@ -1,0 +1,145 @@
+"""Command line: the real-cell commands ``run``, ``calibrate``, ``node``, ``view`` and ``cell``
+(:mod:`depthguard.cli` registers them with :func:`add_cell_commands`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from depthguard.cli_common import check_out_dir
+
+__all__ = ["add_cell_commands"]
+
+
+# ---------------------------------------------------------------------------------------------- calibrate
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from depthguard.runner.calibrate import calibrate_cell
+
+    out = calibrate_cell(args.cell, args.source, write=args.write, quick=args.quick)
+    print(json.dumps(out, indent=None if args.json else 2, default=float))
+    return 0
+
+
+# --------------------------------------------------------------------------------------------------- cell
+def _cmd_cell(args: argparse.Namespace) -> int:
+    from depthguard.io.cellfile import describe_cell, read_cell
+    from depthguard.runner.chain import check_camera_parents, load_cell_robot
+
+    cell = read_cell(args.cell)
+    check_camera_parents(cell, load_cell_robot(cell))  # the links named by attachments and cameras exist
+    if args.json:
+        print(json.dumps({"name": cell.name, "cameras": [c.name for c in cell.cameras], "ok": True}))
+    else:
+        print(describe_cell(cell))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------- run
+def _cmd_run(args: argparse.Namespace) -> int:
+    from depthguard.runner import run_cell
+
+    if args.out:
+        check_out_dir(args.out)
+    out = run_cell(
+        args.cell,
+        args.source,
+        quick=args.quick,
+        realtime=args.realtime,
+        out_dir=args.out,
+        progress=not args.json,
+        transport=args.transport,
+        zenoh_domain=args.zenoh_domain,
+        zenoh_connect=args.zenoh_connect,
+        view=args.view,
+    )
+    print(json.dumps(out, indent=None if args.json else 2, default=float))
+    return 0
+
+
+# --------------------------------------------------------------------------------------------- node, view
+def _cmd_node(args: argparse.Namespace) -> int:
+    from depthguard.nodes import run_node
+
+    out = run_node(
+        args.name,
+        args.cell,
+        source=args.source,
+        quick=args.quick,
+        duration=args.duration,
+        log=args.log,
+        domain=args.zenoh_domain,
+        connect=args.zenoh_connect,
+        watchdog=args.watchdog,
+    )
+    print(json.dumps({"node": args.name, **out}, default=float))
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from depthguard.viz.live import run_view_node
+
+    run_view_node(
+        args.cell, port=args.port, duration=args.duration, domain=args.zenoh_domain, connect=args.zenoh_connect
+    )
+    return 0
+
+
+def _zenoh_flags(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--zenoh-domain", type=int, default=None, metavar="N", help="ROS domain id (default: cell file)")
+    p.add_argument(
+        "--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to (repeatable; default: the cell file's, tcp/127.0.0.1:7447)",
+    )  # fmt: skip
+
+
+def add_cell_commands(sub) -> None:
+    """Add the real-cell subcommands to the ``depthguard`` subparsers ``sub``."""
+    p = sub.add_parser("run", help="run the whole chain on a source: bag:PATH, sim:SCENARIO or realsense")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument(
+        "--source", required=True, metavar="bag:PATH|sim:SCENARIO|realsense", help="where the data comes from"
+    )
+    pace = p.add_mutually_exclusive_group()
+    pace.add_argument("--realtime", action="store_true", help="pace the run to the source's clock")
+    pace.add_argument("--fast", action="store_true", help="as fast as possible on the source's clock (default)")
+    p.add_argument("--quick", action="store_true", help="the scenario's short form (sim sources)")
+    p.add_argument("--out", default=None, metavar="DIR", help="write DIR/recording.mcap (ROS 2 messages)")
+    p.add_argument("--json", action="store_true", help="print one JSON summary")
+    p.add_argument("--transport", choices=["none", "zenoh"], default="none", help="also publish the topics on Zenoh")
+    _zenoh_flags(p)
+    p.add_argument("--view", action="store_true", help="live 3-D view in the browser (viser)")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("calibrate", help="camera extrinsics from the arm itself (SAPHARI §3.3)")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file (its extrinsics: the guess)")
+    p.add_argument("--source", required=True, metavar="bag:PATH|sim:SCENARIO", help="frames at several arm poses")
+    p.add_argument(
+        "--write", default=None, metavar="FILE.toml", help="calibration file (default CELL.calibration.toml)"
+    )
+    p.add_argument("--quick", action="store_true", help="the scenario's low-resolution form (sim sources)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("node", help="run one node of a cell on Zenoh: sim, a camera, distance, controller, monitor")
+    p.add_argument("name", help="node name: sim, a camera name of the cell, distance, controller or monitor")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument("--source", default=None, metavar="sim:SCENARIO", help="the sim node's scenario")
+    p.add_argument("--quick", action="store_true", help="the scenario's short form (sim node: 160x120 images)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
+    p.add_argument("--log", default=None, metavar="FILE", help="JSON-lines event log (timings)")
+    p.add_argument("--watchdog", type=float, default=0.05, metavar="S", help="sim node: driver watchdog timeout")
+    _zenoh_flags(p)
+    p.set_defaults(func=_cmd_node)
+
+    p = sub.add_parser("view", help="live 3-D view of a cell's nodes in the browser (viser)")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument("--port", type=int, default=8080, help="HTTP port of the page (127.0.0.1)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
+    _zenoh_flags(p)
+    p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
+    p.add_argument("action", choices=["check"])
+    p.add_argument("cell", metavar="CELL.toml")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_cell)
