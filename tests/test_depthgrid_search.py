@@ -20,7 +20,7 @@ from depthguard.depthgrid import DepthGridFusion
 from depthguard.depthgrid import records as K
 from depthguard.depthgrid.chunks import tile_chunk_cleared
 from depthguard.depthgrid.column import column_search
-from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout, rect_sees_past
+from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout, rect_sees_past, window_aware_votes
 from depthguard.depthgrid.records import Grid, Votes
 from depthguard.depthspace import TILE, lower_bound_slack
 from depthguard.scene import Box, Capsule, HalfSpace, Scene, Sphere, render_depth
@@ -212,8 +212,86 @@ def test_min_pyramid_equals_pixel_loop():
         assert rect_sees_past(k, u0, v0, u1, v1, thr, Votes(votes, pyr, meta), stack) == ref
 
 
+def test_min_pyramid_with_robot_windows_equals_pixel_rule():
+    """With robot windows, ``rect_sees_past`` on the window-aware pyramid answers exactly as the per-pixel
+    rule ``vote > d or lo <= d <= hi`` over the rectangle: windows that start before the vote (the pixel
+    sees past everything up to ``hi``), windows behind the vote (a gap), windows touching the threshold."""
+    rng = np.random.default_rng(12)
+    K_, H, W = 2, 37, 53
+    vote = rng.uniform(0.5, 3.0, size=(K_, H, W)).astype(np.float32)
+    vote[0, 10:14, 20:30] = 0.0
+    lo = np.full((K_, H, W), np.inf, np.float32)
+    hi = np.full((K_, H, W), -np.inf, np.float32)
+    blobs = []
+    for k in range(K_):  # a few window blobs, some starting in front of the vote, some behind it
+        for _ in range(6):
+            v0, u0 = int(rng.integers(0, H - 8)), int(rng.integers(0, W - 8))
+            dv, du = int(rng.integers(2, 9)), int(rng.integers(2, 9))
+            blobs.append((k, u0, v0, du, dv))
+            a = rng.uniform(0.2, 2.5)
+            lo[k, v0 : v0 + dv, u0 : u0 + du] = a
+            hi[k, v0 : v0 + dv, u0 : u0 + du] = a + rng.uniform(0.05, 0.8)
+    votes = np.concatenate([vote, lo, hi], axis=1)
+    meta, n = pyramid_layout(H, W)
+    pyr = np.zeros((K_, n), dtype=np.float32)
+    build_pyramid(window_aware_votes(votes, H), meta, pyr)
+    vt = Votes(votes, pyr, meta, True)
+    stack = np.empty(3 * K.PYR_STACK, dtype=np.int64)
+    gaps = contiguous = 0
+    for _ in range(4000):
+        if rng.random() < 0.5:  # a rectangle inside a window blob
+            k, bu, bv, du, dv = blobs[int(rng.integers(0, len(blobs)))]
+            u0, u1 = sorted(bu + rng.integers(0, du, 2))
+            v0, v1 = sorted(bv + rng.integers(0, dv, 2))
+        else:
+            k = int(rng.integers(0, K_))
+            u0, u1 = sorted(rng.integers(0, W, 2))
+            v0, v1 = sorted(rng.integers(0, H, 2))
+        r = (k, slice(v0, v1 + 1), slice(u0, u1 + 1))
+        thr = float(rng.choice([rng.uniform(0.2, 1.2), rng.uniform(0.0, 3.3), float(rng.choice(hi[r].ravel()))]))
+        thr32 = np.float32(thr)
+        in_window = (lo[r] <= thr32) & (thr32 <= hi[r])
+        ref = bool(np.all((vote[r] > thr32) | in_window))
+        gaps += int(ref and np.any(in_window & (lo[r] > vote[r])))
+        contiguous += int(ref and np.any(in_window & (lo[r] <= vote[r])))
+        assert rect_sees_past(k, u0, v0, u1, v1, thr, vt, stack) == ref, (k, u0, v0, u1, v1, thr)
+    assert gaps > 20 and contiguous > 20  # both kinds of window did turn answers
+
+
 def _same(a, b):
     return np.array_equal(a, b, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed,robot_occludes", [(30, False), (31, True)])
+def test_column_cache_changes_no_answer(seed, robot_occludes):
+    """The frame's column cache (cell states decided by earlier searches) changes no answer: queries in
+    any order of modes, radii and points equal the queries without the cache, and a new frame set forgets
+    the old states (the second frame set has the blocker moved)."""
+    for frame in range(2):
+        rng, cams, fusion = scene_setup(seed + 10 * frame, blocker=True, robot_occludes=robot_occludes)
+        P = np.vstack([rng.uniform([-0.4, -0.5, 0.4], [0.9, 0.5, 1.4], size=(10, 3)), [[0.5, 0.0, 0.9]]])
+        radii = rng.uniform(0.0, 0.08, len(P))
+        votes_cached = votes_fresh = 0
+        for rho, mode in [(0.4, "hybrid"), (0.2, "min"), (0.4, "min"), (0.2, "all"), (0.4, "hybrid")]:
+            fusion.column_cache = False
+            ref = fusion.query(P, radii, rho=rho, mode=mode)
+            votes_fresh += int(fusion.last_votes.sum())
+            fusion.column_cache = True
+            got = fusion.query(P, radii, rho=rho, mode=mode)
+            votes_cached += int(fusion.last_votes.sum())
+            for f in ("distance", "direction", "nearest", "obstacle_pixels"):
+                assert _same(getattr(got, f), getattr(ref, f)), (frame, mode, rho, f)
+        assert votes_cached < 0.5 * votes_fresh  # the cache did save votes
+    # one fusion object over two frame sets: the second set's answers are its own
+    rng, cams, fusion = scene_setup(seed, blocker=True, robot_occludes=robot_occludes)
+    P = rng.uniform([-0.4, -0.5, 0.4], [0.9, 0.5, 1.4], size=(12, 3))
+    fusion.query(P, 0.05, rho=0.4, mode="hybrid")
+    _, _, other = scene_setup(seed + 10, blocker=True, robot_occludes=robot_occludes)
+    fusion.update(*other.inputs[1:])
+    got = fusion.query(P, 0.05, rho=0.4, mode="hybrid")
+    fusion.column_cache = False
+    ref = fusion.query(P, 0.05, rho=0.4, mode="hybrid")
+    assert _same(got.distance, ref.distance) and _same(got.direction, ref.direction)
 
 
 @pytest.mark.parametrize("seed,robot_occludes", [(20, False), (21, False), (22, True), (23, False), (24, True)])

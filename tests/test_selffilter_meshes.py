@@ -80,6 +80,22 @@ def test_robot_pixels_removed_and_background_kept(name: str) -> None:
         _assert_targets(r)
 
 
+def test_dense_meshes_meet_the_targets(tmp_path) -> None:
+    """The Panda with each mesh triangle cut into four (the benchmark's ~10k-triangle case,
+    ``bench.selffilter_meshes.dense_urdf``): four times the triangles, the same surface, the same targets
+    against the truth of the original meshes."""
+    from depthguard.bench.selffilter_meshes import dense_urdf
+    from depthguard.robot.model import RobotModel
+    from depthguard.robot.robots import ROBOTS
+
+    dense = RobotModel.from_urdf(dense_urdf(robot_urdf("panda"), tmp_path), ee_frame=ROBOTS["panda"][1])
+    n0, n1 = _model("panda").geometry.n_triangles, dense.geometry.n_triangles
+    assert n1 - n0 == 3 * (n0 - 8 * 12), (n0, n1)  # meshes x4; the fingers' eight boxes (12 triangles) unchanged
+    q = _random_q(dense, 7)
+    truth = MeshRobotTruth(str(robot_urdf("panda")), q, ENV)
+    _assert_targets(_check_view("panda", dense, q, truth, VIEWS[0]))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["panda", "ur5", "xarm7"])
 @pytest.mark.parametrize("seed", [11, 12])

@@ -41,9 +41,17 @@ import numpy as np
 
 from depthguard.camera import Camera
 from depthguard.kernels import FASTMATH
-from depthguard.kernels.hits import OUT_WIDTH, add_hit, no_hits, write_hits
+from depthguard.kernels.hits import OUT_WIDTH, add_hit, nearer_hit, no_hits, write_hits
+from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
-from depthguard.kernels.region import nearest_tile, ray_distance_from, surveillance_box, tile_lower_bounds, unseen_space
+from depthguard.kernels.region import (
+    first_index,
+    next_tile,
+    ray_distance_from,
+    surveillance_box,
+    tile_lower_bounds,
+    unseen_space,
+)
 from depthguard.validation import check_points
 
 __all__ = [
@@ -258,29 +266,40 @@ def _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model):
 
 
 @nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
-def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model):
-    """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped)."""
+def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model, lattice_only):
+    """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped); only its
+    direction-lattice pixels with ``lattice_only``."""
     tile = qp.tile
     reff = qp.rho + radius
     zmax = pz + reff
-    for v in range(max(v0, tv * tile), min(v1 + 1, tv * tile + tile)):
+    st = qp.stride
+    step = st if lattice_only else 1
+    va, ua = max(v0, tv * tile), max(u0, tu * tile)
+    if lattice_only:
+        va, ua = first_index(va, st), first_index(ua, st)
+    for v in range(va, min(v1 + 1, tv * tile + tile), step):
         b = (v + 0.5 - intr.cy) / intr.fy
-        for u in range(max(u0, tu * tile), min(u1 + 1, tu * tile + tile)):
+        row_on = v % st == 0
+        for u in range(ua, min(u1 + 1, tu * tile + tile), step):
             do = obs[v, u]
             if do > zmax:
                 continue
             a = (u + 0.5 - intr.cx) / intr.fx
             D, dx, dy, dz, dr, s, ra, rb = _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model)
-            if D >= reff:
+            summed = qp.mode == 0 or (row_on and u % st == 0)  # on the direction lattice
+            if D >= (reff if summed else hits.best):
                 continue
             if dr < 1e-12:  # the point sits on the ray: push away from the visible surface
                 dx, dy, dz = px - do * ra, py - do * rb, pz - do
                 dr = math.sqrt(dx * dx + dy * dy + dz * dz)
                 if dr < 1e-12:
                     dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
-            hits = add_hit(
-                hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s, True, radius, qp.rho, qp.mode, qp.alpha
-            )
+            if summed:
+                hits = add_hit(
+                    hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s, True, radius, qp.rho, qp.mode, qp.alpha
+                )
+            else:
+                hits = nearer_hit(hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s)
     return hits
 
 
@@ -298,19 +317,33 @@ def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out):
     if u0 <= u1 and v0 <= v1:
         t_u0, t_v0, ntu, ntiles = tile_lower_bounds(tmin, px, py, pz, reff, (u0, u1, v0, v1), intr, qp.tile, lbs)
         for kk in range(ntiles):
-            if qp.mode == 0:  # nearest tile first; stop when no tile can be nearer (ICRA'12 shrinking region)
-                k = nearest_tile(lbs, ntiles)
-                if not lbs[k] < hits.best:
-                    break
-                lbs[k] = np.inf
-            else:
-                k = kk
-                if lbs[k] >= reff:
-                    continue
+            k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp)
+            if k < 0:
+                break
+            if k == ntiles:
+                continue
             hits = _tile_pixels(
-                hits, obs, t_u0 + k % ntu, t_v0 + k // ntu, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model
+                hits,
+                obs,
+                t_u0 + k % ntu,
+                t_v0 + k // ntu,
+                u0,
+                u1,
+                v0,
+                v1,
+                px,
+                py,
+                pz,
+                radius,
+                h,
+                intr,
+                qp,
+                model,
+                lattice_only,
             )
     write_hits(hits, qp.mode, out)
+    if qp.mode != 0:
+        out[7] *= qp.stride * qp.stride  # the lattice's count, scaled to the whole image
 
 
 def _query_many_py(obs, tmin, intr, qp, model, R, t, centres, radii):
@@ -339,6 +372,7 @@ def query_distances(
     alpha: float = 6.0,
     model: str = "frustum",
     parallel: bool = False,
+    direction_stride: int | str = "auto",
 ) -> PointDistances:
     """Distances from N control spheres to the obstacles seen by one camera (ICRA'12 §III-IV).
 
@@ -354,8 +388,13 @@ def query_distances(
             (literal RA-L'16 eqs. 5-7, which over-estimates off the optical axis); the last two for comparison.
         parallel: spread the points over numba's threads (faster on an idle multi-core machine, slower
             and jittery when the cores are busy).
+        direction_stride: modes ``"all"`` and ``"hybrid"``: the direction sum takes every
+            ``direction_stride``-th pixel in each image direction; the distance still comes from every
+            pixel, and is the same whatever the stride. ``"auto"`` (default): 1 below 640 pixels wide, 2
+            at 640 (:func:`depthguard.kernels.records.direction_stride`: a lattice about 320 pixels wide).
     Returns:
-        :class:`PointDistances` in the world frame.
+        :class:`PointDistances` in the world frame (``obstacle_pixels``: the lattice's count times
+        ``direction_stride²`` in modes ``"all"`` and ``"hybrid"``).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -372,7 +411,14 @@ def query_distances(
         frame.obstacle_depth,
         frame.tile_min,
         intrinsics(cam),
-        query_params(rho, MODES.index(mode), alpha, frame.invalid == "conservative", TILE),
+        query_params(
+            rho,
+            MODES.index(mode),
+            alpha,
+            frame.invalid == "conservative",
+            TILE,
+            resolve_stride(direction_stride, cam.width),
+        ),
         DISTANCE_MODELS.index(model),
         np.ascontiguousarray(cam.R),
         np.ascontiguousarray(cam.t),

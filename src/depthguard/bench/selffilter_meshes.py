@@ -8,11 +8,18 @@ placements (:mod:`depthguard.bench.meshtruth`), 640x480 Kinect v1 intrinsics, ra
 (seeded) and two viewpoints. Per robot: robot pixels visible and left in, background pixels removed (and
 how many of them lie farther than the margin from the robot, by coal), ms per frame (median, p99; wall
 clock and thread CPU time, which a shared machine distorts less), the triangle count of the filter's meshes.
+
+``panda_x4``: the Panda with every collision triangle cut into four (:func:`dense_urdf`; the same surface,
+9.6k triangles), the "about 10k triangles in view" case of the self-filter's time target; the truth and
+the counts are those of the original meshes.
 """
 
 from __future__ import annotations
 
+import tempfile
 import time
+import xml.etree.ElementTree as ET
+from pathlib import Path
 
 import numpy as np
 
@@ -55,15 +62,46 @@ def _counts(mask, measured, robot_vis, urdf, q, cam, margin) -> dict:
     }
 
 
-def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
+def dense_urdf(urdf: Path, out_dir: Path, subdivisions: int = 1) -> Path:
+    """A copy of ``urdf`` in ``out_dir`` whose collision meshes have each triangle cut into four,
+    ``subdivisions`` times (``trimesh``'s midpoint subdivision: the same surface, 4^k times the triangles);
+    visual meshes are dropped. Returns the copy's path."""
+    import trimesh
+
+    from depthguard.robot.shapes import resolve_mesh_path
+
+    tree = ET.parse(urdf)
+    for link in tree.getroot().iter("link"):
+        for vis in link.findall("visual"):
+            link.remove(vis)
+    for k, mesh in enumerate(tree.getroot().iter("mesh")):
+        src = resolve_mesh_path(mesh.get("filename"), Path(urdf))
+        m = trimesh.load(src, force="mesh", process=True)
+        v, f = np.asarray(m.vertices), np.asarray(m.faces)
+        for _ in range(subdivisions):
+            v, f = trimesh.remesh.subdivide(v, f)
+        dst = out_dir / f"mesh_{k}.stl"
+        trimesh.Trimesh(v, f, process=False).export(dst)
+        mesh.set("filename", str(dst))
+    out = out_dir / Path(urdf).name
+    tree.write(out)
+    return out
+
+
+def _robot(name: str, n_q: int, repeat: int, margin: float, subdivisions: int = 0) -> dict:
     from depthguard.bench.meshtruth import MeshRobotTruth
     from depthguard.camera import Camera, look_at
-    from depthguard.robot.robots import load_robot, robot_urdf
+    from depthguard.robot.model import RobotModel
+    from depthguard.robot.robots import ROBOTS, load_robot, robot_urdf
     from depthguard.robot.selffilter import self_filter, self_filter_capsules
     from depthguard.robot.spheres import cover_points
 
-    model = load_robot(name)
     urdf = str(robot_urdf(name))
+    tmp = tempfile.TemporaryDirectory()  # the dense meshes live until the run ends
+    if subdivisions:
+        model = RobotModel.from_urdf(dense_urdf(Path(urdf), Path(tmp.name), subdivisions), ee_frame=ROBOTS[name][1])
+    else:
+        model = load_robot(name)
     # bounding volumes fitted to the meshes: 3 spheres per link (the base included), link frame
     fitted = {lk: cover_points(p, 3, radii=r) for lk, (p, r) in model.geometry.link_points().items()}
     rng = np.random.default_rng(2026)
@@ -117,6 +155,7 @@ def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
         }
 
     mesh, caps = agg("mesh"), agg("capsules")
+    tmp.cleanup()
     return {
         "triangles": model.geometry.n_triangles,
         "analytic_capsules": len(model.geometry.cap_r),
@@ -133,6 +172,10 @@ def _robot(name: str, n_q: int, repeat: int, margin: float) -> dict:
 
 def run_mesh_selffilter(quick: bool = False, margin: float = 0.03, robots=("panda", "ur5", "lwr4")) -> dict:
     """Panda, UR5 and shipped-LWR entries of ``bench selffilter`` (module docstring; for the LWR the "capsule
-    baseline" is its exact capsule model, the filter before this change); ``quick``: 1 configuration, 20 calls."""
+    baseline" is its exact capsule model, the filter before this change), and ``panda_x4`` (the Panda's
+    meshes at four times the triangles) unless ``quick``; ``quick``: 1 configuration, 20 calls."""
     n_q, repeat = (1, 20) if quick else (3, 200)
-    return {name: _robot(name, n_q, repeat, margin) for name in robots}
+    out = {name: _robot(name, n_q, repeat, margin) for name in robots}
+    if not quick and "panda" in robots:
+        out["panda_x4"] = _robot("panda", n_q, repeat, margin, subdivisions=1)
+    return out

@@ -14,6 +14,11 @@ below ``limit``. The first occupied segment met is the nearest. Free space is sk
 8-cell block shared by the whole tile (state in ``Scratch.tstate``, shared by the tile's columns), then an
 8-cell and a 2-cell block of the column, then single cells; cleared blocks hold only cells that the
 per-cell rule clears, so the answer is that of the cell-by-cell search.
+
+Every cell decided by a vote (and every cell of a cleared column block) is written to the frame's
+:class:`~depthguard.depthgrid.records.ColumnCache` (``Scratch.cache``): a later search of the same pixel,
+by another point or another query of the same frame, skips the decided cells without voting again. A
+cell's state depends on the frame only, so the answers are those of the search without the cache.
 """
 
 from __future__ import annotations
@@ -47,6 +52,60 @@ def segment(g, s0, grid):
         return max(grid.d_min + grid.n_cells * grid.dd, s0), np.inf
     lo = grid.d_min + g * grid.dd
     return max(lo, s0), lo + grid.dd
+
+
+_ONE = np.uint64(1)
+_ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _has(words, v, u, g):
+    """Bit ``g`` of pixel (u, v) in a :class:`~depthguard.depthgrid.records.ColumnCache` word array."""
+    return (words[v, u, g >> 6] & (_ONE << np.uint64(g & 63))) != np.uint64(0)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _put(words, v, u, g0, g1):
+    """Set bits ``g0 <= g < g1`` of pixel (u, v)."""
+    for g in range(g0, g1):
+        words[v, u, g >> 6] |= _ONE << np.uint64(g & 63)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _all_set(words, v, u, c0, c1):
+    """Every bit ``c0 <= g <= c1`` of pixel (u, v) set (True for an empty range)."""
+    for w in range(c0 >> 6, (c1 >> 6) + 1):
+        lo_b = max(c0 - 64 * w, 0)
+        hi_b = min(c1 - 64 * w, 63)
+        mask = (_ALL >> np.uint64(63 - hi_b)) & (_ALL << np.uint64(lo_b))
+        if (words[v, u, w] & mask) != mask:
+            return False
+    return True
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _free_run(words, v, u, g, going_up, lowest, n_cells):
+    """Next segment index after the run of cached free cells from cell ``g`` (up: at most ``n_cells``,
+    the space beyond the grid; down: at least ``lowest - 1``)."""
+    if going_up:
+        g += 1
+        while g < n_cells:
+            if (g & 63) == 0 and words[v, u, g >> 6] == _ALL:
+                g += 64
+                continue
+            if not _has(words, v, u, g):
+                return g
+            g += 1
+        return n_cells
+    g -= 1
+    while g >= lowest:
+        if (g & 63) == 63 and words[v, u, g >> 6] == _ALL:
+            g -= 64
+            continue
+        if not _has(words, v, u, g):
+            return g
+        g -= 1
+    return lowest - 1
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
@@ -94,6 +153,14 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
     g_c = max(_cell_of(s_line if s_line > s0 else s0, grid), g_start)
     s_lo = s_line - delta_max
     lowest = max(g_start + 1 if surface else g_start, 0)
+    cc = sc.cache
+    cached = cc.on
+    if cached:
+        if cc.stamp[v, u] != cc.gen:  # the pixel's bits are of an older frame: forget them
+            for w in range(cc.free.shape[2]):
+                cc.free[v, u, w] = 0
+                cc.occ[v, u, w] = 0
+            cc.stamp[v, u] = cc.gen
     up = g_c
     dn = g_c - 1
     bu = BLOCK  # current block size in each direction: shrinks where blocks fail, near obstacles
@@ -126,6 +193,15 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
             return True, lo, hi, tests
         if surface and g == g_start:
             return True, lo, hi, tests
+        if cached:  # decided earlier in this frame: skip a run of free cells, or stop at an occupied one
+            if _has(cc.occ, v, u, g):
+                return True, lo, hi, tests
+            if _has(cc.free, v, u, g):
+                if going_up:
+                    up = _free_run(cc.free, v, u, g, True, lowest, n_cells)
+                else:
+                    dn = _free_run(cc.free, v, u, g, False, lowest, n_cells)
+                continue
         # skip cleared space a tile-wide block at a time (tstate: 0 unknown, 1 cleared, 2 not cleared) ...
         tb = g // TILE_BLOCK
         if tstate[tb] == 0:
@@ -144,15 +220,22 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
             if bu > 1 and g + bu <= n_cells:
                 tests += 1
                 if block_cleared(u, v, g, g + bu, grid, mp, vt, sc.stack):
+                    if cached:
+                        _put(cc.free, v, u, g, g + bu)
                     up = g + bu
                     continue
                 bu = bu // 4
         elif bd > 1 and g - bd + 1 >= lowest:
             tests += 1
             if block_cleared(u, v, g - bd + 1, g + 1, grid, mp, vt, sc.stack):
+                if cached:
+                    _put(cc.free, v, u, g - bd + 1, g + 1)
                 dn = g - bd
                 continue
             bd = bd // 4
         tests += 1
-        if cell_occupied(u, v, g, grid, mp, vt.votes, robot):
+        occupied = cell_occupied(u, v, g, grid, mp, vt.votes, robot)
+        if cached:
+            _put(cc.occ if occupied else cc.free, v, u, g, g + 1)
+        if occupied:
             return True, lo, hi, tests

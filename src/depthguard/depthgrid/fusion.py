@@ -94,9 +94,9 @@ from depthguard.depthgrid.chunks import tile_max_start
 from depthguard.depthgrid.frames import limit_robot_votes, prepare_principal, prepare_secondary
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
-from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout
+from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout, window_aware_votes
 from depthguard.depthgrid.query import query_many, query_many_parallel
-from depthguard.depthgrid.records import Grid, Principal, Votes
+from depthguard.depthgrid.records import ColumnCache, Grid, Principal, Votes, column_cache
 from depthguard.depthspace import (
     INVALID_POLICIES,
     MODES,
@@ -107,6 +107,7 @@ from depthguard.depthspace import (
     tile_min,
     to_world,
 )
+from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
 from depthguard.validation import check_points
 
@@ -186,6 +187,11 @@ class DepthGridFusion:
         self._tmin = tile_min(self._start, TILE)
         self._tmax = tile_max_start(self._start, self._kind, TILE)
         self._chunks = True  # per-tile chunk tests (False: the plain block-by-block search, for tests)
+        # the cell states decided so far in this frame (depthgrid.column), shared by every query of it;
+        # allocated at the first query, a new generation per frame
+        self._cache: ColumnCache | None = None
+        self._gen = 0
+        self.column_cache = True  # False: every query votes afresh (identical answers; tests, A/B)
         self._invalid = "conservative"
         self._ready = False
         self.last_cells = np.zeros(0, dtype=np.int64)  # per point: column searches (cases iii/iv)
@@ -280,8 +286,10 @@ class DepthGridFusion:
             )
         self._tmin = tile_min(self._start, TILE)
         self._tmax = tile_max_start(self._start, self._kind, TILE)
-        build_pyramid(np.ascontiguousarray(self._votes[:, : self._hm]), self._pyr_meta, self._pyr)
+        base = window_aware_votes(self._votes, hm) if self._has_windows else self._votes[:, :hm]
+        build_pyramid(np.ascontiguousarray(base), self._pyr_meta, self._pyr)
         self._invalid = invalid
+        self._gen += 1  # every cached cell state belongs to the frames before
         self._ready = True
 
     # ------------------------------------------------------------------ distance stage
@@ -292,6 +300,7 @@ class DepthGridFusion:
         rho: float = 0.4,
         mode: str = "all",
         alpha: float = 6.0,
+        direction_stride: int | str = "auto",
     ) -> PointDistances:
         """Fused distances from N control spheres to the obstacles (RA-L'16 §VI, eq. 11).
 
@@ -301,6 +310,8 @@ class DepthGridFusion:
             rho: radius of surveillance ρ, metres, measured from the sphere surface.
             mode: ``"min"``, ``"all"`` (ICRA'12 eq. 9) or ``"hybrid"`` (RA-L'16 eq. 11).
             alpha: shape factor of the eq. 9 weights.
+            direction_stride: the principal pixels of the direction sum (modes ``"all"``, ``"hybrid"``),
+                as :func:`depthguard.depthspace.query_distances`; the distance is the same whatever it is.
         Returns:
             :class:`depthguard.depthspace.PointDistances` (world frame); ``distance`` is a lower bound
             of the true clearance within :meth:`tolerance`.
@@ -322,17 +333,35 @@ class DepthGridFusion:
             np.ascontiguousarray(cam.t),
             np.ascontiguousarray(c),
             np.ascontiguousarray(r),
-            query_params(rho, MODES.index(mode), alpha, self._invalid == "conservative", TILE),
+            query_params(
+                rho,
+                MODES.index(mode),
+                alpha,
+                self._invalid == "conservative",
+                TILE,
+                resolve_stride(direction_stride, cam.width),
+            ),
             intrinsics(cam),
             Principal(self._start, self._kind, self._tmin, self._tmax),
             Grid(float(g.d_min), float(g.dd), int(g.n_cells)),
             self.map.kernel_args(),
             Votes(self._votes, self._pyr, self._pyr_meta, self._has_windows),
             self._chunks,
+            self._frame_cache(),
         )
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)
         return to_world(cam, raw, r, rho)
+
+    def _frame_cache(self) -> ColumnCache:
+        """The column cache of the current frame set (a disabled one for the threaded query)."""
+        g = self.grid
+        if self.parallel or not self.column_cache:
+            return column_cache(1, 1, int(g.n_cells), on=False)
+        if self._cache is None:
+            self._cache = column_cache(*self.cameras[0].shape, int(g.n_cells))
+        c = self._cache
+        return ColumnCache(c.free, c.occ, c.stamp, self._gen, True)
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
         """Declared tolerance (metres) of the fused distance at each of N centres: Δd + pixel footprints.

@@ -11,6 +11,14 @@ once (inside the rectangle or not); a block at or below the threshold that lies 
 rectangle fails the test; a block straddling the rectangle's edge is split into its four children. It
 therefore answers exactly as the pixel loop does (the same float32 values compared with the same
 threshold), in a few lookups where the space is clearly free.
+
+With robot windows (``Votes.windows``, :func:`depthguard.depthgrid.votes.pixel_sees_past`) a pixel sees
+past ``d`` when ``vote > d`` or ``lo <= d <= hi``. The pyramid is then built from the window-aware value
+``e = max(vote, hi)`` where the window starts no deeper than the vote (``lo <= vote``: the pixel sees past
+every ``d < e``), else ``e = vote`` (:func:`window_aware_votes`); ``e > d`` still implies "sees past". A
+block at or below the threshold no longer fails the test by itself (a pixel's window may still let ``d``
+through): the walk goes down to the pixels, which apply the exact rule. The answer is again exactly that of
+the pixel loop, with no pixel-by-pixel fallback over the whole footprint.
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["pyramid_layout", "build_pyramid", "rect_sees_past"]
+__all__ = ["pyramid_layout", "build_pyramid", "rect_sees_past", "window_aware_votes", "pixel_sees_past"]
 
 
 def pyramid_layout(h: int, w: int) -> tuple[np.ndarray, int]:
@@ -39,6 +47,36 @@ def pyramid_layout(h: int, w: int) -> tuple[np.ndarray, int]:
             break
         lv += 1
     return np.array(rows, dtype=np.int64).reshape(-1, 3), off
+
+
+def window_aware_votes(votes: np.ndarray, hm: int) -> np.ndarray:
+    """(K, hm, W) float32 values ``e`` that the pyramid is built from when robot windows are set (module
+    docstring); ``votes``: the (K, 3 hm, W) vote, ``lo`` and ``hi`` row blocks."""
+    v, lo, hi = votes[:, :hm], votes[:, hm : 2 * hm], votes[:, 2 * hm :]
+    return np.ascontiguousarray(np.where(lo <= v, np.maximum(v, hi), v), dtype=np.float32)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def pixel_sees_past(k, pv, pu, dend, votes):
+    """Pixel (pu, pv) of camera k does not hold an obstacle before ``dend``: its vote depth exceeds
+    ``dend``, or ``dend`` lies in the pixel's robot window (``lo <= dend <= hi``: the part of any cell
+    that ends at ``dend`` and that this pixel sees lies inside the robot's inflated body).
+
+    ``votes`` holds three row blocks of equal height (see ``DepthGridFusion``): the votes, then ``lo``
+    (+inf where the pixel has no window), then ``hi`` (-inf where none).
+    """
+    if votes[k, pv, pu] > dend:
+        return True
+    hm = votes.shape[1] // 3
+    return votes[k, hm + pv, pu] <= dend and dend <= votes[k, 2 * hm + pv, pu]
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _leaf_ok(k, pv, pu, thr, vt):
+    """The exact per-pixel rule: the vote alone, or with the robot window when windows are set."""
+    if vt.windows:
+        return pixel_sees_past(k, pv, pu, thr, vt.votes)
+    return vt.votes[k, pv, pu] > thr
 
 
 @nb.njit(cache=True)
@@ -79,17 +117,17 @@ def build_pyramid(votes, meta, pyr):
 
 @nb.njit(cache=True, _nrt=False)
 def rect_sees_past(k, u0, v0, u1, v1, thr, vt, stack):
-    """True when every vote of camera k over pixels ``[u0, u1] x [v0, v1]`` (inclusive) exceeds ``thr``.
+    """True when every pixel of camera k over ``[u0, u1] x [v0, v1]`` (inclusive) sees past ``thr``: its
+    vote exceeds ``thr``, or (``vt.windows``) ``thr`` lies in its robot window.
 
     ``vt``: the :class:`depthguard.depthgrid.records.Votes` record; ``stack``: (3 PYR_STACK,) int64 scratch.
     """
-    votes = vt.votes
     pyr = vt.pyr
     meta = vt.meta
     if (u1 - u0 + 1) * (v1 - v0 + 1) <= 16:
         for pv in range(v0, v1 + 1):
             for pu in range(u0, u1 + 1):
-                if not votes[k, pv, pu] > thr:
+                if not _leaf_ok(k, pv, pu, thr, vt):
                     return False
         return True
     L = meta.shape[0]
@@ -109,7 +147,7 @@ def rect_sees_past(k, u0, v0, u1, v1, thr, vt, stack):
         bv = stack[3 * n + 1]
         bu = stack[3 * n + 2]
         if lv == 0:
-            if not votes[k, bv, bu] > thr:
+            if not _leaf_ok(k, bv, bu, thr, vt):
                 return False
             continue
         if pyr[k, meta[lv - 1, 0] + bv * meta[lv - 1, 2] + bu] > thr:
@@ -119,7 +157,7 @@ def rect_sees_past(k, u0, v0, u1, v1, thr, vt, stack):
         pb = ((bu + 1) << lv) - 1
         qa = bv << lv
         qb = ((bv + 1) << lv) - 1
-        if pa >= u0 and pb <= u1 and qa >= v0 and qb <= v1:
+        if not vt.windows and pa >= u0 and pb <= u1 and qa >= v0 and qb <= v1:
             return False
         # else split it into its children that meet the rectangle
         c = lv - 1

@@ -29,28 +29,31 @@ from depthguard.depthgrid.chunks import tile_chunk_cleared, tile_chunk_prepare
 from depthguard.depthgrid.column import column_search
 from depthguard.depthgrid.records import KIND_NONE, KIND_ROBOT, KIND_SURFACE, PYR_STACK, TILE_BLOCK, Scratch
 from depthguard.kernels import FASTMATH
-from depthguard.kernels.hits import OUT_WIDTH, add_hit, no_hits, write_hits
-from depthguard.kernels.region import nearest_tile, surveillance_box, tile_lower_bounds, unseen_space
+from depthguard.kernels.hits import OUT_WIDTH, add_hit, nearer_hit, no_hits, write_hits
+from depthguard.kernels.region import first_index, next_tile, surveillance_box, tile_lower_bounds, unseen_space
 
 __all__ = ["query_one", "query_many", "query_many_parallel"]
 
 
 @nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
-def _segment_hit(hits, P, a, b, lo, hi, h, radius, qp):
-    """``hits`` plus the piece of pixel ray ``(a, b, 1)`` between depths lo and hi, if within ρ + r."""
+def _segment_hit(hits, P, a, b, lo, hi, h, radius, qp, summed):
+    """``hits`` plus the piece of pixel ray ``(a, b, 1)`` between depths lo and hi, if within ρ + r
+    (``summed``: in the direction sum and count; else only if nearer than ``hits.best``)."""
     px, py, pz = P
     s = (px * a + py * b + pz) / (a * a + b * b + 1.0)
     s = min(max(s, lo), hi)
     dx, dy, dz = px - s * a, py - s * b, pz - s
     dr = math.sqrt(dx * dx + dy * dy + dz * dz)
     D = max(dr - h * min(hi, pz + dr), 0.0)
-    if D >= qp.rho + radius:
+    if D >= (qp.rho + radius if summed else hits.best):
         return hits
     if dr < 1e-12:  # the point sits on the ray: push away from the start of the interval
         dx, dy, dz = px - lo * a, py - lo * b, pz - lo
         dr = math.sqrt(dx * dx + dy * dy + dz * dz)
         if dr < 1e-12:
             dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
+    if not summed:
+        return nearer_hit(hits, D, dx / dr, dy / dr, dz / dr, s * a, s * b, s)
     return add_hit(hits, D, dx / dr, dy / dr, dz / dr, s * a, s * b, s, True, radius, qp.rho, qp.mode, qp.alpha)
 
 
@@ -77,8 +80,9 @@ def _first_segment(s0, surface, P, a, b, h, lim, grid):
 
 
 @nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
-def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks):
-    """``hits`` plus the pixels of tile (tu, tv) inside ``box``; returns ``(hits, column searches, tests)``."""
+def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks, lattice_only):
+    """``hits`` plus the pixels of tile (tu, tv) inside ``box`` (only its direction-lattice pixels with
+    ``lattice_only``); returns ``(hits, column searches, tests)``."""
     px, py, pz = P
     tile = qp.tile
     u0, u1, v0, v1 = box
@@ -97,9 +101,15 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
         tests += 1
         if skip:
             return hits, cells, tests
-    for v in range(max(v0, rect[1]), min(v1 + 1, rect[3])):
+    st = qp.stride
+    step = st if lattice_only else 1
+    va, ua = max(v0, rect[1]), max(u0, rect[0])
+    if lattice_only:
+        va, ua = first_index(va, st), first_index(ua, st)
+    for v in range(va, min(v1 + 1, rect[3]), step):
         b = (v + 0.5 - intr.cy) / intr.fy
-        for u in range(max(u0, rect[0]), min(u1 + 1, rect[2])):
+        row_on = v % st == 0
+        for u in range(ua, min(u1 + 1, rect[2]), step):
             kd = pr.kind[v, u]
             if kd == KIND_NONE:
                 continue
@@ -109,11 +119,12 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
             if allclear and kd == KIND_ROBOT:
                 continue  # case iv in a cleared tile: nothing within reach
             a = (u + 0.5 - intr.cx) / intr.fx
+            summed = qp.mode == 0 or (row_on and u % st == 0)  # on the direction lattice
             if kd == KIND_SURFACE and s0 >= pz:
-                hits = _segment_hit(hits, P, a, b, s0, np.inf, h, radius, qp)  # case ii
+                hits = _segment_hit(hits, P, a, b, s0, np.inf, h, radius, qp, summed)  # case ii
                 continue
             # cases iii and iv: ask the other cameras, unless the whole ray from s0 on is out of reach
-            lim = hits.best if qp.mode == 0 else reff
+            lim = reff if qp.mode != 0 and summed else hits.best
             s = max((px * a + py * b + pz) / (a * a + b * b + 1.0), s0)
             dx, dy, dz = px - s * a, py - s * b, pz - s
             if not math.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - h) - h * pz < lim:
@@ -133,7 +144,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
                 )
                 tests += nt
             if found:
-                hits = _segment_hit(hits, P, a, b, lo, hi, h, radius, qp)
+                hits = _segment_hit(hits, P, a, b, lo, hi, h, radius, qp, summed)
     return hits, cells, tests
 
 
@@ -158,27 +169,42 @@ def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out):
         lbs = sc.lbs
         t_u0, t_v0, ntu, ntiles = tile_lower_bounds(pr.tmin, px, py, pz, reff, box, intr, qp.tile, lbs)
         for kk in range(ntiles):
-            if qp.mode == 0:  # nearest tile first; stop when no tile can be nearer (shrinking region)
-                k = nearest_tile(lbs, ntiles)
-                if not lbs[k] < hits.best:
-                    break
-                lbs[k] = np.inf
-            else:
-                k = kk
-                if lbs[k] >= reff:
-                    continue
+            k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp)
+            if k < 0:
+                break
+            if k == ntiles:
+                continue
             hits, c, t = _tile_columns(
-                hits, t_u0 + k % ntu, t_v0 + k // ntu, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks
+                hits,
+                t_u0 + k % ntu,
+                t_v0 + k // ntu,
+                box,
+                P,
+                radius,
+                h,
+                qp,
+                intr,
+                pr,
+                grid,
+                mp,
+                vt,
+                sc,
+                chunks,
+                lattice_only,
             )
             cells += c
             tests += t
     write_hits(hits, qp.mode, out)
+    if qp.mode != 0:
+        out[7] *= qp.stride * qp.stride  # the lattice's count, scaled to the whole image
     out[8] = cells
     out[9] = tests
 
 
-def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks):
-    """:func:`query_one` for N spheres (world frame in): rows of ``OUT_WIDTH``."""
+def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cache):
+    """:func:`query_one` for N spheres (world frame in): rows of ``OUT_WIDTH``. ``cache``: the frame's
+    :class:`~depthguard.depthgrid.records.ColumnCache`, shared by the spheres (disabled for the threaded
+    compilation)."""
     n = centres.shape[0]
     out = np.empty((n, OUT_WIDTH))
     lbs = np.empty((n, pr.tmin.shape[0] * pr.tmin.shape[1]))
@@ -186,7 +212,7 @@ def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks):
     stacks = np.empty((n, 3 * PYR_STACK), dtype=np.int64)
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
-        sc = Scratch(lbs[i], tstates[i], stacks[i])
+        sc = Scratch(lbs[i], tstates[i], stacks[i], cache)
         query_one((Pc[0], Pc[1], Pc[2]), radii[i], qp, intr, pr, grid, mp, vt, sc, chunks, out[i])
     return out
 

@@ -22,6 +22,8 @@ __all__ = [
     "Votes",
     "Principal",
     "Scratch",
+    "ColumnCache",
+    "column_cache",
     "KIND_NONE",
     "KIND_SURFACE",
     "KIND_UNKNOWN",
@@ -80,17 +82,52 @@ class Principal(NamedTuple):
     tmax: np.ndarray
 
 
+class ColumnCache(NamedTuple):
+    """Per frame, the cell states that the column searches have already decided, shared by every point
+    and every query of the frame (a cell's state depends on the frame only).
+
+    ``free`` / ``occ`` (H, W, ceil(n_cells / 64)) uint64: bit ``g`` of pixel (u, v) set = cell g decided
+    cleared / occupied; ``stamp`` (H, W) int64: the frame generation the pixel's bits belong to (bits of
+    an older generation count as unset, so a new frame costs no clearing); ``gen``: this frame's
+    generation; ``on``: use the cache (off for the threaded query: its threads would share the bits).
+    """
+
+    free: np.ndarray
+    occ: np.ndarray
+    stamp: np.ndarray
+    gen: int
+    on: bool
+
+
+def column_cache(height: int, width: int, n_cells: int, on: bool = True) -> ColumnCache:
+    """An empty :class:`ColumnCache` for an (height, width) principal image and ``n_cells`` depth cells
+    (``on=False``: a disabled one; give it ``height = width = 1``)."""
+    nw = max(1, -(-n_cells // 64))
+    return ColumnCache(
+        np.zeros((height, width, nw), np.uint64),
+        np.zeros((height, width, nw), np.uint64),
+        np.full((height, width), -1, np.int64),
+        0,
+        on,
+    )
+
+
 class Scratch(NamedTuple):
     """Per query point: tile bounds ``lbs``, tile-block states ``tstate`` (0 unknown, 1 cleared, 2 not
-    cleared) and the pyramid descent's ``stack``."""
+    cleared), the pyramid descent's ``stack``, and the frame's shared :class:`ColumnCache` ``cache``."""
 
     lbs: np.ndarray
     tstate: np.ndarray
     stack: np.ndarray
+    cache: ColumnCache
 
 
 def scratch(n_tiles: int, n_cells: int) -> Scratch:
-    """A :class:`Scratch` for one point (tests and tools; the query allocates its own)."""
+    """A :class:`Scratch` for one point, without a column cache (tests and tools; the query allocates
+    its own)."""
     return Scratch(
-        np.empty(n_tiles), np.zeros(n_cells // TILE_BLOCK + 1, dtype=np.uint8), np.empty(3 * PYR_STACK, np.int64)
+        np.empty(n_tiles),
+        np.zeros(n_cells // TILE_BLOCK + 1, dtype=np.uint8),
+        np.empty(3 * PYR_STACK, np.int64),
+        column_cache(1, 1, n_cells, on=False),
     )

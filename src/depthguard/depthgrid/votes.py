@@ -22,7 +22,7 @@ import math
 import numba as nb
 
 from depthguard.depthgrid.footprint import DEND_SCALE, cell_footprint, rect_footprint, unpack
-from depthguard.depthgrid.pyramid import rect_sees_past
+from depthguard.depthgrid.pyramid import pixel_sees_past, rect_sees_past
 
 __all__ = [
     "pixel_sees_past",
@@ -33,21 +33,6 @@ __all__ = [
     "block_cleared",
     "tile_block_cleared",
 ]
-
-
-@nb.njit(cache=True, _nrt=False, inline="always")
-def pixel_sees_past(k, pv, pu, dend, votes):
-    """Pixel (pu, pv) of camera k does not hold an obstacle before ``dend``: its vote depth exceeds
-    ``dend``, or ``dend`` lies in the pixel's robot window (``lo <= dend <= hi``: the part of any cell
-    that ends at ``dend`` and that this pixel sees lies inside the robot's inflated body).
-
-    ``votes`` holds three row blocks of equal height (see ``DepthGridFusion``): the votes, then ``lo``
-    (+inf where the pixel has no window), then ``hi`` (-inf where none).
-    """
-    if votes[k, pv, pu] > dend:
-        return True
-    hm = votes.shape[1] // 3
-    return votes[k, hm + pv, pu] <= dend and dend <= votes[k, 2 * hm + pv, pu]
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
@@ -143,14 +128,11 @@ def _cell_seen_past(k, u, v, d1, d2, u0, v0, du, dv, q, mp, votes):
 
 @nb.njit(cache=True, _nrt=False, inline="always")
 def _sees_past(k, u0, v0, du, dv, q, vt, stack):
-    """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large."""
+    """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large
+    (exactly the same answer, robot windows included: :mod:`depthguard.depthgrid.pyramid`)."""
     if (du + 1) * (dv + 1) <= 128:
         return footprint_sees_past(k, u0, v0, du, dv, q, vt.votes)
-    # the pyramid holds the votes only (no robot windows): a "yes" is final; a "no" is checked pixel by
-    # pixel only where robot windows may turn it (robot_windows set for this frame)
-    if rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, vt, stack):
-        return True
-    return vt.windows and footprint_sees_past(k, u0, v0, du, dv, q, vt.votes)
+    return rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, vt, stack)
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")

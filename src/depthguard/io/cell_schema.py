@@ -77,6 +77,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "workspace": (list, [-1.2, 1.2, -1.2, 1.2, -0.3, 1.5]),
         "octree_res": (_NUM, 0.05),
         "period": (_NUM, 0.003),
+        "direction_stride": ((str, int), "auto"),
     },
     "controller": {
         "rate": (_NUM, 1000.0),

@@ -17,7 +17,7 @@ import numpy as np
 
 from depthguard.kernels import FASTMATH
 
-__all__ = ["Hits", "no_hits", "add_hit", "write_hits", "OUT_WIDTH"]
+__all__ = ["Hits", "no_hits", "add_hit", "nearer_hit", "write_hits", "OUT_WIDTH"]
 
 OUT_WIDTH = 10  # out row: distance, direction (3), nearest (3), count, column searches, votes
 
@@ -61,6 +61,15 @@ def add_hit(h, D, ix, iy, iz, nx, ny, nz, counted, radius, rho, mode, alpha):
     if D < h.best:
         return Hits(D, ix, iy, iz, nx, ny, nz, count, sx, sy, sz)
     return Hits(h.best, h.bx, h.by, h.bz, h.nx, h.ny, h.nz, count, sx, sy, sz)
+
+
+@nb.njit(cache=True, inline="always", _nrt=False)
+def nearer_hit(h, D, ix, iy, iz, nx, ny, nz):
+    """``h`` plus a piece that competes for the nearest distance only (not in the direction sum nor in
+    the count): the pixels off the direction lattice (``QueryParams.stride``)."""
+    if D < h.best:
+        return Hits(D, ix, iy, iz, nx, ny, nz, h.count, h.sx, h.sy, h.sz)
+    return h
 
 
 @nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)

@@ -10,7 +10,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["Intrinsics", "QueryParams", "intrinsics", "query_params", "MODE_MIN", "MODE_ALL", "MODE_HYBRID"]
+__all__ = [
+    "Intrinsics",
+    "QueryParams",
+    "intrinsics",
+    "query_params",
+    "direction_stride",
+    "DIRECTION_WIDTH",
+    "MODE_MIN",
+    "MODE_ALL",
+    "MODE_HYBRID",
+]
 
 MODE_MIN, MODE_ALL, MODE_HYBRID = 0, 1, 2
 
@@ -30,13 +40,16 @@ class Intrinsics(NamedTuple):
 class QueryParams(NamedTuple):
     """One query: radius of surveillance ρ (m), mode (0 min, 1 all, 2 hybrid), eq. 9 shape factor α,
     ``unseen``: space outside the field of view and nearer than the near limit counts as an obstacle,
-    ``tile``: the tile size (pixels) of the tile minima."""
+    ``tile``: the tile size (pixels) of the tile minima; ``stride``: in modes 1 and 2 the direction sum
+    takes the pixels ``u % stride == 0 and v % stride == 0`` only, the other pixels compete for the
+    nearest distance only (``stride = 1``: every pixel; :func:`direction_stride`)."""
 
     rho: float
     mode: int
     alpha: float
     unseen: bool
     tile: int
+    stride: int
 
 
 def intrinsics(camera) -> Intrinsics:
@@ -52,9 +65,29 @@ def intrinsics(camera) -> Intrinsics:
     )
 
 
-def query_params(rho: float, mode: int, alpha: float, unseen: bool, tile: int) -> QueryParams:
+def query_params(rho: float, mode: int, alpha: float, unseen: bool, tile: int, stride: int = 1) -> QueryParams:
     """A :class:`QueryParams` record with the field types the kernels are compiled for."""
-    return QueryParams(float(rho), int(mode), float(alpha), bool(unseen), int(tile))
+    return QueryParams(float(rho), int(mode), float(alpha), bool(unseen), int(tile), int(stride))
+
+
+DIRECTION_WIDTH = 320  # pixels: the "auto" direction lattice is about this wide
+
+
+def direction_stride(stride: int | str, width: int) -> int:
+    """The pixel stride of the direction sum (modes ``all`` and ``hybrid``).
+
+    ``"auto"``: ``max(1, width // DIRECTION_WIDTH)`` (1 up to 639 pixels wide, 2 at 640), so that the
+    mean direction of RA-L'16 eq. 11 (and the eq. 9 sum) is taken over a lattice about 320 pixels wide
+    whatever the camera's resolution; an integer >= 1 as given. The distance always comes from every
+    pixel.
+    """
+    if isinstance(stride, str):
+        if stride != "auto":
+            raise ValueError(f"direction_stride must be 'auto' or an integer >= 1, got {stride!r}")
+        return max(1, int(width) // DIRECTION_WIDTH)
+    if isinstance(stride, bool) or not isinstance(stride, int | np.integer) or stride < 1:
+        raise ValueError(f"direction_stride must be 'auto' or an integer >= 1, got {stride!r}")
+    return int(stride)
 
 
 def empty_out(n: int) -> np.ndarray:  # pragma: no cover - trivial

@@ -23,7 +23,15 @@ import numpy as np
 from depthguard.kernels import FASTMATH
 from depthguard.kernels.hits import add_hit
 
-__all__ = ["unseen_space", "surveillance_box", "tile_lower_bounds", "ray_distance_from"]
+__all__ = [
+    "unseen_space",
+    "surveillance_box",
+    "tile_lower_bounds",
+    "ray_distance_from",
+    "nearest_tile",
+    "next_tile",
+    "first_index",
+]
 
 
 @nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
@@ -137,3 +145,32 @@ def nearest_tile(lbs, ntiles):
         if lbs[j] < lbs[k]:
             k = j
     return k
+
+
+@nb.njit(cache=True, inline="always", _nrt=False)
+def next_tile(lbs, ntiles, kk, best, reff, qp):
+    """The tile to visit at step ``kk`` of a query: ``(index, lattice_only)``; index ``ntiles`` skips the
+    step, -1 stops.
+
+    ``min`` mode, and modes ``all`` / ``hybrid`` with a direction lattice (``qp.stride > 1``, whose
+    off-lattice pixels compete for the nearest distance only): nearest tile first (its bound set to +inf
+    once taken), stopping when no tile can hold a piece that counts, nearer than ``best`` in ``min`` mode,
+    within reach ``reff`` otherwise. Else row-major order, skipping the tiles out of reach.
+    ``lattice_only``: the tile's lower bound is not below ``best``, so only its lattice pixels can count.
+    """
+    if qp.mode == 0 or qp.stride > 1:
+        k = nearest_tile(lbs, ntiles)
+        lb = lbs[k]
+        if not lb < (best if qp.mode == 0 else reff):
+            return -1, False
+        lbs[k] = np.inf
+        return k, qp.mode != 0 and not lb < best
+    if lbs[kk] >= reff:
+        return ntiles, False
+    return kk, False
+
+
+@nb.njit(cache=True, inline="always", _nrt=False)
+def first_index(lo, step):
+    """The smallest multiple of ``step`` at or above ``lo`` (``lo >= 0``)."""
+    return (lo + step - 1) // step * step

@@ -104,7 +104,8 @@ def _controller_config(cell: CellFile) -> ControllerConfig:
 
 def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
     """The distance stage (:class:`depthguard.sim.pipeline.DistanceStage`) with every ``[distance]`` setting
-    of the cell file: rho, mode, missing-depth policy, hole filling, depth-grid step and workspace."""
+    of the cell file: rho, mode, missing-depth policy, hole filling, depth-grid step, workspace and the
+    direction lattice."""
     from depthguard.sim.pipeline import DistanceStage
 
     d = cell.distance
@@ -112,7 +113,7 @@ def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
         return DistanceStage(
             list(cameras), rho=float(d["rho"]), mode=d["mode"], alpha=float(cell.controller["alpha"]),
             workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]), invalid=d["invalid"],
-            fill_radius=int(d["fill_radius"]),
+            fill_radius=int(d["fill_radius"]), direction_stride=d["direction_stride"],
         )  # fmt: skip
     except ValueError as exc:
         raise CellError(f"{cell.path}: distance: {exc}") from None

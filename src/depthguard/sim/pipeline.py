@@ -15,6 +15,7 @@ from depthguard.camera import Camera
 from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput
 from depthguard.depthgrid import DepthGridFusion
 from depthguard.depthspace import PointDistances, prepare_frame, query_distances
+from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.robot.control_points import ControlPointSet, ControlPointState
 from depthguard.robot.interior import interior_capsules, principal_robot_pixels, robot_windows
 from depthguard.robot.robots import load_robot
@@ -161,6 +162,8 @@ class DistanceStage:
     Args:
         cameras: the cameras, principal first.
         rho: radius of surveillance, m. mode: "min", "all" or "hybrid". alpha: eq. 7 shape factor.
+        direction_stride: pixels of the direction sum (modes all/hybrid; docs/conventions.md, "Direction
+            lattice"): "auto" (default) or an integer >= 1.
         workspace: (xmin, xmax, ymin, ymax, zmin, zmax) m, for fusion.
     """
 
@@ -174,9 +177,12 @@ class DistanceStage:
         dd: float = 0.01,
         invalid: str = "conservative",
         fill_radius: int = 4,
+        direction_stride: int | str = "auto",
     ) -> None:
         self.cameras = list(cameras)
         self.rho, self.mode, self.alpha = float(rho), mode, float(alpha)
+        resolve_stride(direction_stride, self.cameras[0].width)  # refuse a bad one here, not at the first query
+        self.direction_stride = direction_stride
         self.invalid, self.fill_radius = invalid, fill_radius
         self.frames = None
         self.fusion = None
@@ -233,9 +239,10 @@ class DistanceStage:
 
     def query(self, centres: np.ndarray, radii: np.ndarray) -> PointDistances:
         """Distance stage: distances of the control spheres to the obstacles."""
+        kw = dict(rho=self.rho, mode=self.mode, alpha=self.alpha, direction_stride=self.direction_stride)
         if self.fusion is not None:
-            return self.fusion.query(centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
-        return query_distances(self.frames[0], centres, radii, rho=self.rho, mode=self.mode, alpha=self.alpha)
+            return self.fusion.query(centres, radii, **kw)
+        return query_distances(self.frames[0], centres, radii, **kw)
 
     def tolerance(self, centres: np.ndarray, noise_coeff: float = 0.0) -> np.ndarray:
         """Declared tolerance (N,) m of :meth:`query` at ``centres`` (N, 3): how far an evaluated distance
