@@ -266,47 +266,61 @@ def _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model):
 
 
 @nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
-def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model, lattice_only):
-    """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped); only its
-    direction-lattice pixels with ``lattice_only``."""
+def _pixel_hit(hits, obs, u, v, b, px, py, pz, radius, reff, zmax, h, intr, qp, model, summed):
+    """``hits`` plus pixel (u, v) (``b``: its ray's y slope) if within reach; ``summed``: in the direction
+    sum and count (else it competes for the nearest distance only)."""
+    do = obs[v, u]
+    if do > zmax:
+        return hits
+    a = (u + 0.5 - intr.cx) / intr.fx
+    D, dx, dy, dz, dr, s, ra, rb = _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model)
+    if D >= (reff if summed else hits.best):
+        return hits
+    if dr < 1e-12:  # the point sits on the ray: push away from the visible surface
+        dx, dy, dz = px - do * ra, py - do * rb, pz - do
+        dr = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if dr < 1e-12:
+            dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
+    if summed:
+        return add_hit(hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s, True, radius, qp.rho, qp.mode, qp.alpha)
+    return nearer_hit(hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s)
+
+
+@nb.njit(cache=True, _nrt=False, fastmath=FASTMATH)
+def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model, st, lattice_only):
+    """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped); ``st``: the
+    direction lattice's stride (only its pixels with ``lattice_only``). Two loops: with ``st == 1`` (and in
+    ``min`` mode) every pixel is summed, and the plain loop compiles to the fastest code."""
     tile = qp.tile
     reff = qp.rho + radius
     zmax = pz + reff
-    st = qp.stride
-    step = st if lattice_only else 1
     va, ua = max(v0, tv * tile), max(u0, tu * tile)
+    vb, ub = min(v1 + 1, tv * tile + tile), min(u1 + 1, tu * tile + tile)
+    if st == 1:
+        for v in range(va, vb):
+            b = (v + 0.5 - intr.cy) / intr.fy
+            for u in range(ua, ub):
+                hits = _pixel_hit(hits, obs, u, v, b, px, py, pz, radius, reff, zmax, h, intr, qp, model, True)
+        return hits
+    step = st if lattice_only else 1
     if lattice_only:
         va, ua = first_index(va, st), first_index(ua, st)
-    for v in range(va, min(v1 + 1, tv * tile + tile), step):
+    for iv in range(max(0, (vb - va + step - 1) // step)):  # (unit-stride loops compile to faster code)
+        v = va + iv * step
         b = (v + 0.5 - intr.cy) / intr.fy
         row_on = v % st == 0
-        for u in range(ua, min(u1 + 1, tu * tile + tile), step):
-            do = obs[v, u]
-            if do > zmax:
-                continue
-            a = (u + 0.5 - intr.cx) / intr.fx
-            D, dx, dy, dz, dr, s, ra, rb = _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model)
-            summed = qp.mode == 0 or (row_on and u % st == 0)  # on the direction lattice
-            if D >= (reff if summed else hits.best):
-                continue
-            if dr < 1e-12:  # the point sits on the ray: push away from the visible surface
-                dx, dy, dz = px - do * ra, py - do * rb, pz - do
-                dr = math.sqrt(dx * dx + dy * dy + dz * dz)
-                if dr < 1e-12:
-                    dx, dy, dz, dr = 0.0, 0.0, 1.0, 1.0
-            if summed:
-                hits = add_hit(
-                    hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s, True, radius, qp.rho, qp.mode, qp.alpha
-                )
-            else:
-                hits = nearer_hit(hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s)
+        for iu in range(max(0, (ub - ua + step - 1) // step)):
+            u = ua + iu * step
+            on = row_on and u % st == 0  # on the direction lattice
+            hits = _pixel_hit(hits, obs, u, v, b, px, py, pz, radius, reff, zmax, h, intr, qp, model, on)
     return hits
 
 
 @nb.njit(cache=True, _nrt=False, fastmath=FASTMATH, error_model="numpy")
-def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out):
+def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out, stride):
     """Distance query for one sphere; writes out[0:8] = distance from the centre, direction (3), nearest
-    point (3), count (camera frame). ``lbs``: scratch for the tile bounds."""
+    point (3), count (camera frame). ``lbs``: scratch for the tile bounds; ``stride``: the direction
+    lattice (:func:`depthguard.kernels.records.direction_stride`)."""
     px, py, pz = Pc[0], Pc[1], Pc[2]
     reff = qp.rho + radius
     h = 0.5 * math.sqrt(1.0 / (intr.fx * intr.fx) + 1.0 / (intr.fy * intr.fy))
@@ -316,8 +330,8 @@ def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out):
     u0, u1, v0, v1 = surveillance_box(px, py, pz, reff, intr)
     if u0 <= u1 and v0 <= v1:
         t_u0, t_v0, ntu, ntiles = tile_lower_bounds(tmin, px, py, pz, reff, (u0, u1, v0, v1), intr, qp.tile, lbs)
-        for kk in range(ntiles):
-            k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp)
+        for kk in range(ntiles + 1):
+            k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp.mode, stride)
             if k < 0:
                 break
             if k == ntiles:
@@ -339,21 +353,22 @@ def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out):
                 intr,
                 qp,
                 model,
+                stride,
                 lattice_only,
             )
     write_hits(hits, qp.mode, out)
     if qp.mode != 0:
-        out[7] *= qp.stride * qp.stride  # the lattice's count, scaled to the whole image
+        out[7] *= stride * stride  # the lattice's count, scaled to the whole image
 
 
-def _query_many_py(obs, tmin, intr, qp, model, R, t, centres, radii):
+def _query_many_py(obs, tmin, intr, qp, model, R, t, centres, radii, stride):
     """:func:`_query_one` for N spheres (world frame in, camera frame out); rows of ``OUT_WIDTH``."""
     n = centres.shape[0]
     out = np.empty((n, OUT_WIDTH))
     lbs = np.empty((n, tmin.shape[0] * tmin.shape[1]))
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
-        _query_one(obs, tmin, intr, qp, model, Pc, radii[i], lbs[i], out[i])
+        _query_one(obs, tmin, intr, qp, model, Pc, radii[i], lbs[i], out[i], stride)
     return out
 
 
@@ -411,19 +426,13 @@ def query_distances(
         frame.obstacle_depth,
         frame.tile_min,
         intrinsics(cam),
-        query_params(
-            rho,
-            MODES.index(mode),
-            alpha,
-            frame.invalid == "conservative",
-            TILE,
-            resolve_stride(direction_stride, cam.width),
-        ),
+        query_params(rho, MODES.index(mode), alpha, frame.invalid == "conservative", TILE),
         DISTANCE_MODELS.index(model),
         np.ascontiguousarray(cam.R),
         np.ascontiguousarray(cam.t),
         np.ascontiguousarray(c),
         np.ascontiguousarray(r),
+        1 if mode == "min" else resolve_stride(direction_stride, cam.width),
     )
     return to_world(cam, raw, r, rho)
 

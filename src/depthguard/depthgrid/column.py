@@ -18,7 +18,9 @@ per-cell rule clears, so the answer is that of the cell-by-cell search.
 Every cell decided by a vote (and every cell of a cleared column block) is written to the frame's
 :class:`~depthguard.depthgrid.records.ColumnCache` (``Scratch.cache``): a later search of the same pixel,
 by another point or another query of the same frame, skips the decided cells without voting again. A
-cell's state depends on the frame only, so the answers are those of the search without the cache.
+cell's state depends on the frame only, so the answers are those of the search without the cache. The
+cache is read only where a column vote would otherwise follow (after the tile-wide block test), so the
+searches that never vote never touch its memory.
 """
 
 from __future__ import annotations
@@ -59,50 +61,49 @@ _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def _has(words, v, u, g):
-    """Bit ``g`` of pixel (u, v) in a :class:`~depthguard.depthgrid.records.ColumnCache` word array."""
-    return (words[v, u, g >> 6] & (_ONE << np.uint64(g & 63))) != np.uint64(0)
+def _has(words, v, u, base, g):
+    """Bit ``g`` of the bit set at word ``base`` of pixel (u, v)'s
+    :class:`~depthguard.depthgrid.records.ColumnCache` record."""
+    return (words[v, u, base + (g >> 6)] & (_ONE << np.uint64(g & 63))) != np.uint64(0)
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def _put(words, v, u, g0, g1):
-    """Set bits ``g0 <= g < g1`` of pixel (u, v)."""
+def _put(words, v, u, base, g0, g1):
+    """Set bits ``g0 <= g < g1`` of the bit set at word ``base`` of pixel (u, v)."""
     for g in range(g0, g1):
-        words[v, u, g >> 6] |= _ONE << np.uint64(g & 63)
+        words[v, u, base + (g >> 6)] |= _ONE << np.uint64(g & 63)
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
-def _all_set(words, v, u, c0, c1):
-    """Every bit ``c0 <= g <= c1`` of pixel (u, v) set (True for an empty range)."""
-    for w in range(c0 >> 6, (c1 >> 6) + 1):
-        lo_b = max(c0 - 64 * w, 0)
-        hi_b = min(c1 - 64 * w, 63)
-        mask = (_ALL >> np.uint64(63 - hi_b)) & (_ALL << np.uint64(lo_b))
-        if (words[v, u, w] & mask) != mask:
-            return False
-    return True
+def _refresh(cc, v, u):
+    """Forget pixel (u, v)'s bits if they belong to an older frame."""
+    gen = np.uint64(cc.gen)
+    if cc.words[v, u, 0] != gen:
+        for w in range(1, 1 + 2 * cc.nw):
+            cc.words[v, u, w] = 0
+        cc.words[v, u, 0] = gen
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
 def _free_run(words, v, u, g, going_up, lowest, n_cells):
-    """Next segment index after the run of cached free cells from cell ``g`` (up: at most ``n_cells``,
-    the space beyond the grid; down: at least ``lowest - 1``)."""
+    """Next segment index after the run of cached free cells (bit set at word 1) from cell ``g`` (up: at
+    most ``n_cells``, the space beyond the grid; down: at least ``lowest - 1``)."""
     if going_up:
         g += 1
         while g < n_cells:
-            if (g & 63) == 0 and words[v, u, g >> 6] == _ALL:
+            if (g & 63) == 0 and words[v, u, 1 + (g >> 6)] == _ALL:
                 g += 64
                 continue
-            if not _has(words, v, u, g):
+            if not _has(words, v, u, 1, g):
                 return g
             g += 1
         return n_cells
     g -= 1
     while g >= lowest:
-        if (g & 63) == 63 and words[v, u, g >> 6] == _ALL:
+        if (g & 63) == 63 and words[v, u, 1 + (g >> 6)] == _ALL:
             g -= 64
             continue
-        if not _has(words, v, u, g):
+        if not _has(words, v, u, 1, g):
             return g
         g -= 1
     return lowest - 1
@@ -154,13 +155,10 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
     s_lo = s_line - delta_max
     lowest = max(g_start + 1 if surface else g_start, 0)
     cc = sc.cache
+    cw = cc.words
+    occ0 = 1 + cc.nw  # first word of the occupied bits
     cached = cc.on
-    if cached:
-        if cc.stamp[v, u] != cc.gen:  # the pixel's bits are of an older frame: forget them
-            for w in range(cc.free.shape[2]):
-                cc.free[v, u, w] = 0
-                cc.occ[v, u, w] = 0
-            cc.stamp[v, u] = cc.gen
+    fresh = False  # the pixel's record checked against this frame's generation
     up = g_c
     dn = g_c - 1
     bu = BLOCK  # current block size in each direction: shrinks where blocks fail, near obstacles
@@ -193,15 +191,6 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
             return True, lo, hi, tests
         if surface and g == g_start:
             return True, lo, hi, tests
-        if cached:  # decided earlier in this frame: skip a run of free cells, or stop at an occupied one
-            if _has(cc.occ, v, u, g):
-                return True, lo, hi, tests
-            if _has(cc.free, v, u, g):
-                if going_up:
-                    up = _free_run(cc.free, v, u, g, True, lowest, n_cells)
-                else:
-                    dn = _free_run(cc.free, v, u, g, False, lowest, n_cells)
-                continue
         # skip cleared space a tile-wide block at a time (tstate: 0 unknown, 1 cleared, 2 not cleared) ...
         tb = g // TILE_BLOCK
         if tstate[tb] == 0:
@@ -215,13 +204,26 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
             else:
                 dn = _skip_cleared_run(tstate, tb, False, lowest, n_cells)
             continue
+        # ... then what this frame's earlier searches decided (touched only where a vote would follow) ...
+        if cached:
+            if not fresh:
+                _refresh(cc, v, u)
+                fresh = True
+            if _has(cw, v, u, occ0, g):
+                return True, lo, hi, tests
+            if _has(cw, v, u, 1, g):
+                if going_up:
+                    up = _free_run(cw, v, u, g, True, lowest, n_cells)
+                else:
+                    dn = _free_run(cw, v, u, g, False, lowest, n_cells)
+                continue
         # ... then a block of this column, then single cells
         if going_up:
             if bu > 1 and g + bu <= n_cells:
                 tests += 1
                 if block_cleared(u, v, g, g + bu, grid, mp, vt, sc.stack):
                     if cached:
-                        _put(cc.free, v, u, g, g + bu)
+                        _put(cw, v, u, 1, g, g + bu)
                     up = g + bu
                     continue
                 bu = bu // 4
@@ -229,13 +231,13 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
             tests += 1
             if block_cleared(u, v, g - bd + 1, g + 1, grid, mp, vt, sc.stack):
                 if cached:
-                    _put(cc.free, v, u, g - bd + 1, g + 1)
+                    _put(cw, v, u, 1, g - bd + 1, g + 1)
                 dn = g - bd
                 continue
             bd = bd // 4
         tests += 1
         occupied = cell_occupied(u, v, g, grid, mp, vt.votes, robot)
         if cached:
-            _put(cc.occ if occupied else cc.free, v, u, g, g + 1)
+            _put(cw, v, u, occ0 if occupied else 1, g, g + 1)
         if occupied:
             return True, lo, hi, tests

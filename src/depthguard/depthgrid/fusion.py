@@ -190,7 +190,7 @@ class DepthGridFusion:
         # the cell states decided so far in this frame (depthgrid.column), shared by every query of it;
         # allocated at the first query, a new generation per frame
         self._cache: ColumnCache | None = None
-        self._gen = 0
+        self._gen = 1
         self.column_cache = True  # False: every query votes afresh (identical answers; tests, A/B)
         self._invalid = "conservative"
         self._ready = False
@@ -333,14 +333,7 @@ class DepthGridFusion:
             np.ascontiguousarray(cam.t),
             np.ascontiguousarray(c),
             np.ascontiguousarray(r),
-            query_params(
-                rho,
-                MODES.index(mode),
-                alpha,
-                self._invalid == "conservative",
-                TILE,
-                resolve_stride(direction_stride, cam.width),
-            ),
+            query_params(rho, MODES.index(mode), alpha, self._invalid == "conservative", TILE),
             intrinsics(cam),
             Principal(self._start, self._kind, self._tmin, self._tmax),
             Grid(float(g.d_min), float(g.dd), int(g.n_cells)),
@@ -348,6 +341,7 @@ class DepthGridFusion:
             Votes(self._votes, self._pyr, self._pyr_meta, self._has_windows),
             self._chunks,
             self._frame_cache(),
+            resolve_stride(direction_stride, cam.width),
         )
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)
@@ -361,7 +355,7 @@ class DepthGridFusion:
         if self._cache is None:
             self._cache = column_cache(*self.cameras[0].shape, int(g.n_cells))
         c = self._cache
-        return ColumnCache(c.free, c.occ, c.stamp, self._gen, True)
+        return ColumnCache(c.words, c.nw, self._gen, True)
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
         """Declared tolerance (metres) of the fused distance at each of N centres: Δd + pixel footprints.

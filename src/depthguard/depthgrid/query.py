@@ -80,9 +80,9 @@ def _first_segment(s0, surface, P, a, b, h, lim, grid):
 
 
 @nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
-def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks, lattice_only):
-    """``hits`` plus the pixels of tile (tu, tv) inside ``box`` (only its direction-lattice pixels with
-    ``lattice_only``); returns ``(hits, column searches, tests)``."""
+def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks, st, lattice_only):
+    """``hits`` plus the pixels of tile (tu, tv) inside ``box``; ``st``: the direction lattice's stride (only
+    its pixels with ``lattice_only``); returns ``(hits, column searches, tests)``."""
     px, py, pz = P
     tile = qp.tile
     u0, u1, v0, v1 = box
@@ -101,15 +101,18 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
         tests += 1
         if skip:
             return hits, cells, tests
-    st = qp.stride
     step = st if lattice_only else 1
     va, ua = max(v0, rect[1]), max(u0, rect[0])
     if lattice_only:
         va, ua = first_index(va, st), first_index(ua, st)
-    for v in range(va, min(v1 + 1, rect[3]), step):
+    nv = max(0, (min(v1 + 1, rect[3]) - va + step - 1) // step)
+    nu = max(0, (min(u1 + 1, rect[2]) - ua + step - 1) // step)
+    for iv in range(nv):  # (unit-stride loops: a range with a run-time step compiles to slower code)
+        v = va + iv * step
         b = (v + 0.5 - intr.cy) / intr.fy
         row_on = v % st == 0
-        for u in range(ua, min(u1 + 1, rect[2]), step):
+        for iu in range(nu):
+            u = ua + iu * step
             kd = pr.kind[v, u]
             if kd == KIND_NONE:
                 continue
@@ -149,13 +152,14 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
 
 
 @nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=FASTMATH)
-def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out):
+def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out, stride):
     """Fused distance query for one sphere at P (principal camera frame, a 3-tuple); writes ``out[0:10]``
     = distance from the centre, direction (3), nearest point (3), count, column searches, votes taken.
 
     Records: ``qp`` :class:`~depthguard.kernels.records.QueryParams`, ``intr``
     :class:`~depthguard.kernels.records.Intrinsics` (principal camera), ``pr`` / ``grid`` / ``mp`` / ``vt`` /
-    ``sc`` from :mod:`depthguard.depthgrid.records`; ``chunks``: use the per-tile chunk tests.
+    ``sc`` from :mod:`depthguard.depthgrid.records`; ``chunks``: use the per-tile chunk tests; ``stride``:
+    the direction lattice (:func:`depthguard.kernels.records.direction_stride`).
     """
     px, py, pz = P
     reff = qp.rho + radius
@@ -168,8 +172,8 @@ def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out):
     if box[0] <= box[1] and box[2] <= box[3]:
         lbs = sc.lbs
         t_u0, t_v0, ntu, ntiles = tile_lower_bounds(pr.tmin, px, py, pz, reff, box, intr, qp.tile, lbs)
-        for kk in range(ntiles):
-            k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp)
+        for kk in range(ntiles + 1):
+            k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp.mode, stride)
             if k < 0:
                 break
             if k == ntiles:
@@ -190,21 +194,22 @@ def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out):
                 vt,
                 sc,
                 chunks,
+                stride,
                 lattice_only,
             )
             cells += c
             tests += t
     write_hits(hits, qp.mode, out)
     if qp.mode != 0:
-        out[7] *= qp.stride * qp.stride  # the lattice's count, scaled to the whole image
+        out[7] *= stride * stride  # the lattice's count, scaled to the whole image
     out[8] = cells
     out[9] = tests
 
 
-def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cache):
+def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cache, stride):
     """:func:`query_one` for N spheres (world frame in): rows of ``OUT_WIDTH``. ``cache``: the frame's
     :class:`~depthguard.depthgrid.records.ColumnCache`, shared by the spheres (disabled for the threaded
-    compilation)."""
+    compilation); ``stride``: the direction lattice."""
     n = centres.shape[0]
     out = np.empty((n, OUT_WIDTH))
     lbs = np.empty((n, pr.tmin.shape[0] * pr.tmin.shape[1]))
@@ -213,7 +218,7 @@ def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cac
     for i in nb.prange(n):
         Pc = R @ centres[i] + t
         sc = Scratch(lbs[i], tstates[i], stacks[i], cache)
-        query_one((Pc[0], Pc[1], Pc[2]), radii[i], qp, intr, pr, grid, mp, vt, sc, chunks, out[i])
+        query_one((Pc[0], Pc[1], Pc[2]), radii[i], qp, intr, pr, grid, mp, vt, sc, chunks, out[i], stride)
     return out
 
 

@@ -86,15 +86,15 @@ class ColumnCache(NamedTuple):
     """Per frame, the cell states that the column searches have already decided, shared by every point
     and every query of the frame (a cell's state depends on the frame only).
 
-    ``free`` / ``occ`` (H, W, ceil(n_cells / 64)) uint64: bit ``g`` of pixel (u, v) set = cell g decided
-    cleared / occupied; ``stamp`` (H, W) int64: the frame generation the pixel's bits belong to (bits of
-    an older generation count as unset, so a new frame costs no clearing); ``gen``: this frame's
-    generation; ``on``: use the cache (off for the threaded query: its threads would share the bits).
+    ``words`` (H, W, 1 + 2 nw) uint64, one contiguous record per principal pixel: word 0 the frame
+    generation its bits belong to (bits of an older generation count as unset, so a new frame costs no
+    clearing), words ``1 .. nw`` the cells decided cleared (bit ``g``), words ``1 + nw .. 2 nw`` those
+    decided occupied; ``nw = ceil(n_cells / 64)``. ``gen``: this frame's generation (>= 1); ``on``: use
+    the cache (off for the threaded query: its threads would share the bits).
     """
 
-    free: np.ndarray
-    occ: np.ndarray
-    stamp: np.ndarray
+    words: np.ndarray
+    nw: int
     gen: int
     on: bool
 
@@ -103,13 +103,7 @@ def column_cache(height: int, width: int, n_cells: int, on: bool = True) -> Colu
     """An empty :class:`ColumnCache` for an (height, width) principal image and ``n_cells`` depth cells
     (``on=False``: a disabled one; give it ``height = width = 1``)."""
     nw = max(1, -(-n_cells // 64))
-    return ColumnCache(
-        np.zeros((height, width, nw), np.uint64),
-        np.zeros((height, width, nw), np.uint64),
-        np.full((height, width), -1, np.int64),
-        0,
-        on,
-    )
+    return ColumnCache(np.zeros((height, width, 1 + 2 * nw), np.uint64), nw, 1, on)
 
 
 class Scratch(NamedTuple):

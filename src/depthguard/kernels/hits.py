@@ -66,7 +66,7 @@ def add_hit(h, D, ix, iy, iz, nx, ny, nz, counted, radius, rho, mode, alpha):
 @nb.njit(cache=True, inline="always", _nrt=False)
 def nearer_hit(h, D, ix, iy, iz, nx, ny, nz):
     """``h`` plus a piece that competes for the nearest distance only (not in the direction sum nor in
-    the count): the pixels off the direction lattice (``QueryParams.stride``)."""
+    the count): the pixels off the direction lattice (:func:`depthguard.kernels.records.direction_stride`)."""
     if D < h.best:
         return Hits(D, ix, iy, iz, nx, ny, nz, h.count, h.sx, h.sy, h.sz)
     return h

@@ -40,16 +40,15 @@ class Intrinsics(NamedTuple):
 class QueryParams(NamedTuple):
     """One query: radius of surveillance ρ (m), mode (0 min, 1 all, 2 hybrid), eq. 9 shape factor α,
     ``unseen``: space outside the field of view and nearer than the near limit counts as an obstacle,
-    ``tile``: the tile size (pixels) of the tile minima; ``stride``: in modes 1 and 2 the direction sum
-    takes the pixels ``u % stride == 0 and v % stride == 0`` only, the other pixels compete for the
-    nearest distance only (``stride = 1``: every pixel; :func:`direction_stride`)."""
+    ``tile``: the tile size (pixels) of the tile minima. (The direction lattice's stride travels as an
+    argument of its own, :func:`direction_stride`: a sixth field made the compiled queries twice as slow,
+    measured.)"""
 
     rho: float
     mode: int
     alpha: float
     unseen: bool
     tile: int
-    stride: int
 
 
 def intrinsics(camera) -> Intrinsics:
@@ -65,16 +64,18 @@ def intrinsics(camera) -> Intrinsics:
     )
 
 
-def query_params(rho: float, mode: int, alpha: float, unseen: bool, tile: int, stride: int = 1) -> QueryParams:
+def query_params(rho: float, mode: int, alpha: float, unseen: bool, tile: int) -> QueryParams:
     """A :class:`QueryParams` record with the field types the kernels are compiled for."""
-    return QueryParams(float(rho), int(mode), float(alpha), bool(unseen), int(tile), int(stride))
+    return QueryParams(float(rho), int(mode), float(alpha), bool(unseen), int(tile))
 
 
 DIRECTION_WIDTH = 320  # pixels: the "auto" direction lattice is about this wide
 
 
 def direction_stride(stride: int | str, width: int) -> int:
-    """The pixel stride of the direction sum (modes ``all`` and ``hybrid``).
+    """The pixel stride of the direction sum (modes ``all`` and ``hybrid``): in those modes the direction
+    sum takes the pixels ``u % stride == 0 and v % stride == 0`` only, and the other pixels compete for
+    the nearest distance only (``stride = 1``: every pixel).
 
     ``"auto"``: ``max(1, width // DIRECTION_WIDTH)`` (1 up to 639 pixels wide, 2 at 640), so that the
     mean direction of RA-L'16 eq. 11 (and the eq. 9 sum) is taken over a lattice about 320 pixels wide

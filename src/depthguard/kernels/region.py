@@ -148,26 +148,36 @@ def nearest_tile(lbs, ntiles):
 
 
 @nb.njit(cache=True, inline="always", _nrt=False)
-def next_tile(lbs, ntiles, kk, best, reff, qp):
-    """The tile to visit at step ``kk`` of a query: ``(index, lattice_only)``; index ``ntiles`` skips the
-    step, -1 stops.
+def next_tile(lbs, ntiles, kk, best, reff, mode, stride):
+    """The tile to visit at step ``kk`` (``0 <= kk <= ntiles``) of a query: ``(index, lattice_only)``;
+    index ``ntiles`` skips the step, -1 stops.
 
-    ``min`` mode, and modes ``all`` / ``hybrid`` with a direction lattice (``qp.stride > 1``, whose
-    off-lattice pixels compete for the nearest distance only): nearest tile first (its bound set to +inf
-    once taken), stopping when no tile can hold a piece that counts, nearer than ``best`` in ``min`` mode,
-    within reach ``reff`` otherwise. Else row-major order, skipping the tiles out of reach.
-    ``lattice_only``: the tile's lower bound is not below ``best``, so only its lattice pixels can count.
+    ``min`` mode (``mode`` 0): nearest tile first (its bound set to +inf once taken), stopping when no
+    tile can be nearer than ``best`` (ICRA'12's shrinking region). Modes ``all`` / ``hybrid``: row-major
+    order, skipping the tiles out of reach ``reff``; with a direction lattice (``stride > 1``, whose
+    off-lattice pixels compete for the nearest distance only) the nearest tile goes first, so that
+    ``best`` shrinks early (one O(ntiles) scan, not one per tile), and ``lattice_only`` says that the
+    tile's lower bound is not below ``best``: only its lattice pixels can count.
     """
-    if qp.mode == 0 or qp.stride > 1:
+    if mode == 0:
         k = nearest_tile(lbs, ntiles)
-        lb = lbs[k]
-        if not lb < (best if qp.mode == 0 else reff):
+        if not lbs[k] < best:
             return -1, False
         lbs[k] = np.inf
-        return k, qp.mode != 0 and not lb < best
+        return k, False
+    if stride > 1:
+        if kk == 0:
+            k = nearest_tile(lbs, ntiles)
+            if not lbs[k] < reff:
+                return -1, False  # (the nearest tile out of reach: every tile is)
+            lbs[k] = np.inf
+            return k, False
+        kk -= 1  # then every tile in row-major order (the nearest one now at +inf)
+    if kk >= ntiles:
+        return -1, False
     if lbs[kk] >= reff:
         return ntiles, False
-    return kk, False
+    return kk, stride > 1 and not lbs[kk] < best
 
 
 @nb.njit(cache=True, inline="always", _nrt=False)
