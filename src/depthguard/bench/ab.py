@@ -6,6 +6,10 @@ queries on the same frames, alternating old and new in rounds so that the load o
 affects both alike. Prints JSON: per case the median time of each version (median over the rounds of the
 per-round medians), ``new_over_old`` and whether the answers agree (to 1e-9 m; the refactor may change
 rounding through fast-math re-association). Used for the refactor's "no slowdown" check (BENCHMARKS.md).
+
+Caution (measured 2026-12-02): with both versions' kernels loaded in one process, one of them ran 2x
+slower than it did alone in a process, the same code either way, so a slowdown found here must be
+confirmed in separate processes (BENCHMARKS.md, "ral-shadow at 640x480").
 """
 
 from __future__ import annotations
