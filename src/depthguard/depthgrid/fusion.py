@@ -136,6 +136,11 @@ class DepthGridFusion:
             takes tens to hundreds of microseconds, and on a loaded machine waking a second thread can
             cost milliseconds (measured on the 2-core benchmark machine).
 
+    Column cache: the cell states that the queries of one frame set decide are kept per principal pixel
+    (:class:`~depthguard.depthgrid.records.ColumnCache`, 8 (1 + 2 ceil(n_cells / 64)) bytes per pixel, about
+    32 MB at 640x480, allocated at the first query) and reused by the later queries of the same frame set;
+    the answers are those without it. ``fusion.column_cache = False`` turns it off.
+
     Usage: :meth:`update` once per set of frames, then :meth:`query` as often as needed, from one thread
     (``update`` rewrites the per-frame images in place; the object is not thread-safe).
     """
