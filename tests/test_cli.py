@@ -77,6 +77,22 @@ def test_distance_options_and_timing(files, capsys):
     assert set(out["timing"]) == {"us_median", "us_p99"} and out["timing"]["us_median"] > 0
 
 
+def test_distance_direction_stride_option(files, capsys):
+    """``--direction-stride`` (an extension of the contract): the distance is the same for every stride;
+    a stride below 1 exits 2 naming the option."""
+    base = ["distance", "--camera", str(files / "cam.json"), "--depth", str(files / "d.png")]
+    base += ["--points", str(files / "pts.json"), "--mode", "hybrid", "--json"]
+    got = []
+    for stride in ("auto", "1", "3"):
+        assert main([*base, "--direction-stride", stride]) == 0
+        got.append(json.loads(capsys.readouterr().out)["points"][0]["distance"])
+    assert got[0] == got[1] == got[2]
+    proc = subprocess.run(
+        [sys.executable, "-m", "depthguard.cli", *base, "--direction-stride", "0"], capture_output=True, text=True
+    )
+    assert proc.returncode == 2 and "--direction-stride" in proc.stderr
+
+
 def test_distance_errors_exit_2_with_the_field(files):
     bad = files / "bad.json"
     bad.write_text(

@@ -77,6 +77,8 @@ def test_matrix_extrinsics_equal_R_t(tmp_path):
         (lambda s: s.replace("t = [0.0, 0.0, 2.0]", "t = [0.0, 2.0]"), "t must be 3"),
         (lambda s: s + '\n[distance]\nmode = "nearest"\n', "distance.mode"),
         (lambda s: s + "\n[distance]\nworkspace = [1, 0, 0, 1, 0, 1]\n", "workspace"),
+        (lambda s: s + "\n[distance]\ndirection_stride = 0\n", "direction_stride"),
+        (lambda s: s + '\n[distance]\ndirection_stride = "two"\n', "direction_stride"),
         (lambda s: s + "\n[controller]\nvelocity_scale = 2.0\n", "velocity_scale"),
         (lambda s: s + "\n[controller]\njoint_timeout = 0\n", "joint_timeout"),
         (lambda s: s + '\n[[robot.attachments]]\nname = "g"\nlink = "l"\nshape = "box"\nsize = [1, 2]\n', "size"),

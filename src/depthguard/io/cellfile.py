@@ -25,7 +25,8 @@ cell file are relative to the file's folder. Sections:
 * ``[distance]``: ``backend`` (``depthspace`` | ``octree``; ``run`` and the nodes refuse ``octree`` for now),
   ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
-  ``octree_res`` (m), ``period`` (s between distance queries in ``--fast`` runs);
+  ``octree_res`` (m), ``period`` (s between distance queries in ``--fast`` runs), ``direction_stride``
+  (``"auto"`` or an integer >= 1: the direction lattice of modes all / hybrid, docs/conventions.md);
 * ``[controller]``: ``rate`` (Hz), ``distance_timeout``, ``joint_timeout``, ``resume_time`` (s),
   ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool:
   speed and separation monitoring with the repulsion, controller mode "both", docs/ssm.md);
@@ -58,6 +59,7 @@ from depthguard.io.cell_schema import (
     _section,
     _vector,
 )
+from depthguard.kernels.records import direction_stride
 
 __all__ = ["CellFile", "CellCamera", "CellRobot", "Attachment", "Sphere", "read_cell", "describe_cell"]
 
@@ -318,6 +320,12 @@ def read_cell(path: str | Path) -> CellFile:
     if any(ws[2 * i] >= ws[2 * i + 1] for i in range(3)):
         raise CellError(f"{src}: distance.workspace must be xmin, xmax, ymin, ymax, zmin, zmax with min < max")
     dist["workspace"] = ws
+    try:
+        direction_stride(dist["direction_stride"], 640)
+    except ValueError:
+        raise CellError(
+            f'{src}: distance.direction_stride must be "auto" or an integer >= 1, got {dist["direction_stride"]!r}'
+        ) from None
     ctrl = _section(src, "controller", "controller", data.get("controller", {}))
     if not 0 < ctrl["velocity_scale"] <= 1:
         raise CellError(f"{src}: controller.velocity_scale must be in (0, 1], got {ctrl['velocity_scale']}")
