@@ -290,7 +290,7 @@ def _pixel_hit(hits, obs, u, v, b, px, py, pz, radius, reff, zmax, h, intr, qp, 
 def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model, st, lattice_only):
     """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped); ``st``: the
     direction lattice's stride (only its pixels with ``lattice_only``). Two loops: with ``st == 1`` (and in
-    ``min`` mode) every pixel is summed, and the plain loop compiles to the fastest code."""
+    ``min`` mode) every pixel is summed, and the loop is the plain one of before the lattice."""
     tile = qp.tile
     reff = qp.rho + radius
     zmax = pz + reff
@@ -305,7 +305,7 @@ def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr,
     step = st if lattice_only else 1
     if lattice_only:
         va, ua = first_index(va, st), first_index(ua, st)
-    for iv in range(max(0, (vb - va + step - 1) // step)):  # (unit-stride loops compile to faster code)
+    for iv in range(max(0, (vb - va + step - 1) // step)):
         v = va + iv * step
         b = (v + 0.5 - intr.cy) / intr.fy
         row_on = v % st == 0

@@ -107,7 +107,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
         va, ua = first_index(va, st), first_index(ua, st)
     nv = max(0, (min(v1 + 1, rect[3]) - va + step - 1) // step)
     nu = max(0, (min(u1 + 1, rect[2]) - ua + step - 1) // step)
-    for iv in range(nv):  # (unit-stride loops: a range with a run-time step compiles to slower code)
+    for iv in range(nv):
         v = va + iv * step
         b = (v + 0.5 - intr.cy) / intr.fy
         row_on = v % st == 0

@@ -41,8 +41,7 @@ class QueryParams(NamedTuple):
     """One query: radius of surveillance ρ (m), mode (0 min, 1 all, 2 hybrid), eq. 9 shape factor α,
     ``unseen``: space outside the field of view and nearer than the near limit counts as an obstacle,
     ``tile``: the tile size (pixels) of the tile minima. (The direction lattice's stride travels as an
-    argument of its own, :func:`direction_stride`: a sixth field made the compiled queries twice as slow,
-    measured.)"""
+    argument of its own, :func:`direction_stride`.)"""
 
     rho: float
     mode: int
