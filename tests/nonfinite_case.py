@@ -52,12 +52,18 @@ def run(seed: int = 0) -> dict[str, np.ndarray]:
                     res = query_distances(fr, P, radii, rho=0.4, mode=mode, model=model)
                     for name, arr in zip(res._fields, res, strict=True):
                         out[f"ds_{inv}_{fill}_{mode}_{model}_{name}"] = np.asarray(arr)
+            res = query_distances(fr, P, radii, rho=0.4, mode="hybrid", direction_stride=2)  # the lattice
+            for name, arr in zip(res._fields, res, strict=True):
+                out[f"ds_{inv}_{fill}_hybrid_lattice_{name}"] = np.asarray(arr)
         fusion = DepthGridFusion(cams, dd=0.05, workspace=(-1, 1, -1, 1, 0, 1.6), fill_radius=2)
         fusion.update(depths, masks, invalid=inv)
         for mode in ("min", "all", "hybrid"):
             res = fusion.query(P, radii, rho=0.4, mode=mode)
             for name, arr in zip(res._fields, res, strict=True):
                 out[f"grid_{inv}_{mode}_{name}"] = np.asarray(arr)
+        res = fusion.query(P, radii, rho=0.4, mode="hybrid", direction_stride=2)  # the lattice
+        for name, arr in zip(res._fields, res, strict=True):
+            out[f"grid_{inv}_hybrid_lattice_{name}"] = np.asarray(arr)
     return out
 
 

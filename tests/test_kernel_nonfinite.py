@@ -72,6 +72,10 @@ def test_compiled_and_python_runs_agree_on_non_finite_inputs(tmp_path):
             np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6, err_msg=key)
         else:
             assert np.array_equal(a, b), key
+    for key, a in compiled.items():  # the direction lattice leaves every distance as it was, NaN-free
+        if "_lattice_distance" in key:
+            full = compiled[key.replace("_lattice_", "_frustum_" if key.startswith("ds_") else "_")]
+            assert np.array_equal(a, full), key
     for key, a in compiled.items():
         if key.endswith("_distance"):
             assert not np.isnan(a).any() and np.all(a >= 0.0), key

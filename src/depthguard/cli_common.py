@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
@@ -13,14 +12,15 @@ class CliExit(Exception):
 
 
 def check_out_dir(path: str) -> None:
-    """Create the output folder ``path`` now, before any work, or raise :class:`CliExit` naming it."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise CliExit(f"--out {path}: exists and is not a directory")
+    """Create the output folder ``path`` now, before any work, or raise :class:`CliExit` naming it
+    (:func:`depthguard.io.files.prepare_out_dir`)."""
+    from depthguard.errors import InputError
+    from depthguard.io.files import prepare_out_dir
+
     try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CliExit(f"--out {path}: cannot create it ({exc.strerror})") from None
+        prepare_out_dir(path, "--out")
+    except InputError as exc:
+        raise CliExit(str(exc)) from None
 
 
 def parse_workspace(text: str) -> tuple[float, ...]:
@@ -37,24 +37,23 @@ def parse_workspace(text: str) -> tuple[float, ...]:
     return vals
 
 
-def positive_float(text: str) -> float:
+def _positive(text: str, cast, what: str):
+    """``cast(text)`` if it is a finite number > 0, else an argparse error naming the expected form."""
     try:
-        x = float(text)
+        x = cast(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (np.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+        x = None
+    if x is None or not (np.isfinite(x) and x > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive {what}, got {text!r}") from None
     return x
+
+
+def positive_float(text: str) -> float:
+    return _positive(text, float, "number")
 
 
 def positive_int(text: str) -> int:
-    try:
-        x = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if x < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    return x
+    return _positive(text, int, "integer")
 
 
 # ----------------------------------------------------------------------------------------------- distance

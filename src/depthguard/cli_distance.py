@@ -18,15 +18,7 @@ __all__ = ["add_distance_command"]
 
 def _direction_stride(text: str) -> int | str:
     """``--direction-stride``: ``auto`` or an integer >= 1."""
-    if text == "auto":
-        return text
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected 'auto' or an integer >= 1, got {text!r}")
-    return n
+    return text if text == "auto" else _positive_int(text)
 
 
 def _cmd_distance(args: argparse.Namespace) -> int:

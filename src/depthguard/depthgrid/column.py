@@ -110,6 +110,33 @@ def _free_run(words, v, u, g, going_up, lowest, n_cells):
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")
+def _skip_free(words, v, u, g, going_up, up, dn, lowest, n_cells):
+    """``(up, dn)`` past the run of cached free cells from cell ``g`` in the search's direction."""
+    if going_up:
+        return _free_run(words, v, u, g, True, lowest, n_cells), dn
+    return up, _free_run(words, v, u, g, False, lowest, n_cells)
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
+def _nearer_side(up, dn, g_start, g_end, s0, s_line, s_lo, grid):
+    """Which segment a column search visits next: 1 the next one up (``up``), 0 the next one down
+    (``dn``), -1 none left. By the depth gap between ``s_line`` and each (module docstring); a direction
+    is exhausted above ``g_end``, below ``g_start`` or below ``s_lo``."""
+    gu = np.inf
+    if up <= g_end:
+        lo_u = s0 if up < 0 else max(grid.d_min + up * grid.dd, s0)
+        gu = lo_u - s_line if lo_u > s_line else 0.0
+    gd = np.inf
+    if dn >= g_start:
+        hi_d = grid.d_min if dn < 0 else grid.d_min + (dn + 1) * grid.dd
+        if hi_d >= s_lo:
+            gd = s_line - hi_d if hi_d < s_line else 0.0
+    if gu == np.inf and gd == np.inf:
+        return -1
+    return 1 if gu <= gd else 0
+
+
+@nb.njit(cache=True, _nrt=False, inline="always")
 def _skip_cleared_run(tstate, tb, going_up, lowest, n_cells):
     """Next segment index after a run of cleared tile blocks from block ``tb`` (up or down)."""
     if going_up:
@@ -165,19 +192,10 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
     bd = BLOCK
     tests = 0
     while True:
-        # depth gap between s_line and the next segment in each direction (inf when exhausted)
-        gu = np.inf
-        if up <= g_end:
-            lo_u = s0 if up < 0 else max(grid.d_min + up * grid.dd, s0)
-            gu = lo_u - s_line if lo_u > s_line else 0.0
-        gd = np.inf
-        if dn >= g_start:
-            hi_d = grid.d_min if dn < 0 else grid.d_min + (dn + 1) * grid.dd
-            if hi_d >= s_lo:
-                gd = s_line - hi_d if hi_d < s_line else 0.0
-        if gu == np.inf and gd == np.inf:
+        side = _nearer_side(up, dn, g_start, g_end, s0, s_line, s_lo, grid)
+        if side < 0:
             return False, 0.0, 0.0, tests
-        going_up = gu <= gd
+        going_up = side == 1
         if going_up:
             g = up
             up += 1
@@ -212,10 +230,7 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
             if _has(cw, v, u, occ0, g):
                 return True, lo, hi, tests
             if _has(cw, v, u, 1, g):
-                if going_up:
-                    up = _free_run(cw, v, u, g, True, lowest, n_cells)
-                else:
-                    dn = _free_run(cw, v, u, g, False, lowest, n_cells)
+                up, dn = _skip_free(cw, v, u, g, going_up, up, dn, lowest, n_cells)
                 continue
         # ... then a block of this column, then single cells
         if going_up:

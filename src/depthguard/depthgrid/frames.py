@@ -14,7 +14,7 @@ import numpy as np
 
 from depthguard.depthgrid import records as K
 
-__all__ = ["prepare_principal", "prepare_secondary"]
+__all__ = ["prepare_principal", "prepare_secondary", "write_windows"]
 
 
 @nb.njit(cache=True, inline="always")
@@ -144,3 +144,26 @@ def limit_robot_votes(cameras, depths, masks, votes, margin: float) -> None:
             robot = np.isposinf(vk[pv, pu])
             if np.any(robot):
                 np.minimum.at(vk, (pv[robot], pu[robot]), (zf[robot] - margin).astype(np.float32))
+
+
+def write_windows(votes: np.ndarray, hm: int, cameras, windows) -> bool:
+    """Write the secondary cameras' robot windows into the ``lo`` / ``hi`` row blocks of ``votes``
+    (K, 3 hm, W) (:func:`depthguard.depthgrid.votes.pixel_sees_past`; no window: lo = +inf, hi = -inf).
+
+    ``windows``: ``None`` or one entry per camera (the principal camera's, ``windows[0]``, is ignored):
+    ``None`` or ``(lo, hi)`` (H, W) depth images of camera k (``lo > hi`` or NaN = none). Returns whether
+    any window was set."""
+    votes[:, hm : 2 * hm] = np.inf
+    votes[:, 2 * hm :] = -np.inf
+    any_set = False
+    for k in range(1, len(cameras)):
+        if windows is None or windows[k] is None:
+            continue
+        any_set = True
+        cam = cameras[k]
+        lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float64)
+        hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float64)
+        ok = np.isfinite(lo) & np.isfinite(hi) & (lo <= hi)
+        votes[k - 1, hm : hm + cam.height, : cam.width] = np.where(ok, lo, np.inf)
+        votes[k - 1, 2 * hm : 2 * hm + cam.height, : cam.width] = np.where(ok, hi, -np.inf)
+    return any_set

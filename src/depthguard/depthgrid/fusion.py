@@ -91,7 +91,7 @@ import numpy as np
 
 from depthguard.camera import Camera
 from depthguard.depthgrid.chunks import tile_max_start
-from depthguard.depthgrid.frames import limit_robot_votes, prepare_principal, prepare_secondary
+from depthguard.depthgrid.frames import limit_robot_votes, prepare_principal, prepare_secondary, write_windows
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
 from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout, window_aware_votes
@@ -136,10 +136,9 @@ class DepthGridFusion:
             takes tens to hundreds of microseconds, and on a loaded machine waking a second thread can
             cost milliseconds (measured on the 2-core benchmark machine).
 
-    Column cache: the cell states that the queries of one frame set decide are kept per principal pixel
-    (:class:`~depthguard.depthgrid.records.ColumnCache`, 8 (1 + 2 ceil(n_cells / 64)) bytes per pixel, about
-    32 MB at 640x480, allocated at the first query) and reused by the later queries of the same frame set;
-    the answers are those without it. ``fusion.column_cache = False`` turns it off.
+    Column cache: cell states decided by a frame set's queries are kept per principal pixel and reused by
+    its later queries, answers unchanged (:class:`~depthguard.depthgrid.records.ColumnCache`, about 32 MB
+    at 640x480, allocated at the first query); ``fusion.column_cache = False`` turns it off.
 
     Usage: :meth:`update` once per set of frames, then :meth:`query` as often as needed, from one thread
     (``update`` rewrites the per-frame images in place; the object is not thread-safe).
@@ -195,6 +194,7 @@ class DepthGridFusion:
         # the cell states decided so far in this frame (depthgrid.column), shared by every query of it;
         # allocated at the first query, a new generation per frame
         self._cache: ColumnCache | None = None
+        self._cache_off = column_cache(1, 1, int(self.grid.n_cells), on=False)
         self._gen = 1
         self.column_cache = True  # False: every query votes afresh (identical answers; tests, A/B)
         self._invalid = "conservative"
@@ -217,11 +217,10 @@ class DepthGridFusion:
             masks: ``None`` or one entry per camera: ``None`` or an (H, W) bool robot mask (True = robot
                 pixel; the depth image holds the robot's depth there, so ``d_r`` is known).
             invalid: missing-depth policy, ``"conservative"`` (default) or ``"ignore"`` (docs/conventions.md).
-            windows: ``None`` or one entry per camera (the principal camera's is ignored): ``None`` or
-                ``(lo, hi)``, two (H, W) depth images (m, camera k's ``z``; ``lo > hi`` or NaN = none):
-                along pixel (u, v) of camera k, the robot's own body (its capsules inflated by the
-                self-filter's margin) fills ``[lo, hi]`` (:func:`depthguard.robot.interior.robot_windows`).
-                Camera k then also clears a cell at a pixel whose reading lies in front of the cell when
+            windows: robot windows (:func:`depthguard.depthgrid.frames.write_windows`): along pixel (u, v)
+                of camera k the robot's own body (its capsules inflated by the self-filter's margin) fills
+                ``[lo, hi]`` (:func:`depthguard.robot.interior.robot_windows`). Camera k then also clears a
+                cell at a pixel whose reading lies in front of the cell when
                 the cell's far depth ``d_end`` lies in ``[lo, hi]``: the robot's body holds no obstacle
                 (the self-filter's margin limit), even where a box hides it from camera k. The cleared
                 part of the cell lies within one cell diameter (Δd and a principal pixel footprint) of
@@ -239,19 +238,7 @@ class DepthGridFusion:
         if windows is not None and len(windows) != len(self.cameras):
             raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
         hm = self._hm
-        self._votes[:, hm : 2 * hm] = np.inf
-        self._votes[:, 2 * hm :] = -np.inf
-        self._has_windows = False
-        for k in range(1, len(self.cameras)):
-            if windows is None or windows[k] is None:
-                continue
-            self._has_windows = True
-            cam = self.cameras[k]
-            lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float64)
-            hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float64)
-            ok = np.isfinite(lo) & np.isfinite(hi) & (lo <= hi)
-            self._votes[k - 1, hm : hm + cam.height, : cam.width] = np.where(ok, lo, np.inf)
-            self._votes[k - 1, 2 * hm : 2 * hm + cam.height, : cam.width] = np.where(ok, hi, -np.inf)
+        self._has_windows = write_windows(self._votes, hm, self.cameras, windows)
         for k, (cam, depth, mask) in enumerate(zip(self.cameras, depths, masks, strict=True)):
             d = np.ascontiguousarray(cam.check_image(depth, "depth"), dtype=np.float32)
             has_mask = mask is not None
@@ -354,13 +341,11 @@ class DepthGridFusion:
 
     def _frame_cache(self) -> ColumnCache:
         """The column cache of the current frame set (a disabled one for the threaded query)."""
-        g = self.grid
         if self.parallel or not self.column_cache:
-            return column_cache(1, 1, int(g.n_cells), on=False)
+            return self._cache_off
         if self._cache is None:
-            self._cache = column_cache(*self.cameras[0].shape, int(g.n_cells))
-        c = self._cache
-        return ColumnCache(c.words, c.nw, self._gen, True)
+            self._cache = column_cache(*self.cameras[0].shape, int(self.grid.n_cells))
+        return self._cache._replace(gen=self._gen)
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:
         """Declared tolerance (metres) of the fused distance at each of N centres: Δd + pixel footprints.

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from depthguard.kernels.records import direction_stride
+
 __all__ = ["CellError"]
 
 _SHAPES = ("box", "cylinder", "sphere", "mesh")
@@ -179,3 +181,20 @@ def _is_matrix(value: Any, rows: int, cols: int) -> bool:
     except (TypeError, ValueError):
         return False
     return arr.shape == (rows, cols) and bool(np.all(np.isfinite(arr)))
+
+
+def distance_section(src: Path, table: Any) -> dict[str, Any]:
+    """The ``[distance]`` table: :func:`_section`, then the workspace (6 numbers, min < max per axis)
+    and the direction lattice (``"auto"`` or an integer >= 1), each error naming its key."""
+    dist = _section(src, "distance", "distance", table)
+    ws = _vector(src, "distance.workspace", dist["workspace"], 6)
+    if any(ws[2 * i] >= ws[2 * i + 1] for i in range(3)):
+        raise CellError(f"{src}: distance.workspace must be xmin, xmax, ymin, ymax, zmin, zmax with min < max")
+    dist["workspace"] = ws
+    try:
+        direction_stride(dist["direction_stride"], 640)
+    except ValueError:
+        raise CellError(
+            f'{src}: distance.direction_stride must be "auto" or an integer >= 1, got {dist["direction_stride"]!r}'
+        ) from None
+    return dist

@@ -58,8 +58,8 @@ from depthguard.io.cell_schema import (
     _is_matrix,
     _section,
     _vector,
+    distance_section,
 )
-from depthguard.kernels.records import direction_stride
 
 __all__ = ["CellFile", "CellCamera", "CellRobot", "Attachment", "Sphere", "read_cell", "describe_cell"]
 
@@ -315,17 +315,7 @@ def read_cell(path: str | Path) -> CellFile:
         raise CellError(f"{src}: camera names must be unique, got {names}")
     if "calibration" in data:
         cams = _apply_calibration(src, data["calibration"], cams)
-    dist = _section(src, "distance", "distance", data.get("distance", {}))
-    ws = _vector(src, "distance.workspace", dist["workspace"], 6)
-    if any(ws[2 * i] >= ws[2 * i + 1] for i in range(3)):
-        raise CellError(f"{src}: distance.workspace must be xmin, xmax, ymin, ymax, zmin, zmax with min < max")
-    dist["workspace"] = ws
-    try:
-        direction_stride(dist["direction_stride"], 640)
-    except ValueError:
-        raise CellError(
-            f'{src}: distance.direction_stride must be "auto" or an integer >= 1, got {dist["direction_stride"]!r}'
-        ) from None
+    dist = distance_section(src, data.get("distance", {}))
     ctrl = _section(src, "controller", "controller", data.get("controller", {}))
     if not 0 < ctrl["velocity_scale"] <= 1:
         raise CellError(f"{src}: controller.velocity_scale must be in (0, 1], got {ctrl['velocity_scale']}")

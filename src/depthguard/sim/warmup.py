@@ -105,8 +105,8 @@ def _warm_robot() -> None:
 
 #: Where each group's kernels live (package folders or modules under ``depthguard/``), for :func:`is_cached`.
 SOURCES: dict[str, tuple[str, ...]] = {
-    "fusion": ("depthgrid", "depthspace.py"),
-    "depthspace": ("depthspace.py",),
+    "fusion": ("depthgrid", "depthspace.py", "kernels/pixels.py"),
+    "depthspace": ("depthspace.py", "kernels/pixels.py"),
     "robot": ("robot", "control"),
 }
 
