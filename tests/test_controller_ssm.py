@@ -147,7 +147,9 @@ def test_evading_stop_never_brings_the_end_effector_nearer(points, dq, direction
     """Property: during an evading protective stop (mode "both") the only task command is the end
     effector's repulsion away from its obstacle, so the end effector never gets nearer to it than where the
     stop began (1 mm allowed: the jerk-limited joint motion lags the changing target, by up to a few 1e-5 m
-    per cycle), and it ends up farther away."""
+    per cycle), and it ends up farther away unless a body point touches the obstacle too (then the body
+    bounds may leave no motion at all: found with the obstacle 6 cm above the end effector and on the wrist's
+    points)."""
     q0 = Q0 + np.array(dq)
     st0 = points.evaluate(q0)
     u = np.array(direction) / np.linalg.norm(direction)
@@ -168,4 +170,6 @@ def test_evading_stop_never_brings_the_end_effector_nearer(points, dq, direction
         q, qd = out.q_cmd, out.qdot_cmd
     assume(len(ee_gap) >= 20)  # the monitor stopped (an obstacle this near always stops it at rest)
     assert min(ee_gap) >= ee_gap[0] - 1e-3, f"end effector {ee_gap[0] - min(ee_gap):.2e} m nearer than at the stop"
-    assert ee_gap[-1] > ee_gap[0], "the end effector did not back away"
+    body_gap = float(np.min(np.linalg.norm(st0.centres[1:] - obstacle, axis=1) - st0.radii[1:]))
+    if body_gap > 0.05:  # a body point at the obstacle too: its bounds may forbid any escape (e.g. wrist on it)
+        assert ee_gap[-1] > ee_gap[0], "the end effector did not back away"

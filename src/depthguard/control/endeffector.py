@@ -21,7 +21,9 @@ __all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_
 
 
 def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
-    """Repulsive velocity vector ``V_R`` (3,) in m/s (ICRA'12 eq. 7); zero for ``distance = inf``.
+    """Repulsive velocity vector ``V_R`` (3,) in m/s (ICRA'12 eq. 7); zero for ``distance >= rho``
+    (nothing within the region of surveillance, as a query's ``inf``: a distance that a longer-range query
+    found beyond ρ, e.g. for speed and separation monitoring, does not repel).
 
     Args:
         distance: D from the control sphere's surface to the obstacle, m (>= 0, inf = none).
@@ -29,7 +31,7 @@ def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho
         v_max: largest repulsive speed, m/s; rho: m; alpha: steepness.
     """
     d = float(distance)
-    if not math.isfinite(d):
+    if not d < rho:  # inf, or beyond the region of surveillance
         return np.zeros(3)
     x = (d * 2.0 / rho - 1.0) * alpha
     mag = 0.0 if x > 700.0 else v_max / (1.0 + math.exp(x))  # (exp overflows past 709: the speed is 0 there)

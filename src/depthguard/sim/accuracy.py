@@ -3,7 +3,8 @@
 For every distance-stage call (every ``distance_period`` of simulated time) and every control point, the
 loop logs the evaluated distance ``e`` (m, from the sphere's surface; ``inf`` when nothing lies within
 ρ), the true clearance ``c`` of the same sphere to the nearest non-robot geom (people, boxes, table,
-walls, floor; :class:`depthguard.sim.pointtruth.PointClearance`, coal) and the declared tolerance
+walls, floor; :class:`depthguard.sim.pointtruth.PointClearance`, coal; in the ``--ssm`` runs without the
+room, floor and table, which their background model removes from the images on purpose) and the declared tolerance
 ``tol`` of that evaluation. The truth is *synchronous*: the obstacles as they were when the frame that
 the call used was captured, the sphere where the call put it; the camera's frame latency (up to 33 ms of
 a moving person) is a different error, handled by the controller's margins, and is left out here.
@@ -49,6 +50,11 @@ def under_report_series(log, rho: float) -> tuple[np.ndarray, np.ndarray, np.nda
     return t, under, at_zero
 
 
+def _excluded(log) -> str:
+    groups = tuple(getattr(log, "acc_excluded_groups", ()))
+    return f"; geom groups {list(groups)} left out (the background model removes them)" if groups else ""
+
+
 def accuracy_metrics(log, rho: float, period: float) -> dict[str, Any]:
     """The comparison of evaluated and true distances of one run (see the module docstring).
 
@@ -75,7 +81,7 @@ def accuracy_metrics(log, rho: float, period: float) -> dict[str, Any]:
         "declared_tolerance": float(np.max(tol[near])) if near.any() else None,
         "over_report_within_tolerance": bool(np.all(over[near] <= tol[near])),
         "accuracy_samples": int(near.sum()),
-        "accuracy_truth": "synchronous: obstacles at the frame's capture, spheres at the call (coal)",
+        "accuracy_truth": "synchronous: obstacles at the frame's capture, spheres at the call (coal)" + _excluded(log),
     }
     per = {}
     for k, name in enumerate(names):

@@ -37,6 +37,7 @@ class BackgroundFilter:
         from depthguard.sim.depthcam import raycast_depth
 
         self.stage = stage
+        self.background_groups = tuple(int(g) for g in groups)  # the truth of the metrics leaves them out
         gg = np.zeros(6, np.uint8)
         gg[list(groups)] = 1
         cell.forward()

@@ -128,6 +128,7 @@ class SimLog:
     acc_eval: list = field(default_factory=list)
     acc_true: list = field(default_factory=list)
     acc_tol: list = field(default_factory=list)
+    acc_excluded_groups: tuple = ()  # geom groups left out of the truth (a background model's)
     nearest_obstacle: dict = field(default_factory=dict)
     links: list = field(default_factory=list)
     point_names: tuple = ()
@@ -181,14 +182,15 @@ def run_loop(
 
         pivot = PivotFilter(dv_max=cfg.dv_max, c=cfg.pivot_c)
     truth = TrueClearance(cell)
-    ptruth = PointClearance(cell)
+    # the background that the stage removes on purpose (SSM's empty-cell model) is not held against it
+    ptruth = PointClearance(cell, exclude_groups=tuple(getattr(stage, "background_groups", ())))
     snap = ptruth.snapshot(cell.data)
     noise = max((getattr(c, "noise_coeff", 0.0) for c in cams), default=0.0)
-    log = SimLog(links=truth.links, point_names=tuple(kin.names))
+    log = SimLog(links=truth.links, point_names=tuple(kin.names), acc_excluded_groups=ptruth.excluded_groups)
     n_steps = int(round(cfg.duration / cfg.control_dt))
     frame_every = cfg.frame_period
     next_frame, next_dist = 0.0, 0.0
-    latest = None  # (t, distances, V_ee)
+    latest = None  # (t, distances to the controller, V_ee, directions, distances within ρ)
     frame_count = 0
     prog = _Progress(cfg.duration, cfg.label, cfg.progress)
     # the elbow (joint A4) is the last control point on the upper arm (lwr_link_3)
@@ -228,7 +230,10 @@ def run_loop(
             cp = kin.evaluate(q_meas)
             res = stage.query(cp.centres, cp.radii)
             V = repulsive_vectors(res, cfg.vmax, cfg.rho, cfg.alpha)[0]
-            dirs = np.array(res.direction, dtype=float)
+            # to the controller: ρ's answers, and beyond ρ those of the monitor's longer range (if any)
+            dists, dirs = stage.query_far(cp.centres, cp.radii, res) if getattr(stage, "ssm_range", None) else (
+                np.asarray(res.distance, float), np.array(res.direction, dtype=float)
+            )  # fmt: skip
             if pivot is not None:
                 # the pivot turns V_R (keeping its norm): hand the controller the turned direction
                 V = pivot.step(V, cfg.distance_period)
@@ -237,7 +242,7 @@ def run_loop(
                     dirs[0] = V / nv
             log.wall_distance.append(time.perf_counter() - w0)
             log.t_distance.append(t)
-            latest = (t, res, V, dirs)
+            latest = (t, dists, V, dirs, np.asarray(res.distance, float))
             # metrics only: the synchronous truth for these spheres (depthguard.sim.accuracy)
             log.acc_t.append(t)
             log.acc_eval.extend(np.asarray(res.distance, float))
@@ -250,7 +255,7 @@ def run_loop(
         xdot = task.velocity(x)
         if latest is not None:
             q_cmd, qd_cmd, status = ctrl.step(
-                t, q_meas, cell.qd(), xdot, cp, np.asarray(latest[1].distance, float), latest[3], latest[0], cfg.avoid
+                t, q_meas, cell.qd(), xdot, cp, latest[1], latest[3], latest[0], cfg.avoid
             )
         else:
             q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, None, None, -1.0, cfg.avoid)
@@ -273,7 +278,7 @@ def run_loop(
             log.true_links.append(per_link)
             log.true_dynamic.append(truth.last_dynamic)
             if latest is not None:
-                d = latest[1].distance
+                d = latest[4]
                 log.eval_min.append(float(np.min(d)))
                 log.eval_points.append(d.copy())
                 log.v_ee.append(latest[2].copy())

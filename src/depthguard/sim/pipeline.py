@@ -165,6 +165,8 @@ class DistanceStage:
         direction_stride: pixels of the direction sum (modes all/hybrid; docs/conventions.md, "Direction
             lattice"): "auto" (default) or an integer >= 1.
         workspace: (xmin, xmax, ymin, ymax, zmin, zmax) m, for fusion.
+        ssm_range: None, or the range (m, > rho) of the distances handed to a speed and separation
+            monitor (:meth:`query_far`): its protective distance can exceed ρ.
     """
 
     def __init__(
@@ -178,8 +180,12 @@ class DistanceStage:
         invalid: str = "conservative",
         fill_radius: int = 4,
         direction_stride: int | str = "auto",
+        ssm_range: float | None = None,
     ) -> None:
         self.cameras = list(cameras)
+        if ssm_range is not None and not ssm_range > rho:
+            raise ValueError(f"ssm_range must be None or > rho = {rho}, got {ssm_range!r}")
+        self.ssm_range = None if ssm_range is None else float(ssm_range)
         self.rho, self.mode, self.alpha = float(rho), mode, float(alpha)
         resolve_stride(direction_stride, self.cameras[0].width)  # refuse a bad one here, not at the first query
         self.direction_stride = direction_stride
@@ -243,6 +249,21 @@ class DistanceStage:
         if self.fusion is not None:
             return self.fusion.query(centres, radii, **kw)
         return query_distances(self.frames[0], centres, radii, **kw)
+
+    def query_far(self, centres: np.ndarray, radii: np.ndarray, res: PointDistances) -> tuple[np.ndarray, np.ndarray]:
+        """Distances and directions ``((N,), (N, 3))`` up to ``ssm_range`` for the monitor: ``res`` (the
+        :meth:`query` at ρ) where it found something, and where it found nothing a ``"min"`` query at
+        ``ssm_range`` (the same lower bound, farther; inf beyond it). Without ``ssm_range``, ``res``'s."""
+        dist = np.array(res.distance, dtype=float)
+        dirs = np.array(res.direction, dtype=float)
+        far = ~np.isfinite(dist)
+        if self.ssm_range is None or not far.any():
+            return dist, dirs
+        c, r = np.atleast_2d(np.asarray(centres, float))[far], np.asarray(radii, float).reshape(-1)[far]
+        kw = dict(rho=self.ssm_range, mode="min", alpha=self.alpha, direction_stride=self.direction_stride)
+        more = self.fusion.query(c, r, **kw) if self.fusion is not None else query_distances(self.frames[0], c, r, **kw)
+        dist[far], dirs[far] = more.distance, more.direction
+        return dist, dirs
 
     def tolerance(self, centres: np.ndarray, noise_coeff: float = 0.0) -> np.ndarray:
         """Declared tolerance (N,) m of :meth:`query` at ``centres`` (N, 3): how far an evaluated distance

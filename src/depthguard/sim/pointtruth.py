@@ -25,17 +25,21 @@ class PointClearance:
     Args:
         cell: the cell; every geom outside the robot's group is an obstacle.
         distmax: clearances are exact up to this value (m); larger ones are reported as ``distmax``.
+        exclude_groups: geom groups that are not obstacles either: the background that a
+            :class:`depthguard.sim.background.BackgroundFilter` removes from the images on purpose (the
+            evaluated distances then claim nothing about it, so neither does the truth they are held to).
     """
 
-    def __init__(self, cell: Cell, distmax: float = 1.0) -> None:
+    def __init__(self, cell: Cell, distmax: float = 1.0, exclude_groups: tuple[int, ...] = ()) -> None:
         import coal
         import mujoco
 
         m = cell.model
         self.distmax = float(distmax)
+        self.excluded_groups = tuple(sorted(int(g) for g in exclude_groups))
         ids, shapes, names, planes = [], [], [], []
         for g in range(m.ngeom):
-            if m.geom_group[g] == GROUP_ROBOT:
+            if m.geom_group[g] == GROUP_ROBOT or int(m.geom_group[g]) in exclude_groups:
                 continue
             typ, size = int(m.geom_type[g]), m.geom_size[g]
             name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"geom{g}"

@@ -86,6 +86,7 @@ def _size(x: Any) -> str | None:
 AVOIDANCE: dict[str, Any] = {
     "rho": (_pos, False),
     "rho_body": (_pos, False),
+    "ssm_range": (_pos, False),
     "vmax": (_pos, False),
     "alpha": (_pos, False),
     "pivot": (_bool, False),

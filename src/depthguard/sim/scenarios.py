@@ -180,6 +180,7 @@ def _run_one(
         mode=sc.get("mode", "hybrid"),
         alpha=float(av.get("alpha", 6.0)),
         workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
+        ssm_range=_ssm_range(av) if ssm and avoidance else None,
     ) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)  # fmt: skip
     ctrl = Controller(
         kin,
@@ -190,7 +191,7 @@ def _run_one(
         rho_body=float(av.get("rho_body", av.get("rho", 0.4))),
         alpha_body=float(av.get("alpha", 6.0)),
         ssm=ssm and avoidance,
-        ssm_config=_ssm_config(av) if ssm and avoidance else None,
+        ssm_config=_ssm_config(av, backend) if ssm and avoidance else None,
         avoidance_mode=av.get("mode") if ssm and avoidance else None,
     )
     if ssm and avoidance:  # background model of the empty cell; the monitor's record (metrics only)
@@ -351,11 +352,24 @@ def _write_outputs(out: Path, sc: dict, cell, log, runs: dict, result: dict) -> 
     (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
 
 
-def _ssm_config(av: dict):
-    """The monitor's configuration in the simulated cell: the defaults, with the distance query's range."""
+SSM_RANGE = 0.6  # m: default range of the monitor's distances, above S_p at the scenarios' task speeds
+
+
+def _ssm_range(av: dict) -> float:
+    """The range of the distances that the monitor gets (``[avoidance] ssm_range``, default max(ρ, 0.6 m)):
+    ``S_p`` at task speed (0.33-0.40 m in these scenarios) exceeds the repulsion's ρ (0.3-0.4 m), and a
+    monitor that takes "nothing within ρ" as ρ would stop the arm with nobody near (docs/ssm.md)."""
+    rho = float(av.get("rho", 0.4))
+    return max(float(av.get("ssm_range", SSM_RANGE)), rho * (1.0 + 1e-9))
+
+
+def _ssm_config(av: dict, backend: str = "depthspace"):
+    """The monitor's configuration in the simulated cell: the defaults, with the range of its distances
+    (the octree backend answers within ρ only)."""
     from depthguard.control.ssm import SsmConfig
 
-    return SsmConfig(sensing_range=float(av.get("rho", 0.4)))
+    rng = _ssm_range(av) if backend == "depthspace" else float(av.get("rho", 0.4))
+    return SsmConfig(sensing_range=rng)
 
 
 def _ssm_keys(log, cfg, on: bool) -> dict[str, Any]:

@@ -13,7 +13,9 @@ lies outside the monitored workspace, is left out).
   monitor allowed motion (``MONITOR_OK`` or ``REDUCED``), m; ``>= 0`` is the monitor's claim;
 * ``time_reduced_s`` / ``time_stopped_s``: time in ``REDUCED`` / ``PROTECTIVE_STOP``;
 * ``protective_stops``, ``resumed`` (a stop ended and the robot moved again), the binding point, the
-  largest ``S_p`` seen, the true separation while the robot moved, and the SSM parameters with sources.
+  largest ``S_p`` seen, the true separation while the robot moved (``..._while_moving``: any motion, the
+  evading stop's backing away included; ``..._while_allowed``: motion the monitor allowed, ``MONITOR_OK`` or
+  ``REDUCED``), and the SSM parameters with sources.
 """
 
 from __future__ import annotations
@@ -41,6 +43,8 @@ PARAMETER_SOURCES = {
     "sensor_uncertainty": "Z_d: 3 sigma Kinect depth noise at 3 m (Khoshelham & Elberink 2012) + 1 cm bound tolerance",
     "robot_uncertainty": "Z_r: joint encoder and kinematic calibration error at the tool",
     "hysteresis": "a protective stop ends when S >= S_p + hysteresis for every point",
+    "sensing_range": "range of the monitor's distances: [avoidance] ssm_range, default max(rho, 0.6 m) (the "
+    "repulsion keeps rho); +inf counts as this",
 }
 
 _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX = 2, 3, 4, 5, 6  # mjtGeom
@@ -206,6 +210,8 @@ def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmCon
         "max_s_p": float(np.nanmax(s_p)) if np.isfinite(s_p).any() else None,
         "min_true_separation": float(sep.min()) if len(sep) else None,
         "min_true_separation_while_moving": float(sep[moving].min()) if moving.any() else None,
+        # moving with the task allowed (an evading stop also moves the arm, away from whoever came near)
+        "min_true_separation_while_allowed": float(sep[moving & allowed].min()) if (moving & allowed).any() else None,
         "ssm_parameters": ssm_parameters(cfg),
     }
 
