@@ -154,12 +154,23 @@ def _edited(tmp_path, old: str, new: str) -> Path:
 
 
 def test_ssm_in_the_cell_file_turns_the_monitor_on(tmp_path):
+    from depthguard.camera import Camera
     from depthguard.control.cycle import AvoidanceController
-    from depthguard.runner.chain import _controller_config
+    from depthguard.io.cellfile import CellError
+    from depthguard.runner.chain import _controller_config, cell_distance_stage
 
     cell = read_cell(_edited(tmp_path, "[controller]\n", "[controller]\nssm = true\n"))
     cfg = _controller_config(cell)
-    assert cfg.avoidance == "both" and cfg.ssm.sensing_range == cell.distance["rho"]
+    # the monitor's distances reach max(rho, ssm_range = 0.6 m); the repulsion keeps rho (docs/ssm.md)
+    assert cfg.avoidance == "both" and cfg.ssm.sensing_range == max(cell.distance["rho"], 0.6)
+    cams = [Camera(width=64, height=48, fx=50.0, fy=50.0, cx=32.0, cy=24.0, R=np.eye(3), t=np.zeros(3))]
+    stage = cell_distance_stage(cell, cams)
+    assert stage.rho == cell.distance["rho"] and stage.ssm_range == cfg.ssm.sensing_range
+    near = read_cell(_edited(tmp_path, "[controller]\n", "[controller]\nssm = true\nssm_range = 0.1\n"))
+    assert _controller_config(near).ssm.sensing_range == near.distance["rho"]  # never below rho
+    assert cell_distance_stage(near, cams).ssm_range is None
+    with pytest.raises(CellError, match="controller.ssm_range"):
+        read_cell(_edited(tmp_path, "[controller]\n", "[controller]\nssm = true\nssm_range = -1\n"))
     model = load_cell_robot(cell)
     assert AvoidanceController(cell_control_points(cell, model), cfg).monitor is not None
     plain = _controller_config(read_cell(EXAMPLES / "realsense-d435.toml"))

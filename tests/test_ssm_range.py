@@ -41,9 +41,11 @@ def test_query_far_finds_beyond_rho_what_the_rho_query_calls_nothing(n_cameras):
     centres = ball.center + np.array([0.0, 0.0, -1.0]) * (ball.radius + gaps + 0.02)[:, None]
     radii = np.full(len(gaps), 0.02)
     res = stage.query(centres, radii)
-    dist, dirs = stage.query_far(centres, radii, res)
+    far = stage.query_far(centres, radii, res)
+    dist, dirs = far.distance, far.direction
     truth = scene.distance(centres) - radii
     near = gaps < rho
+    assert np.all(np.isfinite(far.nearest[~near])) and np.all(far.obstacle_pixels[~near] > 0)
     assert np.all(np.isfinite(res.distance[near])) and not np.any(np.isfinite(res.distance[~near]))
     np.testing.assert_array_equal(dist[near], res.distance[near])  # within ρ: the ρ query's answers
     assert np.all(np.isfinite(dist)), dist  # beyond ρ, within the range: found
@@ -54,8 +56,8 @@ def test_query_far_finds_beyond_rho_what_the_rho_query_calls_nothing(n_cameras):
     # without a range: the ρ query's answers, inf included
     plain = DistanceStage(cams, rho=rho, workspace=(-1.5, 1.5, -1.5, 1.5, 0.3, 3.9))
     plain.update([render_depth(c, scene) for c in cams], [np.zeros(c.shape, bool) for c in cams])
-    d0, _ = plain.query_far(centres, radii, plain.query(centres, radii))
-    assert not np.any(np.isfinite(d0[~near]))
+    res0 = plain.query(centres, radii)
+    assert plain.query_far(centres, radii, res0) is res0
 
 
 def test_ssm_range_must_exceed_rho():

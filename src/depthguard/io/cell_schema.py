@@ -94,6 +94,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "alpha": (_NUM, 6.0),
         "v_rep_max": (_NUM, 2.0),
         "ssm": (bool, False),
+        "ssm_range": (_NUM, 0.6),
     },
     "topics": {
         "joint_states": (str, "/joint_states"),

@@ -29,7 +29,9 @@ cell file are relative to the file's folder. Sections:
   (``"auto"`` or an integer >= 1: the direction lattice of modes all / hybrid, docs/conventions.md);
 * ``[controller]``: ``rate`` (Hz), ``distance_timeout``, ``joint_timeout``, ``resume_time`` (s),
   ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool:
-  speed and separation monitoring with the repulsion, controller mode "both", docs/ssm.md);
+  speed and separation monitoring with the repulsion, controller mode "both", docs/ssm.md), ``ssm_range``
+  (m, default 0.6: with ``ssm``, the distances reach max(``rho``, ``ssm_range``) for the monitor; the
+  repulsion keeps ``rho``);
 * ``calibration = "FILE"`` (top level): extrinsics from ``depthguard calibrate`` override the cameras' own;
 * ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
   (Float64MultiArray), ``distances``, ``status``, ``markers``;
@@ -319,10 +321,19 @@ def read_cell(path: str | Path) -> CellFile:
     ctrl = _section(src, "controller", "controller", data.get("controller", {}))
     if not 0 < ctrl["velocity_scale"] <= 1:
         raise CellError(f"{src}: controller.velocity_scale must be in (0, 1], got {ctrl['velocity_scale']}")
+    if not 0 < ctrl["ssm_range"] < float("inf"):
+        raise CellError(f"{src}: controller.ssm_range must be a finite number of metres > 0, got {ctrl['ssm_range']}")
     topics = _section(src, "topics", "topics", data.get("topics", {}))
     net = _network(src, data.get("network", {}))
     robot = _robot(src, data["robot"])
     return CellFile(src, cell["name"], cell["description"], robot, cams, dist, ctrl, topics, data, net)
+
+
+def ssm_range(cell: CellFile) -> float | None:
+    """The range (m) of the distances that the SSM monitor gets, ``max(rho, ssm_range)``; None without SSM."""
+    if not cell.controller["ssm"]:
+        return None
+    return max(float(cell.controller["ssm_range"]), float(cell.distance["rho"]))
 
 
 def _network(src: Path, table: Any) -> dict[str, Any]:
@@ -387,7 +398,8 @@ def describe_cell(cell: CellFile) -> str:
     c = cell.controller
     lines.append(
         f"controller: {c['rate']:g} Hz; timeouts: distances {c['distance_timeout']} s, joints {c['joint_timeout']} s;"
-        f" resume after {c['resume_time']} s valid; SSM {'on' if c['ssm'] else 'off'}"
+        f" resume after {c['resume_time']} s valid; SSM "
+        + (f"on (distances up to {ssm_range(cell):g} m)" if c["ssm"] else "off")
     )
     lines.append("topics: " + ", ".join(f"{k} {v}" for k, v in cell.topics.items()))
     return "\n".join(lines)

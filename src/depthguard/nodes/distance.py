@@ -174,6 +174,7 @@ def run_distance_node(
                 stage.update(depths, masks, q_frames, points.model)
                 cps = points.evaluate(q)
                 res = stage.query(cps.centres, cps.radii)
+                res = stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
             except ValueError as exc:  # a malformed frame set (a mask of another size...): no distances from it
                 jl.write(ev="skipped", reason=str(exc))
                 stage = None

@@ -16,7 +16,7 @@ import numpy as np
 from depthguard.camera import Camera
 from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput, CycleOutput
 from depthguard.depthspace import PointDistances
-from depthguard.io.cellfile import CellError, CellFile
+from depthguard.io.cellfile import CellError, CellFile, ssm_range
 from depthguard.robot.control_points import ControlPointSet
 from depthguard.robot.health import CameraHealth
 from depthguard.robot.model import RobotModel, load_lwr4
@@ -94,10 +94,10 @@ def _controller_config(cell: CellFile) -> ControllerConfig:
         resume_time=float(c["resume_time"]),
     )
     if c["ssm"]:  # speed and separation monitoring with the repulsion (docs/ssm.md); +inf means "nothing
-        # within the query's rho", so the monitor takes it as rho (SsmConfig.sensing_range)
+        # within the range of the distances", so the monitor takes it as that range (SsmConfig.sensing_range)
         from depthguard.control.ssm import SsmConfig
 
-        values.update(avoidance="both", ssm=SsmConfig(sensing_range=float(cell.distance["rho"])))
+        values.update(avoidance="both", ssm=SsmConfig(sensing_range=ssm_range(cell)))
     known = {f.name for f in dataclasses.fields(ControllerConfig)}
     return ControllerConfig(**{k: v for k, v in values.items() if k in known})
 
@@ -114,9 +114,16 @@ def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
             list(cameras), rho=float(d["rho"]), mode=d["mode"], alpha=float(cell.controller["alpha"]),
             workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]), invalid=d["invalid"],
             fill_radius=int(d["fill_radius"]), direction_stride=d["direction_stride"],
+            ssm_range=_stage_ssm_range(cell),
         )  # fmt: skip
     except ValueError as exc:
         raise CellError(f"{cell.path}: distance: {exc}") from None
+
+
+def _stage_ssm_range(cell: CellFile) -> float | None:
+    """``DistanceStage.ssm_range``: the monitor's range where it exceeds rho, else None."""
+    rng = ssm_range(cell)
+    return rng if rng is not None and rng > float(cell.distance["rho"]) else None
 
 
 def carried_camera(local: Camera, model: RobotModel, q: np.ndarray, link: str) -> Camera:
@@ -272,6 +279,8 @@ class Chain:
         """Distance stage at ``t``: control spheres at ``q`` against the latest frames."""
         cps = self.points.evaluate(q)
         res = self.stage.query(cps.centres, cps.radii)
+        if self.stage.ssm_range is not None:  # SSM: farther than rho where rho found nothing (docs/ssm.md)
+            res = self.stage.query_far(cps.centres, cps.radii, res)
         # the distances are as old as the frames they come from: a camera that stops sending makes them
         # stale (STOP_STALE_DISTANCES after distance_timeout), however often they are recomputed
         self.latest = (t if self.t_frames is None else min(t, self.t_frames), res)

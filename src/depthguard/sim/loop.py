@@ -231,9 +231,8 @@ def run_loop(
             res = stage.query(cp.centres, cp.radii)
             V = repulsive_vectors(res, cfg.vmax, cfg.rho, cfg.alpha)[0]
             # to the controller: ρ's answers, and beyond ρ those of the monitor's longer range (if any)
-            dists, dirs = stage.query_far(cp.centres, cp.radii, res) if getattr(stage, "ssm_range", None) else (
-                np.asarray(res.distance, float), np.array(res.direction, dtype=float)
-            )  # fmt: skip
+            far = stage.query_far(cp.centres, cp.radii, res) if getattr(stage, "ssm_range", None) else res
+            dists, dirs = np.asarray(far.distance, float), np.array(far.direction, dtype=float)
             if pivot is not None:
                 # the pivot turns V_R (keeping its norm): hand the controller the turned direction
                 V = pivot.step(V, cfg.distance_period)

@@ -250,20 +250,20 @@ class DistanceStage:
             return self.fusion.query(centres, radii, **kw)
         return query_distances(self.frames[0], centres, radii, **kw)
 
-    def query_far(self, centres: np.ndarray, radii: np.ndarray, res: PointDistances) -> tuple[np.ndarray, np.ndarray]:
-        """Distances and directions ``((N,), (N, 3))`` up to ``ssm_range`` for the monitor: ``res`` (the
-        :meth:`query` at ρ) where it found something, and where it found nothing a ``"min"`` query at
-        ``ssm_range`` (the same lower bound, farther; inf beyond it). Without ``ssm_range``, ``res``'s."""
-        dist = np.array(res.distance, dtype=float)
-        dirs = np.array(res.direction, dtype=float)
-        far = ~np.isfinite(dist)
+    def query_far(self, centres: np.ndarray, radii: np.ndarray, res: PointDistances) -> PointDistances:
+        """The distances up to ``ssm_range`` for a speed and separation monitor: ``res`` (the :meth:`query`
+        at ρ) where it found something, and where it found nothing a ``"min"`` query at ``ssm_range`` (the
+        same lower bound, farther out; inf beyond it). Without ``ssm_range``: ``res``, unchanged."""
+        far = ~np.isfinite(np.asarray(res.distance, float))
         if self.ssm_range is None or not far.any():
-            return dist, dirs
+            return res
         c, r = np.atleast_2d(np.asarray(centres, float))[far], np.asarray(radii, float).reshape(-1)[far]
         kw = dict(rho=self.ssm_range, mode="min", alpha=self.alpha, direction_stride=self.direction_stride)
         more = self.fusion.query(c, r, **kw) if self.fusion is not None else query_distances(self.frames[0], c, r, **kw)
-        dist[far], dirs[far] = more.distance, more.direction
-        return dist, dirs
+        merged = [np.array(a, copy=True) for a in res]
+        for a, b in zip(merged, more, strict=True):
+            a[far] = b
+        return PointDistances(*merged)
 
     def tolerance(self, centres: np.ndarray, noise_coeff: float = 0.0) -> np.ndarray:
         """Declared tolerance (N,) m of :meth:`query` at ``centres`` (N, 3): how far an evaluated distance
