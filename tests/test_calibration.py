@@ -163,3 +163,126 @@ def test_cli_calibrate_writes_a_file_the_cell_file_uses(tmp_path, capsys):
     for cc, cam in zip(read_cell(cell).cameras, truth, strict=True):
         assert np.linalg.norm(cc.build().position - cam.position) < 0.01
         assert np.rad2deg(Rotation.from_matrix(cc.R @ cam.R.T).magnitude()) < 0.5
+
+
+# -- a camera carried by a link (SAPHARI §3.3: sensors on a parked platform), calibrated in the link's frame
+
+LINK = "lwr_link_1"
+STILL_POSES = [[0.4, *q[1:]] for q in POSES]  # joint 1 held: link 1 stays still, the rest of the arm moves
+
+
+def _in_link(cam, model, q):
+    """The camera ``cam`` (world) as carried by ``LINK`` at ``q``: ``P_C = (R R_l) P_L + (t + R p_l)``."""
+    R_l, p_l = model.frame_pose(np.asarray(q, float), LINK)
+    return cam.with_pose(cam.R @ R_l, cam.t + cam.R @ p_l)
+
+
+def test_a_moving_link_is_refused_with_its_motion_named():
+    from depthguard.robot.calibration import still_link_pose
+    from depthguard.robot.model import load_lwr4
+
+    model = load_lwr4()
+    R, p = still_link_pose(model, LINK, STILL_POSES)
+    R0, p0 = model.frame_pose(np.asarray(STILL_POSES[0], float), LINK)
+    assert np.allclose(R, R0) and np.allclose(p, p0)
+    with pytest.raises(ValueError, match=r"'lwr_link_1' moves between the calibration poses \(pose 1: .* deg"):
+        still_link_pose(model, LINK, POSES)
+
+
+@pytest.mark.slow
+def test_carried_camera_converges_in_its_link_frame():
+    """The Kinect of the other tests, carried by link 1 (joint 1 held at 0.4 rad over six poses): from a
+    guess 10 degrees and 10 cm off in the link's frame, the link-frame extrinsics end within 5 mm and 0.5
+    degrees of the truth; the same frames with the world guess give the same camera (to 1e-9)."""
+    from depthguard.robot.model import load_lwr4
+    from depthguard.sim.cell import CellSpec, build_cell
+    from depthguard.sim.depthcam import KinectSim, kinect_camera
+
+    model = load_lwr4()
+    cam = kinect_camera((1.75, -0.95, 1.5), (0.0, 0.0, 0.45), width=640, height=480)
+    cell = build_cell(CellSpec(cameras=[cam], boxes=[], people=[], q0=tuple(np.zeros(7))))
+    sim = KinectSim(cell.model, cam, 0, seed=2)
+    frames = []
+    for q in STILL_POSES:
+        cell.set_q(np.array(q))
+        frames.append((sim.capture(cell.data), np.array(q)))
+    local = _in_link(cam, model, STILL_POSES[0])
+    guess = _perturbed(local, 10.0, 0.10, 5)
+    res = calibrate_extrinsics(guess, frames, model, link=LINK)
+    assert res.accepted, res.message
+    pos, ang = _errors(res, local)
+    assert pos <= 0.005 and ang <= 0.5, (pos, ang)
+    # the same calibration from the world guess that the link-frame guess stands for
+    world = calibrate_extrinsics(_in_link_inverse(guess, model, STILL_POSES[0]), frames, model)
+    back = _in_link(guess.with_pose(world.R, world.t), model, STILL_POSES[0])
+    np.testing.assert_allclose(back.R, res.R, atol=1e-9)
+    np.testing.assert_allclose(back.t, res.t, atol=1e-9)
+
+
+def _in_link_inverse(local, model, q):
+    """The world camera of the link-frame camera ``local`` at ``q``."""
+    R_l, p_l = model.frame_pose(np.asarray(q, float), LINK)
+    R_w = local.R @ R_l.T
+    return local.with_pose(R_w, local.t - R_w @ p_l)
+
+
+@pytest.mark.slow
+def test_calibrate_cell_writes_a_link_frame_calibration_that_only_that_mounting_takes(tmp_path, monkeypatch):
+    """`calibrate_cell` with a camera on ``lwr_link_1`` (its frames as a bag source would hand them: the
+    simulated captures at the still-link poses): the written file holds the link-frame extrinsics and the
+    parent, the cell file that references it moves the camera to the truth, and a cell file whose camera
+    hangs elsewhere refuses the file."""
+    import depthguard.runner.calibrate as cal_mod
+    from depthguard.io.cellfile import CellError, read_cell
+    from depthguard.robot.model import load_lwr4
+    from depthguard.sim.cell import CellSpec, build_cell
+    from depthguard.sim.depthcam import KinectSim, kinect_camera
+
+    model = load_lwr4()
+    cam = kinect_camera((1.75, -0.95, 1.5), (0.0, 0.0, 0.45), width=320, height=240)
+    cell = build_cell(CellSpec(cameras=[cam], boxes=[], people=[], q0=tuple(np.zeros(7))))
+    sim = KinectSim(cell.model, cam, 0, seed=3)
+    frames = []
+    for q in STILL_POSES:
+        cell.set_q(np.array(q))
+        frames.append((sim.capture(cell.data), np.array(q)))
+    local = _in_link(cam, model, STILL_POSES[0])
+    guess = _perturbed(local, 4.0, 0.04, 9)
+    monkeypatch.setattr(cal_mod, "_bag_frames", lambda path, cell, names, change: ([guess], [frames]))
+
+    def cell_text(parent: str, R, t, calibration: str = "") -> str:
+        return f"""{calibration}
+[cell]
+name = "carried"
+[robot]
+model = "lwr4"
+[[cameras]]
+name = "mast"
+topic = "/mast/depth"
+parent = "{parent}"
+width = {cam.width}
+height = {cam.height}
+fx = {cam.fx}
+fy = {cam.fy}
+cx = {cam.cx}
+cy = {cam.cy}
+R = {np.asarray(R).tolist()}
+t = {np.asarray(t).tolist()}
+"""
+
+    path = tmp_path / "cell.toml"
+    path.write_text(cell_text(LINK, guess.R, guess.t))
+    out = cal_mod.calibrate_cell(path, "bag:unused")
+    entry = out["cameras"][0]
+    assert entry["accepted"], entry
+    left_guess, left_cal = entry["robot_pixels_left_guess_vs_calibrated"]
+    assert left_cal < left_guess
+    written = (tmp_path / "cell.calibration.toml").read_text()
+    assert f'parent = "{LINK}"' in written
+    path.write_text(cell_text(LINK, guess.R, guess.t, 'calibration = "cell.calibration.toml"'))
+    got = read_cell(path).cameras[0]
+    assert np.linalg.norm(got.build().position - local.position) < 0.005
+    assert np.rad2deg(Rotation.from_matrix(got.R @ local.R.T).magnitude()) < 0.5
+    path.write_text(cell_text("world", guess.R, guess.t, 'calibration = "cell.calibration.toml"'))
+    with pytest.raises(CellError, match=r"parent = 'lwr_link_1', but camera 'mast'.*another mounting"):
+        read_cell(path)

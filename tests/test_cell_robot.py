@@ -72,7 +72,8 @@ def test_attachment_on_an_unknown_link_names_it(tmp_path):
 
 
 def test_camera_carried_by_the_robot_runs_in_run_only(tmp_path):
-    """A camera on a link is read; ``run``'s chain and the nodes check the link; calibrate refuses it."""
+    """A camera on a link is read; ``run``'s chain and the nodes check the link; calibrate refuses it on the
+    simulated cell (whose cameras stand in the world)."""
     from depthguard.runner.calibrate import calibrate_cell
     from depthguard.runner.chain import Chain, carried_camera, check_camera_parents
 

@@ -273,12 +273,17 @@ def _apply_calibration(src: Path, ref: Any, cams: tuple[CellCamera, ...]) -> tup
         raise CellError(f"{path}: not a valid calibration file ({exc})") from None
     by_name = {c.name: c for c in cams}
     for i, entry in enumerate(cal.get("cameras", [])):
-        unknown = sorted(set(entry) - {"name", "R", "t", "date", "rmse", "inlier_fraction"})
+        unknown = sorted(set(entry) - {"name", "parent", "R", "t", "date", "rmse", "inlier_fraction"})
         if unknown:
             raise CellError(f"{path}: unknown key(s) {unknown} in cameras[{i}]")
         name = entry.get("name")
         if name not in by_name:
             raise CellError(f"{path}: cameras[{i}] names camera {name!r}, which the cell file does not have")
+        if entry.get("parent", by_name[name].parent) != by_name[name].parent:
+            raise CellError(
+                f"{path}: cameras[{i}].parent = {entry['parent']!r}, but camera {name!r} of the cell file has parent"
+                f" {by_name[name].parent!r}: this calibration was made for another mounting"
+            )
         try:
             R = check_rotation(entry.get("R"), f"{path.name} cameras[{i}].R")
         except ValueError as exc:

@@ -16,17 +16,28 @@ pose's symmetries (a straight arm seen side-on) are left undetermined. Coarse to
 the correspondence distance shrink over the rounds. The result carries its fitness (inlier RMSE and fraction);
 :func:`calibrate_extrinsics` refuses (``accepted=False``) above the thresholds instead of returning a wrong
 transform.
+
+A camera carried by a robot link (a sensor on a mobile platform, SAPHARI §3.3, or on an arm link before the
+moving joints) is calibrated in that link's frame (``link=``), provided the link stays still over the
+poses (the platform parked, the joints up to the link held): then the link frame is one fixed frame of the
+world, the world calibration runs in it, and its result is moved into the link frame. A link that moves
+between the poses is refused (the background would move with the camera, and the robot pixels could not be
+found from the arm's motion alone).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from depthguard.camera import Camera
 
-__all__ = ["CalibrationResult", "calibrate_extrinsics", "capsule_surface_points"]
+__all__ = ["CalibrationResult", "calibrate_extrinsics", "capsule_surface_points", "still_link_pose"]
+
+LINK_STILL_M = 1e-3  # m: a carrying link that moves more than this between the poses is refused
+LINK_STILL_RAD = np.deg2rad(0.1)
 
 
 @dataclass(frozen=True)
@@ -109,7 +120,8 @@ def moving_pixels(depths: list[np.ndarray], min_change: float = 0.04, noise_coef
     "Clearly": by ``min_change`` m or 4 standard deviations of the depth noise ``noise_coeff z^2``, whichever
     is larger. Returns (H, W) bool per frame."""
     D = np.stack([np.where(np.isfinite(d) & (d > 0), d, np.nan) for d in depths]).astype(float)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a pixel without any reading: its median is NaN
         bg = np.nanmedian(D, axis=0) if np.isfinite(D).any() else np.full(D.shape[1:], np.nan)
         thr = np.maximum(min_change, 4.0 * noise_coeff * bg * bg)
         return [np.nan_to_num(bg - d, nan=0.0) > np.nan_to_num(thr, nan=np.inf) for d in D]
@@ -189,11 +201,29 @@ def _moving_points(camera: Camera, depth: np.ndarray, moving: np.ndarray) -> np.
     return np.stack([(uu + 0.5 - camera.cx) * z / camera.fx, (vv + 0.5 - camera.cy) * z / camera.fy, z], axis=1)
 
 
+def still_link_pose(model, link: str, qs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """World pose ``(R_l (3, 3), p_l (3,))`` of ``link`` over the joint positions ``qs``; ``ValueError`` naming
+    the motion when the link moves by more than 1 mm or 0.1 degrees between them."""
+    poses = [model.frame_pose(np.asarray(q, float), link) for q in qs]
+    R0, p0 = (np.asarray(a, float) for a in poses[0])
+    for i, (R, p) in enumerate(poses[1:], start=1):
+        dp = float(np.linalg.norm(np.asarray(p, float) - p0))
+        da = float(np.arccos(np.clip((np.trace(np.asarray(R, float) @ R0.T) - 1.0) / 2.0, -1.0, 1.0)))
+        if dp > LINK_STILL_M or da > LINK_STILL_RAD:
+            raise ValueError(
+                f"the camera's link {link!r} moves between the calibration poses (pose {i}: {dp * 1000:.1f} mm,"
+                f" {np.rad2deg(da):.2f} deg from pose 0): hold the joints up to it still (park the platform) and"
+                " move only the joints after it"
+            )
+    return R0, p0
+
+
 def calibrate_extrinsics(
     camera: Camera,
     frames: list[tuple[np.ndarray, np.ndarray]],
     model,
     *,
+    link: str | None = None,
     coarse: tuple[float, ...] = (0.8, 0.4, 0.2, 0.1),
     fine: tuple[float, ...] = (0.05, 0.025, 0.012),
     spacing: float = 0.008,
@@ -211,13 +241,19 @@ def calibrate_extrinsics(
     rounds (GICP, ``fine``) keep those of them within the distance of the predicted robot surface.
 
     Args:
-        camera: intrinsics and the initial guess of the extrinsics.
+        camera: intrinsics and the initial guess of the extrinsics (``P_C = R P_W + t``; with ``link``,
+            ``P_C = R P_L + t`` in the link's frame, and so is the result).
         frames: ``(depth (H, W) m, q (n,))`` per arm pose; at least 5 poses that move the arm widely (so that
             every pixel shows the background in some frame) and break its symmetries.
         model: the :class:`depthguard.robot.model.RobotModel` (its collision capsules are the surface model).
+        link: None for a camera fixed in the world, or the robot link that carries it; that link must stay
+            still over the poses (:func:`still_link_pose`, else ``ValueError``).
         spacing: surface sampling of the model, m. max_points_per_pose: measured points kept per pose.
         inlier_distance, max_rmse, min_inlier_fraction: the acceptance test.
     """
+    if link is not None:  # the link frame is a fixed world frame here: calibrate in the world, move back
+        settings = {k: v for k, v in locals().items() if k not in ("camera", "frames", "model", "link")}
+        return _in_link_frame(camera, frames, model, link, settings)
     import small_gicp as sg
 
     if len(frames) < 5:
@@ -265,6 +301,14 @@ def calibrate_extrinsics(
         )
     )
     return CalibrationResult(R, t, float(rmse), float(frac), int(n_pts), total_it, bool(ok), msg)
+
+
+def _in_link_frame(camera: Camera, frames, model, link: str, opts: dict) -> CalibrationResult:
+    """:func:`calibrate_extrinsics` of a camera on a still ``link`` (extrinsics in the link's frame)."""
+    R_l, p_l = still_link_pose(model, link, [q for _, q in frames])
+    R_w = np.asarray(camera.R, float) @ R_l.T  # P_C = R P_L + t with P_L = R_lᵀ (P_W - p_l)
+    world = calibrate_extrinsics(camera.with_pose(R_w, np.asarray(camera.t, float) - R_w @ p_l), frames, model, **opts)
+    return replace(world, R=world.R @ R_l, t=world.t + world.R @ p_l)  # P_C = R_w (R_l P_L + p_l) + t_w
 
 
 def _fitness(cam: Camera, frames, model, spacing: float, band: float, inlier: float, moving) -> tuple[float, float]:

@@ -4,8 +4,10 @@ Frames: from a ROS 2 bag, the depth frames at arm poses at least ``min_pose_chan
 pose taken before (at least 5); from the simulated cell (``sim:SCENARIO``), the scenario's cell without its
 people with the arm put at six poses spread over the workspace (what a calibration routine on a real arm
 commands). The cell file's extrinsics are the initial guess. The result goes into a calibration file (TOML:
-per camera ``R``, ``t``, the date, the residual) that the cell file references with
+per camera ``R``, ``t``, its ``parent`` frame, the date, the residual) that the cell file references with
 ``calibration = "FILE"``; a refused calibration writes nothing and exits with an error naming the fitness.
+A camera carried by a link (``parent`` = a link) is calibrated in that link's frame from a bag in which the
+link stays still (a parked platform; :func:`depthguard.robot.calibration.still_link_pose`).
 """
 
 from __future__ import annotations
@@ -79,13 +81,15 @@ def calibrate_cell(
     when every camera is accepted. Returns a JSON-ready summary; raises ``ValueError`` when refused."""
     from depthguard.robot.calibration import calibrate_extrinsics, moving_pixels
     from depthguard.robot.selffilter import self_filter
-    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
+    from depthguard.runner.chain import carried_camera, load_cell_robot, refuse_carried_cameras
 
     cell = read_cell(cell_path)
-    refuse_carried_cameras(cell, "`depthguard calibrate`")
     model = load_cell_robot(cell)
     kind, _, arg = source.partition(":")
     if kind == "sim":
+        refuse_carried_cameras(
+            cell, "`depthguard calibrate --source sim:...`", "calibrate a carried camera from a bag: --source bag:PATH"
+        )
         cameras, per_cam = _sim_frames(arg, quick)
         # the cell file's extrinsics are the guess; the simulated cameras are the truth (reported)
         guesses = [
@@ -105,12 +109,17 @@ def calibrate_cell(
                 f"{source}: camera '{cc.name}' has {len(frames)} frames at distinct arm poses; a calibration needs"
                 f" at least 5 (poses at least {min_pose_change} rad apart)"
             )
-        res = calibrate_extrinsics(guess, frames, model)
+        link = None if cc.parent == "world" else cc.parent
+        res = calibrate_extrinsics(guess, frames, model, link=link)
         calibrated = guess.with_pose(res.R, res.t)
         robot = moving_pixels([d for d, _ in frames])  # the robot pixels, independent of any pose
+
+        def in_world(c, q, link=link):
+            return c if link is None else carried_camera(c, model, q, link)
+
         left = [
             sum(
-                int(np.sum(m & ~np.asarray(self_filter(c, d, q, model)[0])))
+                int(np.sum(m & ~np.asarray(self_filter(in_world(c, q), d, q, model)[0])))
                 for (d, q), m in zip(frames, robot, strict=True)
             )
             for c in (guess, calibrated)
@@ -127,7 +136,7 @@ def calibrate_cell(
             "robot_pixels_left_guess_vs_calibrated": left,
         }
         out["cameras"].append(entry)
-        results.append((cc.name, res))
+        results.append((cc.name, cc.parent, res))
     refused = [e for e in out["cameras"] if not e["accepted"]]
     if refused:
         raise ValueError("; ".join(f"camera '{e['name']}': {e['message']}" for e in refused))
@@ -147,11 +156,12 @@ def _write_calibration(path: Path, results) -> None:
         "# Camera extrinsics from `depthguard calibrate` (SAPHARI §3.3): P_camera = R P_world + t.",
         '# Reference it from the cell file with: calibration = "' + path.name + '"',
     ]
-    for name, res in results:
+    for name, parent, res in results:
         lines += [
             "",
             "[[cameras]]",
             f"name = {json.dumps(name)}",
+            f"parent = {json.dumps(parent)}  # the frame of R, t: P_camera = R P_parent + t",
             f"R = {json.dumps(np.round(res.R, 12).tolist())}",
             f"t = {json.dumps(np.round(res.t, 12).tolist())}",
             f"date = {json.dumps(date)}",

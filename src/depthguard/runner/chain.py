@@ -162,15 +162,11 @@ def check_camera_parents(cell: CellFile, model: RobotModel, parents: list[str] |
     return carried
 
 
-def refuse_carried_cameras(cell: CellFile, what: str) -> None:
-    """Refuse a camera carried by a robot link where ``what`` (``calibrate``) takes world cameras only
-    (``depthguard run`` and the nodes move carried cameras with their link)."""
+def refuse_carried_cameras(cell: CellFile, what: str, why: str) -> None:
+    """Refuse a camera carried by a robot link where ``what`` takes world cameras only, saying ``why``."""
     carried = [f"cameras[{i}].parent = {c.parent!r}" for i, c in enumerate(cell.cameras) if c.parent != "world"]
     if carried:
-        raise CellError(
-            f"{cell.path}: {', '.join(carried)}: {what} takes cameras fixed in the world only for now (a camera"
-            " carried by the robot runs in `depthguard run` and the nodes)"
-        )
+        raise CellError(f"{cell.path}: {', '.join(carried)}: {what} takes cameras fixed in the world only ({why})")
 
 
 def check_chain_support(cell: CellFile) -> None:
