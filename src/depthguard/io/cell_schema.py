@@ -10,7 +10,7 @@ import numpy as np
 
 from depthguard.kernels.records import direction_stride
 
-__all__ = ["CellError"]
+__all__ = ["CellError", "apply_calibration", "distance_section"]
 
 _SHAPES = ("box", "cylinder", "sphere", "mesh")
 
@@ -199,3 +199,43 @@ def distance_section(src: Path, table: Any) -> dict[str, Any]:
             f'{src}: distance.direction_stride must be "auto" or an integer >= 1, got {dist["direction_stride"]!r}'
         ) from None
     return dist
+
+
+def apply_calibration(src: Path, ref: Any, cams: tuple) -> tuple:
+    """Replace the extrinsics of the cameras (:class:`depthguard.io.cellfile.CellCamera`) named in the
+    calibration file ``ref`` (``depthguard calibrate``), relative to the cell file ``src``; each entry's
+    ``parent``, when given, must be the camera's."""
+    import dataclasses
+    import tomllib
+
+    from depthguard.validation import check_rotation
+
+    if not isinstance(ref, str):
+        raise CellError(f"{src}: calibration must be a path (string) to a calibration file")
+    path = (src.parent / ref).resolve()
+    if not path.is_file():
+        raise CellError(f"{src}: calibration file '{ref}' is not a file (looked at {path})")
+    try:
+        cal = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise CellError(f"{path}: not a valid calibration file ({exc})") from None
+    by_name = {c.name: c for c in cams}
+    for i, entry in enumerate(cal.get("cameras", [])):
+        unknown = sorted(set(entry) - {"name", "parent", "R", "t", "date", "rmse", "inlier_fraction"})
+        if unknown:
+            raise CellError(f"{path}: unknown key(s) {unknown} in cameras[{i}]")
+        name = entry.get("name")
+        if name not in by_name:
+            raise CellError(f"{path}: cameras[{i}] names camera {name!r}, which the cell file does not have")
+        if entry.get("parent", by_name[name].parent) != by_name[name].parent:
+            raise CellError(
+                f"{path}: cameras[{i}].parent = {entry['parent']!r}, but camera {name!r} of the cell file has parent"
+                f" {by_name[name].parent!r}: this calibration was made for another mounting"
+            )
+        try:
+            R = check_rotation(entry.get("R"), f"{path.name} cameras[{i}].R")
+        except ValueError as exc:
+            raise CellError(f"{path}: {exc}") from None
+        t = np.asarray(_vector(path, f"cameras[{i}].t", entry.get("t"), 3))
+        by_name[name] = dataclasses.replace(by_name[name], R=R, t=t, extrinsics="file")
+    return tuple(by_name[c.name] for c in cams)

@@ -60,6 +60,7 @@ from depthguard.io.cell_schema import (
     _is_matrix,
     _section,
     _vector,
+    apply_calibration,
     distance_section,
 )
 
@@ -256,43 +257,6 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
     )
 
 
-def _apply_calibration(src: Path, ref: Any, cams: tuple[CellCamera, ...]) -> tuple[CellCamera, ...]:
-    """Replace the extrinsics of the cameras named in the calibration file ``ref`` (``depthguard calibrate``)."""
-    import dataclasses
-
-    from depthguard.validation import check_rotation
-
-    if not isinstance(ref, str):
-        raise CellError(f"{src}: calibration must be a path (string) to a calibration file")
-    path = (src.parent / ref).resolve()
-    if not path.is_file():
-        raise CellError(f"{src}: calibration file '{ref}' is not a file (looked at {path})")
-    try:
-        cal = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise CellError(f"{path}: not a valid calibration file ({exc})") from None
-    by_name = {c.name: c for c in cams}
-    for i, entry in enumerate(cal.get("cameras", [])):
-        unknown = sorted(set(entry) - {"name", "parent", "R", "t", "date", "rmse", "inlier_fraction"})
-        if unknown:
-            raise CellError(f"{path}: unknown key(s) {unknown} in cameras[{i}]")
-        name = entry.get("name")
-        if name not in by_name:
-            raise CellError(f"{path}: cameras[{i}] names camera {name!r}, which the cell file does not have")
-        if entry.get("parent", by_name[name].parent) != by_name[name].parent:
-            raise CellError(
-                f"{path}: cameras[{i}].parent = {entry['parent']!r}, but camera {name!r} of the cell file has parent"
-                f" {by_name[name].parent!r}: this calibration was made for another mounting"
-            )
-        try:
-            R = check_rotation(entry.get("R"), f"{path.name} cameras[{i}].R")
-        except ValueError as exc:
-            raise CellError(f"{path}: {exc}") from None
-        t = np.asarray(_vector(path, f"cameras[{i}].t", entry.get("t"), 3))
-        by_name[name] = dataclasses.replace(by_name[name], R=R, t=t, extrinsics="file")
-    return tuple(by_name[c.name] for c in cams)
-
-
 def read_cell(path: str | Path) -> CellFile:
     """Read and validate a cell file. Raises ``ValueError`` (:class:`CellError`) naming the file and key."""
     src = Path(path)
@@ -321,7 +285,7 @@ def read_cell(path: str | Path) -> CellFile:
     if len(set(names)) != len(names):
         raise CellError(f"{src}: camera names must be unique, got {names}")
     if "calibration" in data:
-        cams = _apply_calibration(src, data["calibration"], cams)
+        cams = apply_calibration(src, data["calibration"], cams)
     dist = distance_section(src, data.get("distance", {}))
     ctrl = _section(src, "controller", "controller", data.get("controller", {}))
     if not 0 < ctrl["velocity_scale"] <= 1:

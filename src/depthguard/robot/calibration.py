@@ -254,8 +254,6 @@ def calibrate_extrinsics(
     if link is not None:  # the link frame is a fixed world frame here: calibrate in the world, move back
         settings = {k: v for k, v in locals().items() if k not in ("camera", "frames", "model", "link")}
         return _in_link_frame(camera, frames, model, link, settings)
-    import small_gicp as sg
-
     if len(frames) < 5:
         raise ValueError(f"calibration needs at least 5 arm poses, got {len(frames)}")
     rng = np.random.default_rng(seed)
@@ -263,25 +261,11 @@ def calibrate_extrinsics(
     R, t = np.asarray(camera.R, float), np.asarray(camera.t, float)
     total_it, n_pts = 0, 0
     for k, band in enumerate((*coarse, *fine)):
-        cam = camera.with_pose(R, t)
         T_wc = _pose(R, t)
-        targets, sources = [], []
-        for (depth, q), mv in zip(frames, moving, strict=True):
-            m = _visible_model(cam, model, np.asarray(q, float), spacing)
-            if k < len(coarse):
-                s_c = _moving_points(cam, depth, mv)
-            else:
-                s_c = _select_measured(cam, depth, m, band, mv)
-            keep = max_points_per_pose // 3 if k < len(coarse) else max_points_per_pose
-            if len(s_c) > keep:
-                s_c = s_c[rng.choice(len(s_c), keep, replace=False)]
-            if len(s_c) < 20 or len(m) < 20:
-                continue
-            tgt, tree = sg.preprocess_points(m, downsampling_resolution=spacing * 0.5, num_neighbors=10)
-            s_w = s_c @ T_wc[:3, :3].T + T_wc[:3, 3]
-            src, _ = sg.preprocess_points(s_w, downsampling_resolution=1e-4, num_neighbors=10)
-            targets.append((tgt, tree))
-            sources.append(src)
+        keep = max_points_per_pose // 3 if k < len(coarse) else max_points_per_pose
+        targets, sources = _round_clouds(
+            camera.with_pose(R, t), frames, moving, model, band if k >= len(coarse) else None, keep, spacing, rng
+        )
         if len(sources) < 3:
             return CalibrationResult(R, t, np.inf, 0.0, 0, total_it, False, "refused: too few poses show the robot")
         kind = "ICP" if k < len(coarse) else "GICP"
@@ -292,15 +276,49 @@ def calibrate_extrinsics(
         n_pts = sum(s.size() for s in sources)
     rmse, frac = _fitness(camera.with_pose(R, t), frames, model, spacing, fine[-1], inlier_distance, moving)
     ok = rmse <= max_rmse and frac >= min_inlier_fraction
-    msg = (
-        "ok"
-        if ok
-        else (
-            f"refused: inlier RMSE {rmse * 1000:.1f} mm (max {max_rmse * 1000:.1f}) and inlier fraction {frac:.2f}"
-            f" (min {min_inlier_fraction:.2f}); start closer to the true pose or add poses"
-        )
+    return CalibrationResult(
+        R,
+        t,
+        float(rmse),
+        float(frac),
+        int(n_pts),
+        total_it,
+        bool(ok),
+        _verdict(ok, rmse, frac, max_rmse, min_inlier_fraction),
     )
-    return CalibrationResult(R, t, float(rmse), float(frac), int(n_pts), total_it, bool(ok), msg)
+
+
+def _round_clouds(cam: Camera, frames, moving, model, band: float | None, keep: int, spacing: float, rng):
+    """Per pose, the robot surface model (``small_gicp`` target and tree) and the measured points in the world
+    (source) of one round: the motion-revealed pixels (``band`` None: coarse rounds) or those of them within
+    ``band`` of the predicted surface (fine rounds), at most ``keep`` per pose. Poses with fewer than 20 points
+    on either side are left out."""
+    import small_gicp as sg
+
+    T_wc = _pose(cam.R, cam.t)
+    targets, sources = [], []
+    for (depth, q), mv in zip(frames, moving, strict=True):
+        m = _visible_model(cam, model, np.asarray(q, float), spacing)
+        s_c = _moving_points(cam, depth, mv) if band is None else _select_measured(cam, depth, m, band, mv)
+        if len(s_c) > keep:
+            s_c = s_c[rng.choice(len(s_c), keep, replace=False)]
+        if len(s_c) < 20 or len(m) < 20:
+            continue
+        tgt, tree = sg.preprocess_points(m, downsampling_resolution=spacing * 0.5, num_neighbors=10)
+        s_w = s_c @ T_wc[:3, :3].T + T_wc[:3, 3]
+        src, _ = sg.preprocess_points(s_w, downsampling_resolution=1e-4, num_neighbors=10)
+        targets.append((tgt, tree))
+        sources.append(src)
+    return targets, sources
+
+
+def _verdict(ok: bool, rmse: float, frac: float, max_rmse: float, min_frac: float) -> str:
+    if ok:
+        return "ok"
+    return (
+        f"refused: inlier RMSE {rmse * 1000:.1f} mm (max {max_rmse * 1000:.1f}) and inlier fraction {frac:.2f}"
+        f" (min {min_frac:.2f}); start closer to the true pose or add poses"
+    )
 
 
 def _in_link_frame(camera: Camera, frames, model, link: str, opts: dict) -> CalibrationResult:
