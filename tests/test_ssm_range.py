@@ -92,3 +92,40 @@ def test_point_clearance_leaves_out_the_background_groups():
     a, _ = full.evaluate(c, r, full.snapshot(cell.data))
     b, _ = bg_out.evaluate(c, r, bg_out.snapshot(cell.data))
     assert np.all(b >= a - 1e-12) and np.any(b > a + 1e-3)  # fewer obstacles: never nearer, sometimes farther
+
+
+def test_the_age_of_the_distances_is_reported_as_closed_separation_not_a_changed_decision():
+    """``data_age`` a: the decision is that of ``T_r`` + a (the same as a configuration whose latency is a
+    longer), while the reported separation and ``S_p`` are both smaller by ``(v_h + v_r,k) a``, what the
+    person (ISO 13855: 1.6-2.0 m/s) and the point may have closed since the frames (random states)."""
+    pytest.importorskip("pinocchio")
+    from dataclasses import replace
+
+    from depthguard.control.braking import chain_lengths
+    from depthguard.control.ssm import SsmConfig, SsmMonitor
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.robot.model import load_lwr4
+
+    points = ControlPointSet.build(load_lwr4(), "ral-9")
+    model, N = points.model, points.n_points
+    L = chain_lengths(model, points.joints, points.offsets)
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        q = rng.uniform(np.asarray(model.q_min) + 0.3, np.asarray(model.q_max) - 0.3)
+        model.update(q)
+        J = points.evaluate(q, updated=True).jacobians
+        qd, qdd, qn = rng.uniform(-0.8, 0.8, 7), rng.uniform(-3, 3, 7), rng.uniform(-1.0, 1.0, 7)
+        dist = rng.uniform(0.05, 0.6, N)
+        dirs = rng.normal(size=(N, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        a = float(rng.uniform(0.001, 0.05))
+        base = SsmConfig()
+        aged = SsmMonitor(L, 10.0, 500.0, base).update(J, qd, qdd, qn, dist, dirs, data_age=a)
+        longer = replace(base, processing_latency=base.processing_latency + a)
+        ref = SsmMonitor(L, 10.0, 500.0, longer).update(J, qd, qdd, qn, dist, dirs)
+        assert aged.scale == ref.scale and aged.state == ref.state and aged.binding == ref.binding
+        np.testing.assert_allclose(aged.margin, ref.margin, atol=1e-12)
+        shift = ref.separation - aged.separation
+        np.testing.assert_allclose(ref.s_p - aged.s_p, shift, atol=1e-12)
+        v_r = np.maximum(np.linalg.norm(J @ qd, axis=1), aged.scale * np.linalg.norm(J @ qn, axis=1))
+        assert np.all(shift >= 1.6 * a - 1e-12) and np.all(shift <= (2.0 + v_r) * a + 1e-12)

@@ -16,8 +16,15 @@ The protective separation distance of control point k (ISO/TS 15066 eq. 1), with
   obstacle towards the point).
 * ``S_s,k``: the point's path while the controller's jerk-limited stop (Ruckig, velocity mode, per-joint
   time-optimal) brings the joints to rest: :mod:`depthguard.control.braking` (an upper bound, any direction).
-* ``T_r`` = camera period + processing + communication + control period + the age of the distances.
+* ``T_r`` = camera period + processing + communication + control period + the age ``a`` of the distances
+  (from the capture of the frames they come from).
 * ``C``: intrusion distance; ``Z_d``: sensor uncertainty; ``Z_r``: robot position uncertainty.
+
+Reported for *now*, not for the capture: over the age ``a`` the person may already have closed ``v_h a``
+and the point ``v_r,k a``, so the output's separation is ``S_k - (v_h + v_r,k) a`` (a lower bound of the
+separation now) and its ``S_p,k`` the same amount smaller (the budget from now on). Their difference, and so
+every decision, is that of the test ``S_k >= S_p,k`` above; but the reported pair compares directly with the
+true separation at the moment of the decision (``S_true(now) >= S_p`` whenever the inputs hold).
 
 The allowed speed scale is the largest ``s`` in [0, 1] with ``S_k >= S_p,k(s)`` for every point, where the
 robot is assumed to move at ``max(|qdot|, s |qdot_nominal|)`` per joint (the current motion persists
@@ -28,6 +35,7 @@ motion is too fast) is a protective stop; it ends only when every point's separa
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
@@ -123,8 +131,9 @@ class SsmOutput(NamedTuple):
         scale: allowed speed scale in [0, 1].
         state: :class:`MonitorState`.
         binding: index of the binding control point (smallest margin), -1 if none is within reach.
-        separation: (N,) measured separation S_k, m (inf = nothing seen).
-        s_p: (N,) protective separation distance at the allowed scale, m.
+        separation: (N,) separation now, ``S_k - (v_h + v_r,k) a``: the measured one less what the obstacle and
+            the point may have closed over the distances' age ``a``, m (inf = nothing seen).
+        s_p: (N,) protective separation distance from now at the allowed scale (less the same amount), m.
         margin: (N,) ``S_k - S_p,k``, m.
         stop_time: T_s at the allowed scale, s.
         reaction_time: T_r, s.
@@ -205,9 +214,24 @@ def _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_no
 
 
 @njit(cache=True)
-def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, prm, stopped, hyst, dist, sp):
-    """:meth:`SsmMonitor.update` in one kernel: fills ``dist`` (N,) and ``sp`` (N,); returns (scale or -1,
-    stopped, stop_ended, T_s, binding)."""
+def _to_now(dist, sp, appr_cur, appr_nom, s, v_h_meas, prm, age):
+    """Shift ``dist`` and ``sp`` (N,) by what the obstacle and the point may have closed over ``age`` s:
+    ``(v_h + v_r,k) age``, ``v_h`` as :func:`_s_p` chose it (measured, or ISO 13855 near / far by ``sp``)."""
+    v_near, v_far, near_limit, v_floor = prm[2], prm[3], prm[4], prm[5]
+    for k in range(dist.shape[0]):
+        if v_h_meas[k] >= 0.0:
+            v_h = max(v_h_meas[k], v_floor)
+        else:
+            v_h = v_near if sp[k] <= near_limit else v_far
+        shift = (v_h + max(appr_cur[k], s * appr_nom[k])) * age
+        dist[k] -= shift
+        sp[k] -= shift
+
+
+@njit(cache=True)
+def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, prm, stopped, hyst, dist, sp, age):
+    """:meth:`SsmMonitor.update` in one kernel: fills ``dist`` (N,) and ``sp`` (N,) (both for now: shifted by
+    :func:`_to_now` over the data's ``age``); returns (scale or -1, stopped, stop_ended, T_s, binding)."""
     N, _, n = jac.shape
     lever0 = np.empty((N, n))
     appr_cur = np.empty(N)
@@ -245,7 +269,9 @@ def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, 
             s = -1.0
     if s < 0.0:
         stopped = True
-    T_s = _s_p(max(s, 0.0), lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm, sp)
+    s_used = max(s, 0.0)
+    T_s = _s_p(s_used, lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm, sp)
+    _to_now(dist, sp, appr_cur, appr_nom, s_used, v_h, prm, age)
     binding, best = -1, np.inf
     for k in range(N):
         m = dist[k] - sp[k]
@@ -299,12 +325,14 @@ class SsmMonitor:
                 within range (taken as ``config.sensing_range``); NaN counts as 0 (unknown: stop).
             directions: (N, 3) repulsive unit directions (obstacle -> point); non-finite rows count as
                 pointing straight at the obstacle along the motion (worst case).
-            data_age: age of the distances, s (added to T_r).
+            data_age: age of the distances, s, from the capture of their frames (added to T_r; the outputs are
+                shifted to now by it, module docstring).
             obstacle_speed: (N,) measured speed of each point's nearest obstacle, m/s, or None (ISO 13855).
         """
         cfg = self.config
         N = self.lengths.shape[0]
-        T_r = reaction_time(cfg, max(float(data_age), 0.0))
+        age = max(float(data_age), 0.0) if math.isfinite(float(data_age)) else 1e3
+        T_r = reaction_time(cfg, age)
         prm = np.array([T_r, cfg.constant_terms, cfg.v_h_near, cfg.v_h_far, cfg.near_limit, cfg.v_h_floor])
         v_h = -np.ones(N) if obstacle_speed is None else np.nan_to_num(np.asarray(obstacle_speed, float), nan=1e3)
         c = np.ascontiguousarray
@@ -312,7 +340,7 @@ class SsmMonitor:
         s, stopped, stop_ended, T_s, binding = _update(
             c(jacobians, dtype=float), c(qdot, dtype=float), c(qddot, dtype=float), c(qdot_nominal, dtype=float),
             c(distances, dtype=float), c(directions, dtype=float), float(cfg.sensing_range), self.lengths,
-            self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp,
+            self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp, age,
         )  # fmt: skip
         self.stopped = stopped
         scale = max(s, 0.0)

@@ -190,7 +190,8 @@ def run_loop(
     n_steps = int(round(cfg.duration / cfg.control_dt))
     frame_every = cfg.frame_period
     next_frame, next_dist = 0.0, 0.0
-    latest = None  # (t, distances to the controller, V_ee, directions, distances within ρ)
+    latest = None  # (t of their frames, distances to the controller, V_ee, directions, distances within ρ)
+    t_frames = 0.0
     frame_count = 0
     prog = _Progress(cfg.duration, cfg.label, cfg.progress)
     # the elbow (joint A4) is the last control point on the upper arm (lwr_link_3)
@@ -208,6 +209,7 @@ def run_loop(
             cell.forward()
             w0 = time.perf_counter()
             depths = [c.capture(cell.data) for c in cams]
+            t_frames = t  # the distances from these frames are as old as the frames (as in depthguard run)
             w1 = time.perf_counter()
             margins = [filter_margin(c.camera, q_meas, kin, getattr(c, "noise_coeff", 0.0)) for c in cams]
             masks = [
@@ -241,7 +243,7 @@ def run_loop(
                     dirs[0] = V / nv
             log.wall_distance.append(time.perf_counter() - w0)
             log.t_distance.append(t)
-            latest = (t, dists, V, dirs, np.asarray(res.distance, float))
+            latest = (t_frames, dists, V, dirs, np.asarray(res.distance, float))
             # metrics only: the synchronous truth for these spheres (depthguard.sim.accuracy)
             log.acc_t.append(t)
             log.acc_eval.extend(np.asarray(res.distance, float))
