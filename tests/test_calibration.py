@@ -21,21 +21,27 @@ POSES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def scene():
+def _captures(poses, width: int, height: int, seed: int):
+    """``(camera, [(depth, q)], model)``: one simulated Kinect (noise 1.4e-3 z^2, 1 mm quantisation, edge
+    drop-outs) watching the LWR at each of ``poses``."""
     from depthguard.robot.model import load_lwr4
     from depthguard.sim.cell import CellSpec, build_cell
     from depthguard.sim.depthcam import KinectSim, kinect_camera
 
     model = load_lwr4()
-    cam = kinect_camera((1.75, -0.95, 1.5), (0.0, 0.0, 0.45), width=640, height=480)
+    cam = kinect_camera((1.75, -0.95, 1.5), (0.0, 0.0, 0.45), width=width, height=height)
     cell = build_cell(CellSpec(cameras=[cam], boxes=[], people=[], q0=tuple(np.zeros(7))))
-    sim = KinectSim(cell.model, cam, 0, seed=1)  # noise 1.4e-3 z^2, 1 mm quantisation, edge drop-outs
+    sim = KinectSim(cell.model, cam, 0, seed=seed)
     frames = []
-    for q in POSES:
+    for q in poses:
         cell.set_q(np.array(q))
         frames.append((sim.capture(cell.data), np.array(q)))
     return cam, frames, model
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return _captures(POSES, 640, 480, seed=1)
 
 
 def _perturbed(cam, deg, metres, seed):
@@ -194,18 +200,7 @@ def test_carried_camera_converges_in_its_link_frame():
     """The Kinect of the other tests, carried by link 1 (joint 1 held at 0.4 rad over six poses): from a
     guess 10 degrees and 10 cm off in the link's frame, the link-frame extrinsics end within 5 mm and 0.5
     degrees of the truth; the same frames with the world guess give the same camera (to 1e-9)."""
-    from depthguard.robot.model import load_lwr4
-    from depthguard.sim.cell import CellSpec, build_cell
-    from depthguard.sim.depthcam import KinectSim, kinect_camera
-
-    model = load_lwr4()
-    cam = kinect_camera((1.75, -0.95, 1.5), (0.0, 0.0, 0.45), width=640, height=480)
-    cell = build_cell(CellSpec(cameras=[cam], boxes=[], people=[], q0=tuple(np.zeros(7))))
-    sim = KinectSim(cell.model, cam, 0, seed=2)
-    frames = []
-    for q in STILL_POSES:
-        cell.set_q(np.array(q))
-        frames.append((sim.capture(cell.data), np.array(q)))
+    cam, frames, model = _captures(STILL_POSES, 640, 480, seed=2)
     local = _in_link(cam, model, STILL_POSES[0])
     guess = _perturbed(local, 10.0, 0.10, 5)
     res = calibrate_extrinsics(guess, frames, model, link=LINK)
@@ -234,18 +229,8 @@ def test_calibrate_cell_writes_a_link_frame_calibration_that_only_that_mounting_
     hangs elsewhere refuses the file."""
     import depthguard.runner.calibrate as cal_mod
     from depthguard.io.cellfile import CellError, read_cell
-    from depthguard.robot.model import load_lwr4
-    from depthguard.sim.cell import CellSpec, build_cell
-    from depthguard.sim.depthcam import KinectSim, kinect_camera
 
-    model = load_lwr4()
-    cam = kinect_camera((1.75, -0.95, 1.5), (0.0, 0.0, 0.45), width=320, height=240)
-    cell = build_cell(CellSpec(cameras=[cam], boxes=[], people=[], q0=tuple(np.zeros(7))))
-    sim = KinectSim(cell.model, cam, 0, seed=3)
-    frames = []
-    for q in STILL_POSES:
-        cell.set_q(np.array(q))
-        frames.append((sim.capture(cell.data), np.array(q)))
+    cam, frames, model = _captures(STILL_POSES, 320, 240, seed=3)
     local = _in_link(cam, model, STILL_POSES[0])
     guess = _perturbed(local, 4.0, 0.04, 9)
     monkeypatch.setattr(cal_mod, "_bag_frames", lambda path, cell, names, change: ([guess], [frames]))

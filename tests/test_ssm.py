@@ -33,8 +33,12 @@ def test_formula_each_term_zeroed_in_turn():
 
 
 def test_reaction_time_sums_the_chain():
+    """From the capture: the wait for the next frame (one period, or the data's age when a frame is late)
+    + processing + communication + control period."""
     cfg = SsmConfig(camera_period=0.033, processing_latency=0.01, communication_latency=0.002, control_period=0.001)
-    assert reaction_time(cfg, 0.02) == pytest.approx(0.066)
+    assert reaction_time(cfg) == pytest.approx(0.046)
+    assert reaction_time(cfg, 0.02) == pytest.approx(0.046)  # the next frame is due 13 ms from now
+    assert reaction_time(cfg, 0.05) == pytest.approx(0.063)  # late: the wait is at least the age
 
 
 def test_config_rejects_bad_values():

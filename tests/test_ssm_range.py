@@ -95,9 +95,10 @@ def test_point_clearance_leaves_out_the_background_groups():
 
 
 def test_the_age_of_the_distances_is_reported_as_closed_separation_not_a_changed_decision():
-    """``data_age`` a: the decision is that of ``T_r`` + a (the same as a configuration whose latency is a
-    longer), while the reported separation and ``S_p`` are both smaller by ``(v_h + v_r,k) a``, what the
-    person (ISO 13855: 1.6-2.0 m/s) and the point may have closed since the frames (random states)."""
+    """``data_age`` a beyond the camera period (a late frame): the decision is that of a configuration whose
+    period is a (the same ``T_r``), while the reported separation and ``S_p`` are both smaller by
+    ``(v_h + v_r,k) a``, what the person (ISO 13855: 1.6-2.0 m/s) and the point may have closed since the
+    frames (random states). Within the period the decision does not depend on a at all."""
     pytest.importorskip("pinocchio")
     from dataclasses import replace
 
@@ -118,11 +119,15 @@ def test_the_age_of_the_distances_is_reported_as_closed_separation_not_a_changed
         dist = rng.uniform(0.05, 0.6, N)
         dirs = rng.normal(size=(N, 3))
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        a = float(rng.uniform(0.001, 0.05))
         base = SsmConfig()
+        a = float(rng.uniform(base.camera_period, 0.08))
         aged = SsmMonitor(L, 10.0, 500.0, base).update(J, qd, qdd, qn, dist, dirs, data_age=a)
-        longer = replace(base, processing_latency=base.processing_latency + a)
+        longer = replace(base, camera_period=a)
         ref = SsmMonitor(L, 10.0, 500.0, longer).update(J, qd, qdd, qn, dist, dirs)
+        young = SsmMonitor(L, 10.0, 500.0, base).update(J, qd, qdd, qn, dist, dirs, data_age=0.5 * base.camera_period)
+        fresh = SsmMonitor(L, 10.0, 500.0, base).update(J, qd, qdd, qn, dist, dirs)
+        assert young.scale == fresh.scale and young.state == fresh.state
+        np.testing.assert_allclose(young.margin, fresh.margin, atol=1e-12)
         assert aged.scale == ref.scale and aged.state == ref.state and aged.binding == ref.binding
         np.testing.assert_allclose(aged.margin, ref.margin, atol=1e-12)
         shift = ref.separation - aged.separation

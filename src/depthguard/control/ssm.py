@@ -16,8 +16,11 @@ The protective separation distance of control point k (ISO/TS 15066 eq. 1), with
   obstacle towards the point).
 * ``S_s,k``: the point's path while the controller's jerk-limited stop (Ruckig, velocity mode, per-joint
   time-optimal) brings the joints to rest: :mod:`depthguard.control.braking` (an upper bound, any direction).
-* ``T_r`` = camera period + processing + communication + control period + the age ``a`` of the distances
-  (from the capture of the frames they come from).
+* ``T_r`` = max(camera period, ``a``) + processing + communication + control period, counted from the
+  capture of the frames that the distances come from (``a``: their age). A person who starts to approach
+  right after a capture is in the next frame, one period later; data older than that (a late frame)
+  stretches the wait to its age. (Until 2026-12-02: camera period + ... + ``a``, which counted the wait for
+  the next frame twice once the distances were dated by their frames.)
 * ``C``: intrusion distance; ``Z_d``: sensor uncertainty; ``Z_r``: robot position uncertainty.
 
 Reported for *now*, not for the capture: over the age ``a`` the person may already have closed ``v_h a``
@@ -113,8 +116,10 @@ class SsmConfig:
 
 
 def reaction_time(cfg: SsmConfig, data_age: float = 0.0) -> float:
-    """T_r = camera period + processing + communication + control period + age of the distances, s."""
-    return cfg.camera_period + cfg.processing_latency + cfg.communication_latency + cfg.control_period + data_age
+    """T_r from the capture of the data, s: max(camera period, age of the distances) + processing +
+    communication + control period. A person who starts to approach just after a capture is seen in the next
+    frame, one period later; data older than a period (a late or lost frame) stretches that wait to its age."""
+    return max(cfg.camera_period, data_age) + cfg.processing_latency + cfg.communication_latency + cfg.control_period
 
 
 def protective_separation(
@@ -325,8 +330,8 @@ class SsmMonitor:
                 within range (taken as ``config.sensing_range``); NaN counts as 0 (unknown: stop).
             directions: (N, 3) repulsive unit directions (obstacle -> point); non-finite rows count as
                 pointing straight at the obstacle along the motion (worst case).
-            data_age: age of the distances, s, from the capture of their frames (added to T_r; the outputs are
-                shifted to now by it, module docstring).
+            data_age: age of the distances, s, from the capture of their frames (T_r covers it from the
+                capture; the outputs are shifted to now by it, module docstring).
             obstacle_speed: (N,) measured speed of each point's nearest obstacle, m/s, or None (ISO 13855).
         """
         cfg = self.config

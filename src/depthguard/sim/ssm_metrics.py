@@ -174,7 +174,8 @@ def ssm_parameters(cfg: SsmConfig | None = None) -> dict[str, Any]:
     out: dict[str, Any] = {k: {"value": v, "source": PARAMETER_SOURCES.get(k, "")} for k, v in vals.items()}
     out["reaction_time_s"] = {
         "value": reaction_time(cfg),
-        "source": "camera period + processing + communication + control period (+ age of the distances each cycle)",
+        "source": "max(camera period, age of the distances) + processing + communication + control period"
+        " (from the capture)",
     }
     out["C_plus_Zd_plus_Zr"] = cfg.constant_terms
     return out
