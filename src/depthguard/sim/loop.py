@@ -174,8 +174,6 @@ def run_loop(
     record_frames_every: int = 3,
 ) -> SimLog:
     """Run the cell for ``cfg.duration`` s of simulated time. Returns the :class:`SimLog`."""
-    from depthguard.repulsion import repulsive_vectors
-
     pivot = None
     if cfg.pivot:
         from depthguard.pivot import PivotFilter
@@ -206,21 +204,9 @@ def run_loop(
         # ---------------------------------------------------------------- frame stage (30 Hz)
         if t >= next_frame - 1e-9:
             next_frame += frame_every
-            cell.forward()
-            w0 = time.perf_counter()
-            depths = [c.capture(cell.data) for c in cams]
+            depths = _frame_stage(cell, cams, kin, stage, q_meas, log)
             t_frames = t  # the distances from these frames are as old as the frames (as in depthguard run)
-            w1 = time.perf_counter()
-            margins = [filter_margin(c.camera, q_meas, kin, getattr(c, "noise_coeff", 0.0)) for c in cams]
-            masks = [
-                self_filter(c.camera, dimg, q_meas, kin, margin=m)
-                for c, dimg, m in zip(cams, depths, margins, strict=True)
-            ]
-            stage.update(depths, masks, q_meas, kin.model, margins)
-            w2 = time.perf_counter()
             snap = ptruth.snapshot(cell.data)  # the obstacles as this frame saw them (metrics only)
-            log.wall_camera.append(w1 - w0)
-            log.wall_frame.append(w2 - w1)
             every = record_frames_every if depths[0].shape[1] <= 320 else 2 * record_frames_every
             if frame_count % every == 0:
                 log.frames.append((t, [_to_mm(d) for d in depths]))
@@ -229,18 +215,7 @@ def run_loop(
         if t >= next_dist - 1e-9 and stage.ready:
             next_dist += cfg.distance_period
             w0 = time.perf_counter()
-            cp = kin.evaluate(q_meas)
-            res = stage.query(cp.centres, cp.radii)
-            V = repulsive_vectors(res, cfg.vmax, cfg.rho, cfg.alpha)[0]
-            # to the controller: ρ's answers, and beyond ρ those of the monitor's longer range (if any)
-            far = stage.query_far(cp.centres, cp.radii, res) if getattr(stage, "ssm_range", None) else res
-            dists, dirs = np.asarray(far.distance, float), np.array(far.direction, dtype=float)
-            if pivot is not None:
-                # the pivot turns V_R (keeping its norm): hand the controller the turned direction
-                V = pivot.step(V, cfg.distance_period)
-                nv = float(np.linalg.norm(V))
-                if nv > 1e-12 and np.isfinite(res.distance[0]):
-                    dirs[0] = V / nv
+            cp, res, V, dists, dirs = _distance_call(stage, kin, q_meas, cfg, pivot)
             log.wall_distance.append(time.perf_counter() - w0)
             log.t_distance.append(t)
             latest = (t_frames, dists, V, dirs, np.asarray(res.distance, float))
@@ -268,28 +243,64 @@ def run_loop(
         if tmin <= 0:
             log.nearest_obstacle[name] = log.nearest_obstacle.get(name, 0) + 1
         if k % cfg.log_every == 0:
-            log.t.append(t)
-            log.q.append(q_meas)
-            log.ee.append(x.copy())
-            tgt = task.waypoints[min(task.index, len(task.waypoints) - 1)] if task.kind != "hold" else task.waypoints[0]
-            log.ee_ref.append(np.asarray(tgt, float).copy())
-            log.xdot_cmd.append(xdot + (latest[2] if (latest is not None and cfg.avoid) else 0.0))
-            log.elbow.append(cp.centres[elbow_idx[0]].copy() if elbow_idx else cell.data.xpos[5].copy())
+            elbow = cp.centres[elbow_idx[0]] if elbow_idx else cell.data.xpos[5]
+            _log_sample(log, t, q_meas, cp, xdot, elbow, latest, task, cfg.avoid, status)
             log.true_min.append(tmin)
             log.true_links.append(per_link)
             log.true_dynamic.append(truth.last_dynamic)
-            if latest is not None:
-                d = latest[4]
-                log.eval_min.append(float(np.min(d)))
-                log.eval_points.append(d.copy())
-                log.v_ee.append(latest[2].copy())
-            else:
-                log.eval_min.append(np.inf)
-                log.eval_points.append(np.full(len(kin.names), np.inf))
-                log.v_ee.append(np.zeros(3))
-            log.centres.append(cp.centres.copy())
-            log.status.append({k: v for k, v in status.items() if k != "xdot_c"})
             prog.update(t)
     prog.update(cfg.duration)
     log.wall_total = time.perf_counter() - t_start
     return log
+
+
+def _frame_stage(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: DistanceStage, q_meas, log: SimLog):
+    """One frame set: capture every camera, self-filter at the measured joints, update the distance stage;
+    logs the camera and frame-stage wall times. Returns the depth images."""
+    cell.forward()
+    w0 = time.perf_counter()
+    depths = [c.capture(cell.data) for c in cams]
+    w1 = time.perf_counter()
+    margins = [filter_margin(c.camera, q_meas, kin, getattr(c, "noise_coeff", 0.0)) for c in cams]
+    masks = [self_filter(c.camera, d, q_meas, kin, margin=m) for c, d, m in zip(cams, depths, margins, strict=True)]
+    stage.update(depths, masks, q_meas, kin.model, margins)
+    log.wall_camera.append(w1 - w0)
+    log.wall_frame.append(time.perf_counter() - w1)
+    return depths
+
+
+def _distance_call(stage: DistanceStage, kin: Kinematics, q_meas, cfg: LoopConfig, pivot):
+    """One distance-stage call at the measured joints: ``(control points, PointDistances within ρ, V_R of the
+    end effector (3,), distances (N,) and directions (N, 3) for the controller)``: ρ's answers, and beyond ρ
+    those of the monitor's longer range (if any); with the pivot, the end effector's direction turned."""
+    from depthguard.repulsion import repulsive_vectors
+
+    cp = kin.evaluate(q_meas)
+    res = stage.query(cp.centres, cp.radii)
+    V = repulsive_vectors(res, cfg.vmax, cfg.rho, cfg.alpha)[0]
+    far = stage.query_far(cp.centres, cp.radii, res) if getattr(stage, "ssm_range", None) else res
+    dists, dirs = np.asarray(far.distance, float), np.array(far.direction, dtype=float)
+    if pivot is not None:
+        # the pivot turns V_R (keeping its norm): hand the controller the turned direction
+        V = pivot.step(V, cfg.distance_period)
+        nv = float(np.linalg.norm(V))
+        if nv > 1e-12 and np.isfinite(res.distance[0]):
+            dirs[0] = V / nv
+    return cp, res, V, dists, dirs
+
+
+def _log_sample(log: SimLog, t: float, q_meas, cp, xdot, elbow, latest, task: Task, avoid: bool, status: dict) -> None:
+    """One logged sample of the robot, the task and the latest distances (``latest``: the loop's tuple)."""
+    log.t.append(t)
+    log.q.append(q_meas)
+    log.ee.append(cp.centres[0].copy())
+    tgt = task.waypoints[min(task.index, len(task.waypoints) - 1)] if task.kind != "hold" else task.waypoints[0]
+    log.ee_ref.append(np.asarray(tgt, float).copy())
+    log.xdot_cmd.append(xdot + (latest[2] if (latest is not None and avoid) else 0.0))
+    log.elbow.append(np.array(elbow, float))
+    d = latest[4] if latest is not None else np.full(len(cp.centres), np.inf)
+    log.eval_min.append(float(np.min(d)))
+    log.eval_points.append(d.copy())
+    log.v_ee.append(latest[2].copy() if latest is not None else np.zeros(3))
+    log.centres.append(cp.centres.copy())
+    log.status.append({k: v for k, v in status.items() if k != "xdot_c"})
