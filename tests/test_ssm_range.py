@@ -134,3 +134,30 @@ def test_the_age_of_the_distances_is_reported_as_closed_separation_not_a_changed
         np.testing.assert_allclose(ref.s_p - aged.s_p, shift, atol=1e-12)
         v_r = np.maximum(np.linalg.norm(J @ qd, axis=1), aged.scale * np.linalg.norm(J @ qn, axis=1))
         assert np.all(shift >= 1.6 * a - 1e-12) and np.all(shift <= (2.0 + v_r) * a + 1e-12)
+
+
+@pytest.mark.parametrize("age", [float("nan"), float("inf"), -0.5, 1e9])
+def test_a_bad_or_huge_data_age_stops_or_counts_as_fresh_never_raises(age):
+    """NaN, +inf and huge ages count as data of unknown age: a protective stop (never a larger separation);
+    a negative age (clock skew) counts as fresh data."""
+    pytest.importorskip("pinocchio")
+    from depthguard.control.braking import chain_lengths
+    from depthguard.control.ssm import MonitorState, SsmConfig, SsmMonitor
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.robot.model import load_lwr4
+
+    points = ControlPointSet.build(load_lwr4(), "ral-9")
+    model, N = points.model, points.n_points
+    L = chain_lengths(model, points.joints, points.offsets)
+    q = np.array([0.0, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0])
+    model.update(q)
+    J = points.evaluate(q, updated=True).jacobians
+    args = (J, np.zeros(7), np.zeros(7), np.full(7, 0.2), np.full(N, 0.8), np.tile([1.0, 0.0, 0.0], (N, 1)))
+    fresh = SsmMonitor(L, 10.0, 500.0, SsmConfig()).update(*args)
+    out = SsmMonitor(L, 10.0, 500.0, SsmConfig()).update(*args, data_age=age)
+    assert fresh.state == MonitorState.MONITOR_OK
+    if age < 0:
+        assert out.scale == fresh.scale and np.array_equal(out.separation, fresh.separation)
+    else:
+        assert out.state == MonitorState.PROTECTIVE_STOP and out.scale == 0.0
+        assert np.all(out.separation <= fresh.separation)

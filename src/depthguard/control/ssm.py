@@ -115,6 +115,9 @@ class SsmConfig:
         return self.intrusion + self.sensor_uncertainty + self.robot_uncertainty
 
 
+SSM_RANGE = 0.6  # m: default range of the monitor's distances, above S_p at the scenarios' task speeds (docs/ssm.md)
+
+
 def reaction_time(cfg: SsmConfig, data_age: float = 0.0) -> float:
     """T_r from the capture of the data, s: max(camera period, age of the distances) + processing +
     communication + control period. A person who starts to approach just after a capture is seen in the next
@@ -221,7 +224,9 @@ def _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_no
 @njit(cache=True)
 def _to_now(dist, sp, appr_cur, appr_nom, s, v_h_meas, prm, age):
     """Shift ``dist`` and ``sp`` (N,) by what the obstacle and the point may have closed over ``age`` s:
-    ``(v_h + v_r,k) age``, ``v_h`` as :func:`_s_p` chose it (measured, or ISO 13855 near / far by ``sp``)."""
+    ``(v_h + v_r,k) age``, ``v_h`` as :func:`_s_p` chose it (measured, or ISO 13855 near / far, read back from
+    ``sp`` against ``near_limit``; where the far branch is clamped to exactly ``near_limit`` this takes the
+    larger near speed, a larger shift: the reported separation stays a lower bound)."""
     v_near, v_far, near_limit, v_floor = prm[2], prm[3], prm[4], prm[5]
     for k in range(dist.shape[0]):
         if v_h_meas[k] >= 0.0:

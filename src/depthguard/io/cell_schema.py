@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from depthguard.control.ssm import SSM_RANGE
 from depthguard.kernels.records import direction_stride
 
 __all__ = ["CellError", "apply_calibration", "distance_section"]
@@ -94,7 +95,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "alpha": (_NUM, 6.0),
         "v_rep_max": (_NUM, 2.0),
         "ssm": (bool, False),
-        "ssm_range": (_NUM, 0.6),
+        "ssm_range": (_NUM, SSM_RANGE),
     },
     "topics": {
         "joint_states": (str, "/joint_states"),

@@ -114,16 +114,10 @@ def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
             list(cameras), rho=float(d["rho"]), mode=d["mode"], alpha=float(cell.controller["alpha"]),
             workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]), invalid=d["invalid"],
             fill_radius=int(d["fill_radius"]), direction_stride=d["direction_stride"],
-            ssm_range=_stage_ssm_range(cell),
+            ssm_range=ssm_range(cell),
         )  # fmt: skip
     except ValueError as exc:
         raise CellError(f"{cell.path}: distance: {exc}") from None
-
-
-def _stage_ssm_range(cell: CellFile) -> float | None:
-    """``DistanceStage.ssm_range``: the monitor's range where it exceeds rho, else None."""
-    rng = ssm_range(cell)
-    return rng if rng is not None and rng > float(cell.distance["rho"]) else None
 
 
 def carried_camera(local: Camera, model: RobotModel, q: np.ndarray, link: str) -> Camera:
@@ -275,8 +269,7 @@ class Chain:
         """Distance stage at ``t``: control spheres at ``q`` against the latest frames."""
         cps = self.points.evaluate(q)
         res = self.stage.query(cps.centres, cps.radii)
-        if self.stage.ssm_range is not None:  # SSM: farther than rho where rho found nothing (docs/ssm.md)
-            res = self.stage.query_far(cps.centres, cps.radii, res)
+        res = self.stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
         # the distances are as old as the frames they come from: a camera that stops sending makes them
         # stale (STOP_STALE_DISTANCES after distance_timeout), however often they are recomputed
         self.latest = (t if self.t_frames is None else min(t, self.t_frames), res)

@@ -165,8 +165,8 @@ class DistanceStage:
         direction_stride: pixels of the direction sum (modes all/hybrid; docs/conventions.md, "Direction
             lattice"): "auto" (default) or an integer >= 1.
         workspace: (xmin, xmax, ymin, ymax, zmin, zmax) m, for fusion.
-        ssm_range: None, or the range (m, > rho) of the distances handed to a speed and separation
-            monitor (:meth:`query_far`): its protective distance can exceed ρ.
+        ssm_range: None, or the range (m, >= rho) of the distances handed to a speed and separation
+            monitor (:meth:`query_far`): its protective distance can exceed ρ. Equal to rho: nothing to add.
     """
 
     def __init__(
@@ -183,9 +183,9 @@ class DistanceStage:
         ssm_range: float | None = None,
     ) -> None:
         self.cameras = list(cameras)
-        if ssm_range is not None and not ssm_range > rho:
-            raise ValueError(f"ssm_range must be None or > rho = {rho}, got {ssm_range!r}")
-        self.ssm_range = None if ssm_range is None else float(ssm_range)
+        if ssm_range is not None and not ssm_range >= rho:
+            raise ValueError(f"ssm_range must be None or >= rho = {rho}, got {ssm_range!r}")
+        self.ssm_range = None if ssm_range is None or ssm_range == rho else float(ssm_range)
         self.rho, self.mode, self.alpha = float(rho), mode, float(alpha)
         resolve_stride(direction_stride, self.cameras[0].width)  # refuse a bad one here, not at the first query
         self.direction_stride = direction_stride

@@ -352,15 +352,13 @@ def _write_outputs(out: Path, sc: dict, cell, log, runs: dict, result: dict) -> 
     (out / "metrics.json").write_text(json.dumps(result, indent=2, default=float))
 
 
-SSM_RANGE = 0.6  # m: default range of the monitor's distances, above S_p at the scenarios' task speeds
-
-
 def _ssm_range(av: dict) -> float:
     """The range of the distances that the monitor gets (``[avoidance] ssm_range``, default max(ρ, 0.6 m)):
     ``S_p`` at task speed (0.33-0.40 m in these scenarios) exceeds the repulsion's ρ (0.3-0.4 m), and a
     monitor that takes "nothing within ρ" as ρ would stop the arm with nobody near (docs/ssm.md)."""
-    rho = float(av.get("rho", 0.4))
-    return max(float(av.get("ssm_range", SSM_RANGE)), rho * (1.0 + 1e-9))
+    from depthguard.control.ssm import SSM_RANGE
+
+    return max(float(av.get("ssm_range", SSM_RANGE)), float(av.get("rho", 0.4)))
 
 
 def _ssm_config(av: dict, backend: str = "depthspace"):
