@@ -177,6 +177,13 @@ def add_distance_command(sub) -> None:
     p.add_argument(
         "--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4; 0: every hole is unknown)"
     )
+    _add_backend_options(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_distance)
+
+
+def _add_backend_options(p) -> None:
+    """The depth-grid (several cameras) and backend options of ``depthguard distance``."""
     p.add_argument(
         "--grid-dd", type=_positive_float, default=0.01, help="depth-grid quantisation in m (several cameras)"
     )
@@ -201,5 +208,3 @@ def add_distance_command(sub) -> None:
         "conservative: unseen space in the workspace is an obstacle)",
     )
     p.add_argument("--octree-res", type=_positive_float, default=0.05, help="octree node size in m (0.02-0.1)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=_cmd_distance)
