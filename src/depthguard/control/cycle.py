@@ -40,6 +40,7 @@ from depthguard.control.bounded import braking_step, enforce_bounds_kernel, enfo
 from depthguard.control.endeffector import commanded_task_velocity, dls_apply, dls_damping, repulsive_velocity
 from depthguard.control.inputs import CheckedInput, check_inputs
 from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
+from depthguard.control.plan_kernel import plan_params, plan_prepare, plan_repulsion
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
 from depthguard.robot.control_points import ControlPointSet
@@ -119,6 +120,7 @@ class AvoidanceController:
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
+        self.compiled = _compiled_parts(self.points, cfg) if M_TASK == 3 else None
         self.sensor_fault: str | None = None
         if cfg.avoidance not in ("repulsion", "ssm", "both"):
             raise ValueError(f"avoidance must be 'repulsion', 'ssm' or 'both', got {cfg.avoidance!r}")
@@ -143,6 +145,19 @@ class AvoidanceController:
         """Run one cycle and keep the state. Never raises: problems come back as the output's status."""
         out, self.state = control_cycle(self, inp, self.state)
         return out
+
+
+def _compiled_parts(points: ControlPointSet, cfg: ControllerConfig) -> tuple | None:
+    """The arrays :mod:`depthguard.control.plan_kernel` needs: the chain (parent, idx_v, kind, axis,
+    placement), the control points (joints, offsets, support) and the parameter vector; None when the robot
+    has joints that the compiled kinematics does not handle (then the stage functions run)."""
+    chain = points.model._chain_kinematics
+    if chain is None:
+        return None
+    c = np.ascontiguousarray
+    parts = (c(chain.parent), c(chain.idx_v), c(chain.kind), c(chain.axis), c(chain.placement))
+    pts = (c(points.joints, dtype=np.int64), c(points.offsets, dtype=np.float64), c(points.support, dtype=np.bool_))
+    return parts, pts, plan_params(cfg)
 
 
 def control_cycle(
@@ -255,6 +270,8 @@ def plan_motion(
     ``otg`` is the current motion, ``data_age`` the age of the distances, s) and SNS within
     ``b.lo_s``/``b.hi_s``."""
     cfg = ctrl.config
+    if ctrl.compiled is not None:  # the same stage in one or two compiled calls (control.plan_kernel)
+        return _plan_compiled(ctrl, chk, b, otg, data_age)
     cps = ctrl.points.evaluate(chk.q)
     dist, dirs = chk.distances, chk.directions
     if cfg.avoidance == "ssm":
@@ -278,6 +295,26 @@ def plan_motion(
             xdot_c = commanded_task_velocity(np.zeros_like(xdot_c), v_rep)
         else:
             xdot_c = xdot_c * ssm.scale
+    target, scale = sns_velocity_unchecked(J, xdot_c, b.lo_s, b.hi_s, lam)
+    return Plan(target, float(scale), xdot_c, ssm)
+
+
+def _plan_compiled(
+    ctrl: AvoidanceController, chk: CheckedInput, b: Bounds, otg: OtgState | None, data_age: float
+) -> Plan:
+    """:func:`plan_motion` through :mod:`depthguard.control.plan_kernel` (same numbers, fewer calls)."""
+    cfg, (chain, pts, prm) = ctrl.config, ctrl.compiled
+    repel = cfg.avoidance != "ssm"
+    args = (chk.q, *chain, *pts, chk.distances, chk.directions, ctrl.body_use, ctrl.v_max, chk.xdot_d, prm, repel)
+    if ctrl.monitor is None or otg is None:
+        target, scale, xdot_c = plan_repulsion(*args, b.lo, b.hi, b.lo_s, b.hi_s)
+        return Plan(target, float(scale), xdot_c, None)
+    jac, J, lam, xdot_c, v_rep, nominal = plan_prepare(*args, True, b.lo, b.hi, b.lo_s, b.hi_s)
+    ssm = ctrl.monitor.update(jac, otg.velocity, otg.acceleration, nominal, chk.distances, chk.directions, data_age)
+    if ssm.scale <= 0.0 and _evades(cfg):  # protective stop: no task, the repulsion may still evade
+        xdot_c = v_rep + 0.0  # (as commanded_task_velocity(0, v_rep))
+    else:
+        xdot_c = xdot_c * ssm.scale
     target, scale = sns_velocity_unchecked(J, xdot_c, b.lo_s, b.hi_s, lam)
     return Plan(target, float(scale), xdot_c, ssm)
 

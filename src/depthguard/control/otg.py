@@ -154,6 +154,7 @@ class JointOtg:
             if not np.all(self.v_max > 0):
                 raise ValueError("v_max must be > 0")
             self._inp.max_velocity = self.v_max.tolist()
+        self._neg_a_max = -self.a_max
         self._inp.max_acceleration = self.a_max.tolist()
         self._inp.max_jerk = self.j_max.tolist()
         self._inp.target_acceleration = [0.0] * self.n
@@ -170,7 +171,7 @@ class JointOtg:
         try:
             inp.current_position = state.position.tolist()
             inp.current_velocity = state.velocity.tolist()
-            inp.current_acceleration = np.clip(state.acceleration, -self.a_max, self.a_max).tolist()
+            inp.current_acceleration = np.minimum(np.maximum(state.acceleration, self._neg_a_max), self.a_max).tolist()
             inp.target_velocity = np.asarray(target_velocity, dtype=float).tolist()
             res = self._otg.update(inp, out)
             code = int(res.value) if hasattr(res, "value") else int(res)

@@ -290,6 +290,13 @@ def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, 
     return s, stopped, ended, T_s, binding
 
 
+def _as_f64(x: object) -> np.ndarray:
+    """``x`` as a float64 C-contiguous array (itself when it is one already)."""
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous:
+        return x
+    return np.ascontiguousarray(x, dtype=np.float64)
+
+
 @dataclass
 class SsmMonitor:
     """Per-cycle speed and separation monitor for a control-point set (module docstring).
@@ -313,6 +320,7 @@ class SsmMonitor:
         if not (np.all(self.a_max > 0) and np.all(self.j_max > 0)):
             raise ValueError("SsmMonitor: a_max and j_max must be > 0")
         self.stopped = False
+        self._prm_of: SsmConfig | None = None  # (the kernel's parameters are cached per configuration)
 
     def update(
         self,
@@ -341,26 +349,28 @@ class SsmMonitor:
         """
         cfg = self.config
         N = self.lengths.shape[0]
-        age = max(float(data_age), 0.0) if math.isfinite(float(data_age)) else 1e3
+        age = float(data_age)
+        age = max(age, 0.0) if math.isfinite(age) else 1e3
         T_r = reaction_time(cfg, age)
-        prm = np.array([T_r, cfg.constant_terms, cfg.v_h_near, cfg.v_h_far, cfg.near_limit, cfg.v_h_floor])
-        v_h = -np.ones(N) if obstacle_speed is None else np.nan_to_num(np.asarray(obstacle_speed, float), nan=1e3)
-        c = np.ascontiguousarray
+        if self._prm_of is not cfg:  # the configuration's constant part of the kernel's parameters, once
+            self._prm = np.array([0.0, cfg.constant_terms, cfg.v_h_near, cfg.v_h_far, cfg.near_limit, cfg.v_h_floor])
+            self._prm_of, self._no_speed = cfg, -np.ones(N)
+        prm = self._prm.copy()
+        prm[0] = T_r
+        v_h = self._no_speed if obstacle_speed is None else np.nan_to_num(np.asarray(obstacle_speed, float), nan=1e3)
+        c = _as_f64
         dist, sp = np.empty(N), np.empty(N)
         s, stopped, stop_ended, T_s, binding = _update(
-            c(jacobians, dtype=float), c(qdot, dtype=float), c(qddot, dtype=float), c(qdot_nominal, dtype=float),
-            c(distances, dtype=float), c(directions, dtype=float), float(cfg.sensing_range), self.lengths,
-            self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp, age,
+            c(jacobians), c(qdot), c(qddot), c(qdot_nominal), c(distances), c(directions), float(cfg.sensing_range),
+            self.lengths, self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp, age,
         )  # fmt: skip
         self.stopped = stopped
         scale = max(s, 0.0)
-        margin = dist - sp
-        state = (
-            MonitorState.PROTECTIVE_STOP
-            if self.stopped
-            else (MonitorState.MONITOR_OK if scale >= 1.0 else MonitorState.REDUCED)
-        )
-        return SsmOutput(scale, state, int(binding), dist, sp, margin, float(T_s), T_r, bool(stop_ended))
+        if stopped:
+            state = MonitorState.PROTECTIVE_STOP
+        else:
+            state = MonitorState.MONITOR_OK if scale >= 1.0 else MonitorState.REDUCED
+        return SsmOutput(scale, state, binding, dist, sp, dist - sp, T_s, T_r, stop_ended)
 
     def reset(self) -> None:
         """Forget a latched protective stop."""

@@ -1,0 +1,112 @@
+"""Stage 4 of the control cycle (:func:`depthguard.control.cycle.plan_motion`) in one or two compiled calls.
+
+The numbers are those of the stage functions it replaces, in the same order and with the same
+floating-point operations: the chain kinematics (:mod:`depthguard.robot.fk`), the control points
+(:func:`~depthguard.robot.fk.fixed_points`), the end effector's repulsive velocity (ICRA'12 eq. 7, as
+:func:`~depthguard.control.endeffector.repulsive_velocity`), the commanded task velocity (eq. 10), the body
+bounds (eqs. 12-14, :func:`~depthguard.control.body.body_bounds_inplace`, on both pairs of bounds), the
+damped-least-squares damping and, for speed and separation monitoring, the task's nominal joint velocity
+(:func:`~depthguard.control.endeffector.dls_apply`). Without a monitor :func:`plan_repulsion` also runs SNS
+(:func:`~depthguard.control.sns.sns_velocity_unchecked`). ``tests/test_plan_kernel.py`` checks every
+output against the stage functions.
+
+Why: each stage alone is a small kernel or a few numpy calls of 1-3 µs of call overhead; at 1 kHz that
+glue was about a third of the cycle (BENCHMARKS.md, "The control cycle in fewer calls").
+
+Parameter vector ``prm`` (float64, 8): ``v_rep_max, rho_ee, alpha_ee, rho_body, alpha_body,
+contact_distance, dls_eps, dls_lambda_max``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from depthguard.control.body import body_bounds_inplace
+from depthguard.control.endeffector import _dls_apply, _dls_damping
+from depthguard.control.sns import sns_velocity_unchecked
+from depthguard.robot.fk import _chain_fk, fixed_points
+
+__all__ = ["plan_prepare", "plan_repulsion", "plan_params"]
+
+_INFLUENCE_EPS = 1e-6  # as plan_motion: joints that cannot move a point along its direction are not bound
+
+
+def plan_params(cfg) -> np.ndarray:
+    """The ``prm`` vector (module docstring) of a :class:`~depthguard.control.types.ControllerConfig`."""
+    return np.array(
+        [cfg.v_rep_max, cfg.rho_ee, cfg.alpha_ee, cfg.rho_body, cfg.alpha_body, cfg.contact_distance,
+         cfg.dls_eps, cfg.dls_lambda_max],
+        dtype=np.float64,
+    )  # fmt: skip
+
+
+@njit(cache=True)
+def _repulsion(d: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
+    """:func:`depthguard.control.endeffector.repulsive_velocity` (eq. 7), (3,) m/s."""
+    out = np.zeros(3)
+    if not d < rho:
+        return out
+    x = (d * 2.0 / rho - 1.0) * alpha
+    mag = 0.0 if x > 700.0 else v_max / (1.0 + math.exp(x))
+    dx, dy, dz = direction[0], direction[1], direction[2]
+    nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if nrm == 0.0:
+        return out
+    k = mag / nrm
+    out[0], out[1], out[2] = k * dx, k * dy, k * dz
+    return out
+
+
+@njit(cache=True)
+def plan_prepare(
+    q, parent, idx_v, kind, axis, placement, joints, offsets, support,
+    dist, dirs, body_use, v_max, xdot_d, prm, repel, nominal, lo, hi, lo_s, hi_s,
+):  # fmt: skip
+    """Kinematics, control points, repulsion, body bounds (``lo``/``hi``/``lo_s``/``hi_s`` tightened in
+    place), damping and (if ``nominal``) the nominal joint velocity.
+
+    Args:
+        q: (n,) finite joint positions, rad; parent..placement: the chain of
+            :class:`~depthguard.robot.fk.ChainKinematics`; joints, offsets, support: the control points'
+            joint slots (N,), offsets (N, 3) m and supporting joints (N, n) bool.
+        dist: (N,) distances (finite or +inf), m; dirs: (N, 3) directions (finite where dist is finite).
+        body_use: (N,) bool, the points that bound the body; v_max: (n,) rad/s; xdot_d: (3,) m/s.
+        prm: the parameter vector (module docstring); repel: add the end effector's repulsion (eq. 10).
+    Returns:
+        ``(jac, J, lam, xdot_c, v_rep, qdot_nominal)``: the points' Jacobians (N, 3, n), the end effector's
+        (3, n) (a copy), the DLS damping, the commanded task velocity (3,), the repulsive velocity (3,)
+        and ``J^T (J J^T + lam^2 I)^-1 xdot_c`` (n,) (zeros unless ``nominal``).
+    """
+    H, Jw = _chain_fk(q, parent, idx_v, kind, axis, placement)
+    _, jac = fixed_points(H, joints, offsets, Jw, support)
+    xdot_c = xdot_d.copy()
+    if repel:
+        v_rep = _repulsion(dist[0], dirs[0], prm[0], prm[1], prm[2])
+        for i in range(3):
+            xdot_c[i] += v_rep[i]
+    else:
+        v_rep = np.zeros(3)
+    dist0 = np.maximum(dist, 0.0)
+    body_bounds_inplace(jac, dist0, dirs, body_use, v_max, prm[3], prm[4], prm[5], _INFLUENCE_EPS, lo, hi)
+    body_bounds_inplace(jac, dist0, dirs, body_use, v_max, prm[3], prm[4], prm[5], _INFLUENCE_EPS, lo_s, hi_s)
+    J = jac[0].copy()
+    lam = _dls_damping(J, prm[6], prm[7])
+    qn = _dls_apply(J, lam, xdot_c) if nominal else np.zeros(q.shape[0])
+    return jac, J, lam, xdot_c, v_rep, qn
+
+
+@njit(cache=True)
+def plan_repulsion(
+    q, parent, idx_v, kind, axis, placement, joints, offsets, support,
+    dist, dirs, body_use, v_max, xdot_d, prm, repel, lo, hi, lo_s, hi_s,
+):  # fmt: skip
+    """:func:`plan_prepare` then SNS within ``lo_s``/``hi_s``: ``(target (n,), scale, xdot_c (3,))``."""
+    _, J, lam, xdot_c, _, _ = plan_prepare(
+        q, parent, idx_v, kind, axis, placement, joints, offsets, support,
+        dist, dirs, body_use, v_max, xdot_d, prm, repel, False, lo, hi, lo_s, hi_s,
+    )  # fmt: skip
+    target, scale = sns_velocity_unchecked(J, xdot_c, lo_s, hi_s, lam)
+    return target, scale, xdot_c
