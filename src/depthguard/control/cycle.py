@@ -40,7 +40,7 @@ from depthguard.control.bounded import braking_step, enforce_bounds_kernel, enfo
 from depthguard.control.endeffector import commanded_task_velocity, dls_apply, dls_damping, repulsive_velocity
 from depthguard.control.inputs import CheckedInput, check_inputs
 from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
-from depthguard.control.plan_kernel import plan_params, plan_prepare, plan_repulsion
+from depthguard.control.plan_kernel import both_finite, plan_params, plan_prepare, plan_repulsion
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
 from depthguard.robot.control_points import ControlPointSet
@@ -187,7 +187,7 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
         plan = Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
     else:
         plan = plan_motion(ctrl, chk, b, otg, max(chk.t - float(inp.t_distances), 0.0))
-        if not (np.isfinite(plan.target).all() and np.isfinite(plan.xdot_c).all()):
+        if not both_finite(plan.target, plan.xdot_c):
             status, plan = CycleStatus.STOP_INVALID_INPUT, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
         elif plan.ssm is not None and plan.ssm.scale <= 0.0:
             status = CycleStatus.STOP_PROTECTIVE

@@ -78,6 +78,17 @@ def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndar
     return a
 
 
+def _plain(x: object, n: int) -> bool:
+    """``x`` is a float64 C-contiguous (n,) array (what :func:`as_vector` would return as it is)."""
+    return type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,) and x.flags.c_contiguous
+
+
+@njit(cache=True)
+def _finite3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> int:
+    """Bit 0, 1, 2 set when ``a``, ``b``, ``c`` (1-D) are all finite."""
+    return int(_all_finite(a)) | (int(_all_finite(b)) << 1) | (int(_all_finite(c)) << 2)
+
+
 @njit(cache=True)
 def _all_finite(a: np.ndarray) -> bool:
     for i in range(a.shape[0]):
@@ -129,9 +140,13 @@ def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_p
         return CheckedInput(CycleStatus.STOP_INVALID_INPUT, math.nan, None, None, None, None, None)
     t_in, q_in, qd_in, tj_in, xd_in, d_in, dirs_in, td_in = inp
     t, tj, td = _time(t_in), _time(tj_in), _time(td_in)
-    q = as_vector(q_in, (n,))
-    qdot = as_vector(qd_in, (n,))
-    xdot_d = as_vector(xd_in, (m,))
+    if _plain(q_in, n) and _plain(qd_in, n) and _plain(xd_in, m):  # the usual case: one compiled check
+        ok = _finite3(q_in, qd_in, xd_in)
+        q, qdot, xdot_d = (q_in if ok & 1 else None), (qd_in if ok & 2 else None), (xd_in if ok & 4 else None)
+    else:
+        q = as_vector(q_in, (n,))
+        qdot = as_vector(qd_in, (n,))
+        xdot_d = as_vector(xd_in, (m,))
     d_ok, dist, dirs = _check_distances(d_in, dirs_in, N)
     status = CycleStatus.OK
     times_ok = not (math.isnan(t) or math.isnan(tj) or math.isnan(td))

@@ -29,7 +29,7 @@ from depthguard.control.endeffector import _dls_apply, _dls_damping
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.robot.fk import _chain_fk, fixed_points
 
-__all__ = ["plan_prepare", "plan_repulsion", "plan_params"]
+__all__ = ["plan_prepare", "plan_repulsion", "plan_params", "both_finite"]
 
 _INFLUENCE_EPS = 1e-6  # as plan_motion: joints that cannot move a point along its direction are not bound
 
@@ -110,3 +110,16 @@ def plan_repulsion(
     )  # fmt: skip
     target, scale = sns_velocity_unchecked(J, xdot_c, lo_s, hi_s, lam)
     return target, scale, xdot_c
+
+
+@njit(cache=True)
+def both_finite(a: np.ndarray, b: np.ndarray) -> bool:
+    """True if every element of the 1-D float arrays ``a`` and ``b`` is finite (one call for the cycle's
+    check of its plan)."""
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return False
+    for i in range(b.shape[0]):
+        if not np.isfinite(b[i]):
+            return False
+    return True

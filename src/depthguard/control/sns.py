@@ -194,18 +194,28 @@ def _ray_exit(
     cols = np.arange(k).astype(np.int64)
     while True:
         nrm = _facet_normal(J, cols)
-        if np.any(nrm != 0.0):
-            nd = np.dot(nrm, d)
-            if abs(nd) > 1e-15:
-                if nd < 0:
-                    nrm, nd = -nrm, -nd
-                h = 0.0
-                for j in range(n):
-                    g = np.dot(nrm, np.ascontiguousarray(J[:, j]))
-                    h += max(g * qmax[j], g * qmin[j])
-                t = (h - np.dot(nrm, origin)) / nd
-                if t < best:
-                    best, best_n = max(t, 0.0), nrm
+        nonzero = False
+        nd = 0.0
+        for i in range(m):
+            nonzero = nonzero or nrm[i] != 0.0
+            nd += nrm[i] * d[i]
+        if nonzero and abs(nd) > 1e-15:
+            sign = 1.0
+            if nd < 0:
+                sign, nd = -1.0, -nd
+            h = 0.0
+            for j in range(n):
+                g = 0.0
+                for i in range(m):
+                    g += nrm[i] * J[i, j]
+                g *= sign
+                h += max(g * qmax[j], g * qmin[j])
+            no = 0.0
+            for i in range(m):
+                no += nrm[i] * origin[i]
+            t = (h - sign * no) / nd
+            if t < best:
+                best, best_n = max(t, 0.0), sign * nrm
         i = k - 1  # next combination of k out of n
         while i >= 0 and cols[i] == n - k + i:
             i -= 1
@@ -233,7 +243,9 @@ def _facet_solution(
     for j in range(n):
         scale = max(scale, np.sqrt(np.sum(J[:, j] ** 2)))
     for j in range(n):
-        g = np.dot(nrm, np.ascontiguousarray(J[:, j]))
+        g = 0.0
+        for i in range(m):
+            g += nrm[i] * J[i, j]
         if abs(g) <= 1e-9 * max(scale, 1e-300):
             par[j] = True
         else:
