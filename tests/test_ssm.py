@@ -152,3 +152,23 @@ def test_monitor_output_is_consistent(d, qd, qn):
     if out.state != MonitorState.PROTECTIVE_STOP:
         m = out.margin[np.isfinite(out.margin)]
         assert np.all(m >= -1e-12)
+
+
+def test_a_new_configuration_takes_effect_at_the_next_update():
+    """The monitor caches its kernel parameters per configuration: assigning another one must not keep the
+    old constants (C + Z_d + Z_r here) nor the old reaction time."""
+    rng = np.random.default_rng(3)
+    jac = rng.normal(size=(3, 3, 3)) * 0.3
+    L = np.abs(jac).sum(axis=1) + 0.5
+    d, dirs = np.array([0.6, 0.9, np.inf]), rng.normal(size=(3, 3))
+    qd, qn = np.array([0.3, -0.2, 0.1]), np.array([0.5, 0.4, -0.3])
+    loose = SsmConfig(intrusion=0.0, sensor_uncertainty=0.0, robot_uncertainty=0.0)
+    strict = SsmConfig(intrusion=0.2, camera_period=0.1)
+    mon = SsmMonitor(L, np.full(3, 10.0), np.full(3, 500.0), loose)
+    first = mon.update(jac, qd, np.zeros(3), qn, d, dirs)
+    mon.config = strict
+    second = mon.update(jac, qd, np.zeros(3), qn, d, dirs)
+    fresh = SsmMonitor(L, np.full(3, 10.0), np.full(3, 500.0), strict).update(jac, qd, np.zeros(3), qn, d, dirs)
+    np.testing.assert_array_equal(second.s_p, fresh.s_p)
+    assert second.reaction_time == fresh.reaction_time == reaction_time(strict)
+    assert np.all(second.s_p[:2] > first.s_p[:2] + 0.19)  # the 0.2 m intrusion distance is in
