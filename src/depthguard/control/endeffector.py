@@ -17,7 +17,10 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["repulsive_velocity", "commanded_task_velocity", "dls_damping", "dls_inverse", "dls_apply"]
+__all__ = [
+    "repulsive_velocity", "repulsive_velocity_kernel", "commanded_task_velocity", "dls_damping", "dls_inverse",
+    "dls_apply",
+]  # fmt: skip
 
 
 def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
@@ -31,16 +34,29 @@ def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho
         v_max: largest repulsive speed, m/s; rho: m; alpha: steepness.
     """
     d = float(distance)
-    if not d < rho:  # inf, or beyond the region of surveillance
+    if not d < rho:  # (the direction is not looked at)
         return np.zeros(3)
+    dvec = np.ascontiguousarray(direction, dtype=np.float64)
+    if dvec.shape != (3,):
+        raise ValueError(f"direction must have shape (3,), got {dvec.shape}")
+    return repulsive_velocity_kernel(d, dvec, float(v_max), float(rho), float(alpha))
+
+
+@njit(cache=True)
+def repulsive_velocity_kernel(d: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
+    """:func:`repulsive_velocity` for compiled callers (float64 ``direction`` (3,)); returns a new (3,) array."""
+    out = np.zeros(3)
+    if not d < rho:  # inf, or beyond the region of surveillance
+        return out
     x = (d * 2.0 / rho - 1.0) * alpha
     mag = 0.0 if x > 700.0 else v_max / (1.0 + math.exp(x))  # (exp overflows past 709: the speed is 0 there)
-    dx, dy, dz = float(direction[0]), float(direction[1]), float(direction[2])
+    dx, dy, dz = direction[0], direction[1], direction[2]
     nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
     if nrm == 0.0:
-        return np.zeros(3)
+        return out
     k = mag / nrm
-    return np.array((k * dx, k * dy, k * dz))
+    out[0], out[1], out[2] = k * dx, k * dy, k * dz
+    return out
 
 
 def commanded_task_velocity(xdot_d: np.ndarray, v_repulsive: np.ndarray) -> np.ndarray:

@@ -19,13 +19,11 @@ contact_distance, dls_eps, dls_lambda_max``.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
 from depthguard.control.body import body_bounds_inplace
-from depthguard.control.endeffector import _dls_apply, _dls_damping
+from depthguard.control.endeffector import _dls_apply, _dls_damping, repulsive_velocity_kernel
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.robot.fk import _chain_fk, fixed_points
 
@@ -41,23 +39,6 @@ def plan_params(cfg) -> np.ndarray:
          cfg.dls_eps, cfg.dls_lambda_max],
         dtype=np.float64,
     )  # fmt: skip
-
-
-@njit(cache=True)
-def _repulsion(d: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
-    """:func:`depthguard.control.endeffector.repulsive_velocity` (eq. 7), (3,) m/s."""
-    out = np.zeros(3)
-    if not d < rho:
-        return out
-    x = (d * 2.0 / rho - 1.0) * alpha
-    mag = 0.0 if x > 700.0 else v_max / (1.0 + math.exp(x))
-    dx, dy, dz = direction[0], direction[1], direction[2]
-    nrm = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if nrm == 0.0:
-        return out
-    k = mag / nrm
-    out[0], out[1], out[2] = k * dx, k * dy, k * dz
-    return out
 
 
 @njit(cache=True)
@@ -84,7 +65,7 @@ def plan_prepare(
     _, jac = fixed_points(H, joints, offsets, Jw, support)
     xdot_c = xdot_d.copy()
     if repel:
-        v_rep = _repulsion(dist[0], dirs[0], prm[0], prm[1], prm[2])
+        v_rep = repulsive_velocity_kernel(dist[0], dirs[0], prm[0], prm[1], prm[2])
         for i in range(3):
             xdot_c[i] += v_rep[i]
     else:
