@@ -329,6 +329,20 @@ def _network(src: Path, table: Any) -> dict[str, Any]:
     return net
 
 
+def _calibration_notes(cell: CellFile) -> dict[str, str]:
+    """Per camera that the cell file's ``calibration`` file places: where its extrinsics come from, the
+    calibration's date and residual (for :func:`describe_cell`; the file was validated by :func:`read_cell`)."""
+    ref = cell.raw.get("calibration")
+    if not isinstance(ref, str):
+        return {}
+    cal = tomllib.loads((Path(cell.path).parent / ref).read_text(encoding="utf-8"))
+    notes = {}
+    for e in cal.get("cameras", []):
+        rmse = f", inlier RMSE {float(e['rmse']) * 1000:.1f} mm" if "rmse" in e else ""
+        notes[e["name"]] = f" (calibration '{ref}' of {e.get('date', 'no date')}{rmse})"
+    return notes
+
+
 def describe_cell(cell: CellFile) -> str:
     """A human-readable summary of what the cell file says (``depthguard cell check``)."""
     r = cell.robot
@@ -341,6 +355,7 @@ def describe_cell(cell: CellFile) -> str:
     )
     for a in r.attachments:
         lines.append(f"  attachment '{a.name}' on {a.link}: {a.shape} {list(a.size) or a.mesh} at xyz {list(a.xyz)}")
+    calibrated = _calibration_notes(cell)
     for c in cell.cameras:
         intr = c.params
         what = (
@@ -351,7 +366,7 @@ def describe_cell(cell: CellFile) -> str:
         pose = "extrinsics from TF"
         if c.R is not None:
             centre = -c.R.T @ c.t
-            pose = f"centre {np.round(centre, 3).tolist()} m in '{c.parent}'"
+            pose = f"centre {np.round(centre, 3).tolist()} m in '{c.parent}'" + calibrated.get(c.name, "")
         lines.append(
             f"camera '{c.name}': {what}; depth {intr['min_depth']}-{intr['max_depth']} m; {pose};"
             f" topic {c.topic} ({c.rate:g} Hz)"

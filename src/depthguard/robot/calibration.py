@@ -317,7 +317,8 @@ def _verdict(ok: bool, rmse: float, frac: float, max_rmse: float, min_frac: floa
         return "ok"
     return (
         f"refused: inlier RMSE {rmse * 1000:.1f} mm (max {max_rmse * 1000:.1f}) and inlier fraction {frac:.2f}"
-        f" (min {min_frac:.2f}); start closer to the true pose or add poses"
+        f" (min {min_frac:.2f}); start closer to the true pose or add poses, and keep everything but the arm"
+        " still over the poses (a person walking through the view moves like the arm)"
     )
 
 

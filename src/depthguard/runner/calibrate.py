@@ -8,11 +8,19 @@ per camera ``R``, ``t``, its ``parent`` frame, the date, the residual) that the 
 ``calibration = "FILE"``; a refused calibration writes nothing and exits with an error naming the fitness.
 A camera carried by a link (``parent`` = a link) is calibrated in that link's frame from a bag in which the
 link stays still (a parked platform; :func:`depthguard.robot.calibration.still_link_pose`).
+
+The summary shows the effect per camera, with the initial guess and with the result: the robot pixels that the
+self-filter leaves (``robot_pixels_left_guess_vs_calibrated``), how much the control points' distances change
+(``distance_change_m``) and the self-filter margin the residual must stay inside (``self_filter_margin_m``);
+from the simulated cell, whose true extrinsics are known, also ``truth``: the position and angle errors, how
+far the robot surface is misplaced (``robot_surface_shift_m_guess_vs_calibrated``, to compare with the margin)
+and the largest distance error of the control points (``distance_error_m_guess_vs_calibrated``).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import inspect
 import json
 from pathlib import Path
 from typing import Any
@@ -20,8 +28,13 @@ from typing import Any
 import numpy as np
 
 from depthguard.io.cellfile import CellFile, read_cell
+from depthguard.robot.selffilter import self_filter
 
-__all__ = ["calibrate_cell", "CALIBRATION_POSES"]
+__all__ = ["calibrate_cell", "CALIBRATION_POSES", "SELF_FILTER_MARGIN"]
+
+#: The self-filter's margin in the chain (``Chain.on_frames`` uses :func:`self_filter`'s default), m: the
+#: residual calibration error must stay well inside it.
+SELF_FILTER_MARGIN = float(inspect.signature(self_filter).parameters["margin"].default)
 
 #: Arm poses of the simulated calibration routine (rad, 7 joints): spread out, none symmetric to another.
 CALIBRATION_POSES = (
@@ -79,9 +92,8 @@ def calibrate_cell(
 ) -> dict[str, Any]:
     """Calibrate every camera of the cell; write the calibration file (default: ``<cell>.calibration.toml``)
     when every camera is accepted. Returns a JSON-ready summary; raises ``ValueError`` when refused."""
-    from depthguard.robot.calibration import calibrate_extrinsics, moving_pixels
-    from depthguard.robot.selffilter import self_filter
-    from depthguard.runner.chain import carried_camera, load_cell_robot, refuse_carried_cameras
+    from depthguard.robot.calibration import calibrate_extrinsics
+    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
 
     cell = read_cell(cell_path)
     model = load_cell_robot(cell)
@@ -103,7 +115,8 @@ def calibrate_cell(
         raise ValueError(f"--source must be bag:PATH or sim:SCENARIO for a calibration, got {source!r}")
     out: dict[str, Any] = {"cell": cell.name, "source": source, "cameras": []}
     results = []
-    for cc, guess, frames in zip(cell.cameras, guesses, per_cam, strict=True):
+    truths = cameras if kind == "sim" else [None] * len(guesses)
+    for cc, guess, frames, truth in zip(cell.cameras, guesses, per_cam, truths, strict=True):
         if len(frames) < 5:
             raise ValueError(
                 f"{source}: camera '{cc.name}' has {len(frames)} frames at distinct arm poses; a calibration needs"
@@ -111,31 +124,7 @@ def calibrate_cell(
             )
         link = None if cc.parent == "world" else cc.parent
         res = calibrate_extrinsics(guess, frames, model, link=link)
-        calibrated = guess.with_pose(res.R, res.t)
-        robot = moving_pixels([d for d, _ in frames])  # the robot pixels, independent of any pose
-
-        def in_world(c, q, link=link):
-            return c if link is None else carried_camera(c, model, q, link)
-
-        left = [
-            sum(
-                int(np.sum(m & ~np.asarray(self_filter(in_world(c, q), d, q, model)[0])))
-                for (d, q), m in zip(frames, robot, strict=True)
-            )
-            for c in (guess, calibrated)
-        ]
-        entry = {
-            "name": cc.name,
-            "accepted": res.accepted,
-            "message": res.message,
-            "rmse_m": res.rmse,
-            "inlier_fraction": res.inlier_fraction,
-            "poses": len(frames),
-            "correction_m": float(np.linalg.norm(calibrated.position - guess.position)),
-            "correction_deg": float(np.rad2deg(np.arccos(np.clip((np.trace(res.R @ guess.R.T) - 1) / 2, -1, 1)))),
-            "robot_pixels_left_guess_vs_calibrated": left,
-        }
-        out["cameras"].append(entry)
+        out["cameras"].append(_camera_entry(cell, model, cc.name, link, guess, res, frames, truth))
         results.append((cc.name, cc.parent, res))
     refused = [e for e in out["cameras"] if not e["accepted"]]
     if refused:
@@ -144,6 +133,84 @@ def calibrate_cell(
     _write_calibration(path, results)
     out["written"] = str(path)
     return out
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.rad2deg(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1) / 2, -1, 1))))
+
+
+def _camera_entry(cell: CellFile, model, name: str, link, guess, res, frames, truth) -> dict[str, Any]:
+    """The summary of one camera's calibration ``res`` from ``guess``: fitness, the correction, and its effect
+    on the chain: robot pixels the self-filter leaves (robot pixels: those the arm's motion reveals,
+    independent of any pose) and the distances of the cell's control points (cell's distance settings,
+    this camera alone), with the guess and with the result. With the simulated cameras' ``truth`` (sim
+    sources) also the errors from the truth: camera position and angle, how far the robot surface seen by
+    the true camera is misplaced (``robot_surface_shift_m``: what the self-filter margin must cover) and
+    the distance error."""
+    from depthguard.robot.calibration import moving_pixels
+
+    calibrated = guess.with_pose(res.R, res.t)
+    robot = moving_pixels([d for d, _ in frames])
+    effect = {k: _chain_effect(cell, model, c, frames, robot, link) for k, c in (("guess", guess), ("cal", calibrated))}
+    entry: dict[str, Any] = {
+        "name": name,
+        "accepted": res.accepted,
+        "message": res.message,
+        "rmse_m": res.rmse,
+        "inlier_fraction": res.inlier_fraction,
+        "poses": len(frames),
+        "correction_m": float(np.linalg.norm(calibrated.position - guess.position)),
+        "correction_deg": _angle_deg(res.R, guess.R),
+        "robot_pixels_left_guess_vs_calibrated": [effect["guess"][0], effect["cal"][0]],
+        "distance_change_m": float(np.max(np.abs(effect["guess"][1] - effect["cal"][1]), initial=0.0)),
+        "self_filter_margin_m": SELF_FILTER_MARGIN,
+    }
+    if truth is not None:  # the simulated cell: the true extrinsics are known
+        d_true = _chain_effect(cell, model, truth, frames, robot, link)[1]
+        est = (guess, calibrated)
+        entry["truth"] = {
+            "position_error_m_guess_vs_calibrated": [float(np.linalg.norm(c.position - truth.position)) for c in est],
+            "angle_error_deg_guess_vs_calibrated": [_angle_deg(c.R, truth.R) for c in est],
+            "robot_surface_shift_m_guess_vs_calibrated": [_surface_shift(model, truth, c, frames) for c in est],
+            "distance_error_m_guess_vs_calibrated": [
+                float(np.max(np.abs(effect[k][1] - d_true), initial=0.0)) for k in ("guess", "cal")
+            ],
+        }
+    return entry
+
+
+def _chain_effect(cell: CellFile, model, cam, frames, robot, link) -> tuple[int, np.ndarray]:
+    """With the camera ``cam`` (its pose in ``link``'s frame when ``link``): the robot pixels of ``robot``
+    (per frame (H, W) bool) that the self-filter leaves, summed over the frames, and the control points'
+    distances per frame (F, N), m, capped at rho (nothing within rho: rho)."""
+    from depthguard.runner.chain import carried_camera, cell_control_points, cell_distance_stage
+
+    points = cell_control_points(cell, model)
+    rho = float(cell.distance["rho"])
+    left, dist = 0, []
+    for (d, q), m in zip(frames, robot, strict=True):
+        c = cam if link is None else carried_camera(cam, model, q, link)
+        mask = np.asarray(self_filter(c, d, q, model, margin=SELF_FILTER_MARGIN)[0])
+        left += int(np.sum(m & ~mask))
+        stage = cell_distance_stage(cell, [c])
+        stage.update([d], [mask], q, model)
+        cps = points.evaluate(q)
+        dist.append(np.minimum(np.asarray(stage.query(cps.centres, cps.radii).distance, float), rho))
+    return left, np.asarray(dist)
+
+
+def _surface_shift(model, truth, cam, frames, spacing: float = 0.01) -> float:
+    """How far the robot surface is misplaced with ``cam`` instead of the ``truth`` (world cameras): the largest
+    distance, over the robot's surface at every pose, between a point and where ``cam`` puts the point that
+    ``truth`` measures there, m."""
+    from depthguard.robot.calibration import capsule_surface_points
+
+    worst = 0.0
+    for _, q in frames:
+        p, _ = capsule_surface_points(*model.link_capsules(np.asarray(q, float)), spacing)
+        moved = cam.camera_to_world(truth.world_to_camera(p))
+        worst = max(worst, float(np.linalg.norm(moved - p, axis=1).max()))
+    return worst
 
 
 def _intrinsics(cam) -> dict[str, float]:
