@@ -254,3 +254,31 @@ def test_live_view_draws_a_carried_camera_where_its_link_is(tmp_path):
         assert view._world_cameras(np.full(7, np.nan)) is None
     finally:
         view.close()
+
+
+def test_the_cell_files_timeouts_reach_the_controller(tmp_path):
+    """`[controller]` rate, joint_timeout and distance_timeout of the cell file are the controller's: with
+    distances from one frame at t = 0 it stops on stale distances at the first tick after distance_timeout,
+    and a joint state older than joint_timeout stops it while a younger one does not."""
+    from depthguard.runner.chain import Chain, load_cell_robot
+
+    old, new = "joint_timeout = 0.05\ndistance_timeout = 0.1", "joint_timeout = 0.03\ndistance_timeout = 0.2"
+    p = _edited(tmp_path, old, new)
+    cell = read_cell(p)
+    model = load_cell_robot(cell)
+    cams = [c.build(width=160, height=120, fx=150.0, fy=150.0, cx=80.0, cy=60.0) for c in cell.cameras]
+    q, z = np.array([0.3, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0]), np.zeros(7)
+
+    def chain_with_distances_at_0():
+        chain = Chain(cell, cams, model)
+        chain.on_frames([np.full((120, 160), 3.0, np.float32)], q, 0.0)
+        chain.query(0.0, q)
+        return chain
+
+    chain = chain_with_distances_at_0()
+    assert (chain.config.dt, chain.config.joint_timeout, chain.config.distance_timeout) == (0.01, 0.03, 0.2)
+    status = [chain.control(0.01 * k, q, z, 0.01 * k, np.zeros(3)).status.name for k in range(30)]
+    assert "STOP_STALE_DISTANCES" not in status[:21] and set(status[21:]) == {"STOP_STALE_DISTANCES"}
+    chain = chain_with_distances_at_0()
+    assert chain.control(0.05, q, z, 0.05 - 0.02, np.zeros(3)).status.name != "STOP_STALE_JOINTS"
+    assert chain.control(0.06, q, z, 0.06 - 0.04, np.zeros(3)).status.name == "STOP_STALE_JOINTS"

@@ -53,19 +53,50 @@ def _short_scenario(tmp_path, seconds=0.25):
     return p
 
 
+def _inputs_only_bag(recording: Path, out: Path, cell_path: Path) -> set[str]:
+    """Copy the sensor inputs of ``run``'s ``recording`` (depth images, CameraInfo, TF, joint states, task
+    velocity: not one of its outputs) into a rosbag2 folder ``out`` written by ``rosbags``' own writer (raw
+    CDR, the same log times); returns the topics copied."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from depthguard.io.cellfile import read_cell
+    from depthguard.runner.bag import TASK_TOPIC
+
+    cell = read_cell(cell_path)
+    inputs = {c.topic for c in cell.cameras} | {c.info_topic for c in cell.cameras}
+    inputs |= {cell.topics["tf_static"], cell.topics["joint_states"], TASK_TOPIC}
+    ts = ros2.typestore()
+    with (
+        AnyReader([recording], default_typestore=ts) as reader,
+        Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w,
+    ):
+        conns = [c for c in reader.connections if c.topic in inputs]
+        new = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts) for c in conns}
+        for conn, t_ns, raw in reader.messages(connections=conns):
+            w.write(new[conn.id], t_ns, raw)
+    return {c.topic for c in conns}
+
+
 @pytest.mark.slow
 def test_replay_of_a_recorded_sim_run_is_bit_exact(tmp_path):
-    """Record the simulated run (sensor inputs), replay the bag with --fast: same distances and commands."""
+    """Record the simulated run, replay the bag with --fast: same distances and commands; and so does a bag
+    of its sensor inputs only (written by rosbags), so nothing of the recorded outputs enters a replay."""
     sc = _short_scenario(tmp_path)
-    live, replay = RunLog(), RunLog()
+    live, replay, inputs_only = RunLog(), RunLog(), RunLog()
     s1 = run_cell(HEX_CELL, f"sim:{sc}", quick=True, out_dir=tmp_path / "live", log=live)
     s2 = run_cell(HEX_CELL, f"bag:{tmp_path / 'live' / 'recording.mcap'}", log=replay)
-    assert s1["frames"] == s2["frames"] >= 7 and s1["commands"] == s2["commands"] == 250
-    assert s1["statuses"] == s2["statuses"]
-    np.testing.assert_allclose(live.t_query, replay.t_query, rtol=0, atol=1e-9)  # stamps are whole ns
-    np.testing.assert_allclose(np.array(live.distances), np.array(replay.distances), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.array(live.q_cmd), np.array(replay.q_cmd), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.array(live.qdot_cmd), np.array(replay.qdot_cmd), rtol=0, atol=1e-12)
+    copied = _inputs_only_bag(tmp_path / "live" / "recording.mcap", tmp_path / "inputs", HEX_CELL)
+    assert not any(t.startswith("/depthguard/") and t != "/depthguard/task_velocity" for t in copied)
+    assert {"/camera0/depth/image_raw", "/camera1/depth/image_raw", "/joint_states"} <= copied
+    s3 = run_cell(HEX_CELL, f"bag:{tmp_path / 'inputs'}", log=inputs_only)
+    for s, log in ((s2, replay), (s3, inputs_only)):
+        assert s1["frames"] == s["frames"] >= 7 and s1["commands"] == s["commands"] == 250
+        assert s1["statuses"] == s["statuses"]
+        np.testing.assert_allclose(live.t_query, log.t_query, rtol=0, atol=1e-9)  # stamps are whole ns
+        np.testing.assert_allclose(np.array(live.distances), np.array(log.distances), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.array(live.q_cmd), np.array(log.q_cmd), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.array(live.qdot_cmd), np.array(log.qdot_cmd), rtol=0, atol=1e-12)
     assert any(np.isfinite(d).any() for d in live.distances)  # the scene is not empty
 
 
@@ -98,13 +129,13 @@ def _scene(encoding):
     return cam, depth, q, model, mask
 
 
-def _connections(w, ts, topic_image: str = "/cam/depth"):
-    """The bag connections of the test bags: depth images, CameraInfo, joint states, static TF."""
+def _connections(w, ts, topic_image: str = "/cam/depth", tf_topic: str = "/tf_static"):
+    """The bag connections of the test bags: depth images, CameraInfo, joint states, TF (static by default)."""
     return (
         w.add_connection(topic_image, "sensor_msgs/msg/Image", typestore=ts),
         w.add_connection("/cam/info", "sensor_msgs/msg/CameraInfo", typestore=ts),
         w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts),
-        w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts),
+        w.add_connection(tf_topic, "tf2_msgs/msg/TFMessage", typestore=ts),
     )
 
 
@@ -133,14 +164,17 @@ def _write_bag(
     tf=True,
     info_size=None,
     topic_image="/cam/depth",
+    storage="mcap",
+    tf_topic="/tf_static",
 ):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from depthguard.sim.recorder import camera_tf
 
     ts = ros2.typestore()
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        c_img, c_info, c_js, c_tf = _connections(w, ts, topic_image)
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
+    with Writer(path, version=9, storage_plugin=plugin) as w:
+        c_img, c_info, c_js, c_tf = _connections(w, ts, topic_image, tf_topic)
         if tf:  # the camera hangs on a link ("mount") that is fixed in the world
             Rw, pw = camera_tf(cam.R, cam.t)
             mount_R, mount_p = np.eye(3), np.array([1.0, 0.0, 0.0])
@@ -236,6 +270,25 @@ def test_bag_from_rosbags_gives_the_distance_command_results(tmp_path, encoding,
     np.testing.assert_allclose(got, ref_d, atol=1e-6)
 
 
+@pytest.mark.parametrize("storage, tf_topic", [("sqlite3", "/tf_static"), ("mcap", "/tf")])
+def test_sqlite3_bags_and_dynamic_tf_give_the_same_distances(tmp_path, storage, tf_topic):
+    """The scene of the rosbags test as a sqlite3 rosbag2, and as MCAP with the camera's TF on the dynamic
+    ``/tf``: the same distances as the MCAP bag with ``/tf_static``."""
+    cam, depth, q, model, _ = _scene("32FC1")
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    _write_bag(tmp_path / "ref", cam, depth, q, model, "32FC1")
+    _write_bag(tmp_path / "bag", cam, depth, q, model, "32FC1", storage=storage, tf_topic=tf_topic)
+    assert (tmp_path / "bag" / f"bag.{'db3' if storage == 'sqlite3' else 'mcap'}").is_file()
+    ref, got = RunLog(), RunLog()
+    run_cell(cell, f"bag:{tmp_path / 'ref'}", log=ref)
+    summary = run_cell(cell, f"bag:{tmp_path / 'bag'}", log=got)
+    assert summary["frames"] == 1 and summary["commands"] == 40
+    assert np.isfinite(ref.distances[0]).sum() >= 2
+    np.testing.assert_array_equal(np.array(got.distances), np.array(ref.distances))
+    np.testing.assert_array_equal(np.array(got.qdot_cmd), np.array(ref.qdot_cmd))
+
+
 @pytest.mark.parametrize(
     "kind, needle",
     [
@@ -295,6 +348,26 @@ def test_plumb_bob_with_coefficients_is_undistorted(tmp_path):
     assert cols[60, 150] > 150 or cols[60, 150] == -1
     with pytest.raises(ValueError, match="fisheye"):
         undistort_map(cam, "fisheye", np.zeros(4))
+
+
+def test_rational_polynomial_is_undistorted():
+    """``rational_polynomial`` (8 coefficients): with k4..k6 = 0 it is ``plumb_bob``; with the denominator
+    equal to the numerator (k4..k6 = k1..k3, no tangential terms) the radial factor is 1: the identity."""
+    from depthguard.runner.bag import undistort_map
+    from depthguard.sim.depthcam import kinect_camera
+
+    cam = kinect_camera((1.0, 0.0, 0.5), (0.0, 0.0, 0.5), width=160, height=120)
+    k = np.array([0.2, -0.05, 0.0, 0.0, 0.01])
+    plumb = undistort_map(cam, "plumb_bob", k)
+    rational = undistort_map(cam, "rational_polynomial", np.concatenate([k, np.zeros(3)]))
+    for a, b in zip(plumb, rational, strict=True):
+        np.testing.assert_array_equal(a, b)
+    v, u = np.mgrid[0:120, 0:160]
+    rows, cols = undistort_map(cam, "rational_polynomial", np.array([0.2, -0.05, 0.0, 0.0, 0.01, 0.2, -0.05, 0.01]))
+    np.testing.assert_array_equal(rows, v)
+    np.testing.assert_array_equal(cols, u)
+    rows, cols = undistort_map(cam, "rational_polynomial", np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.2, 0.0, 0.0]))
+    assert cols[60, 150] < 150  # a denominator > 1 pulls the source pixels inwards
 
 
 def test_frozen_camera_stops_the_controller_with_its_name(tmp_path):
