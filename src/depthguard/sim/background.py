@@ -8,7 +8,8 @@ monitors only what is not background; :class:`BackgroundFilter` does the same he
 the static geoms (geom group 0: room, floor, table; not the boxes, which stay obstacles) is ray cast once,
 and afterwards a pixel whose measured depth is at or behind that background (within the camera's noise:
 3 sigma + quantization + 1 cm) reads as the far end of the camera's range: free space in front of it, as in
-the empty cell. (Masking it like a robot pixel would not do: a missing pixel surrounded by masked pixels has
+the empty cell (the rule: :mod:`depthguard.robot.background`, shared with ``depthguard run``'s commissioned
+background). (Masking it like a robot pixel would not do: a missing pixel surrounded by masked pixels has
 no valid neighbour to be filled from and becomes unknown space, i.e. an obstacle at the near limit.) A
 missing pixel next to a person is still filled with the person's, nearer, depth.
 
@@ -34,6 +35,7 @@ class BackgroundFilter:
     """
 
     def __init__(self, stage, cell, cams, groups: tuple[int, ...] = (0,), margin: float = 0.01) -> None:
+        from depthguard.robot.background import background_threshold, far_range
         from depthguard.sim.depthcam import raycast_depth
 
         self.stage = stage
@@ -42,21 +44,20 @@ class BackgroundFilter:
         gg[list(groups)] = 1
         cell.forward()
         self.far = []  # per camera: depth at or beyond which a pixel is background (inf: never)
-        self.beyond = [float(c.camera.max_depth) if np.isfinite(c.camera.max_depth) else 10.0 for c in cams]
+        self.beyond = [far_range(c.camera) for c in cams]
         for c in cams:
             ref = raycast_depth(cell.model, cell.data, c.camera, gg)
-            tol = 3.0 * c.noise_coeff * ref * ref + c.quantization + margin
-            self.far.append(np.where(np.isfinite(ref), ref - tol, np.inf).astype(np.float32))
+            self.far.append(background_threshold(ref, c.noise_coeff, c.quantization, margin))
 
     def __getattr__(self, name: str):
         return getattr(self.stage, name)
 
     def update(self, depths: list[np.ndarray], masks: list[np.ndarray], *args, **kwargs) -> None:
         """Frame stage: background pixels (not robot pixels) read as the far range, then the wrapped stage."""
-        out = []
-        for d, m, far, beyond in zip(depths, masks, self.far, self.beyond, strict=True):
-            d = np.asarray(d)
-            with np.errstate(invalid="ignore"):
-                bg = (d >= far) & ~np.asarray(m, bool)  # NaN (no reading) is never background
-            out.append(np.where(bg, np.asarray(beyond, d.dtype), d))
+        from depthguard.robot.background import apply_background
+
+        out = [  # NaN (no reading) is never background
+            apply_background(d, m, far, beyond)
+            for d, m, far, beyond in zip(depths, masks, self.far, self.beyond, strict=True)
+        ]
         self.stage.update(out, masks, *args, **kwargs)
