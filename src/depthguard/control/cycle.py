@@ -180,7 +180,8 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
     if ctrl.sensor_fault is not None and chk.status == CycleStatus.OK:
         chk = chk._replace(status=CycleStatus.STOP_SENSOR_FAULT)
     t_prev = st.t_prev if math.isnan(chk.t) else max(st.t_prev, chk.t)
-    status, st = _resume_latch(ctrl.config, chk, st._replace(t_prev=t_prev))
+    st = ControllerState(st.otg, t_prev, st.latched, st.valid_since, st.valid_cycles)  # (faster than _replace)
+    status, st = _resume_latch(ctrl.config, chk, st)
     otg = _sync_state(st.otg, chk, ctrl.v_max)
     if otg is None:  # no joint state yet: nothing to command but rest
         return _rest_output(ctrl, status), st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
@@ -207,7 +208,7 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
         new.velocity, new.position, new.acceleration, status, float(plan.scale), plan.target, b.lo, b.hi,
         plan.xdot_c, limited, plan.ssm,
     )  # fmt: skip
-    return out, st._replace(otg=new)
+    return out, ControllerState(new, st.t_prev, st.latched, st.valid_since, st.valid_cycles)
 
 
 def _resume_latch(cfg: ControllerConfig, chk: CheckedInput, st: ControllerState) -> tuple[CycleStatus, ControllerState]:
@@ -334,7 +335,7 @@ def generate(
     Returns the new state, whether Ruckig succeeded, and whether a bound won over the jerk limit.
     """
     j = ctrl.otg
-    planned, _, code = j.step(otg, target)
+    planned, code = j.advance(otg, target)
     ok = code >= 0
     if not ok:
         planned = braking_step(otg, j.a_max, j.j_max, j.dt)

@@ -116,8 +116,17 @@ def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.nd
     """``(valid, distances, directions)``; distances/directions None when missing or invalid."""
     if d_in is None or dirs_in is None:
         return True, None, None
-    d = as_vector(d_in, (N,), finite=False)
-    dirs = as_vector(dirs_in, (N, 3), finite=False)
+    if (
+        _plain(d_in, N)
+        and type(dirs_in) is np.ndarray
+        and dirs_in.dtype == np.float64
+        and dirs_in.shape == (N, 3)
+        and dirs_in.flags.c_contiguous
+    ):
+        d, dirs = d_in, dirs_in  # (what as_vector returns for them)
+    else:
+        d = as_vector(d_in, (N,), finite=False)
+        dirs = as_vector(dirs_in, (N, 3), finite=False)
     if d is None or dirs is None:
         return False, None, None
     code = _distances_valid(d, dirs)

@@ -167,6 +167,14 @@ class JointOtg:
             0 Working, 1 Finished, negative = error). On error the state is returned unchanged; an
             exception inside Ruckig (``RuckigError`` for non-finite input) is reported as -1 (Error).
         """
+        new, code = self.advance(state, target_velocity)
+        if code < 0:
+            return state, np.zeros(self.n), code
+        return new, np.array(self._out.new_jerk), code
+
+    def advance(self, state: OtgState, target_velocity: np.ndarray) -> tuple[OtgState, int]:
+        """:meth:`step` without the jerk: the new state and Ruckig's result code (the state unchanged on
+        error)."""
         inp, out = self._inp, self._out
         try:
             inp.current_position = state.position.tolist()
@@ -174,10 +182,9 @@ class JointOtg:
             inp.current_acceleration = np.minimum(np.maximum(state.acceleration, self._neg_a_max), self.a_max).tolist()
             inp.target_velocity = np.asarray(target_velocity, dtype=float).tolist()
             res = self._otg.update(inp, out)
-            code = int(res.value) if hasattr(res, "value") else int(res)
+            code = int(res)
         except Exception:  # noqa: BLE001 - the real-time path reports, it does not raise
             code = -1
         if code < 0:
-            return state, np.zeros(self.n), code
-        new = OtgState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration))
-        return new, np.array(out.new_jerk), code
+            return state, code
+        return OtgState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration)), code
