@@ -1,4 +1,4 @@
-"""Command line: the real-cell commands ``run``, ``calibrate``, ``node``, ``view`` and ``cell``
+"""Command line: the real-cell commands ``run``, ``calibrate``, ``commission``, ``node``, ``view`` and ``cell``
 (:mod:`depthguard.cli` registers them with :func:`add_cell_commands`)."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from depthguard.cli_common import check_out_dir
+from depthguard.cli_common import check_out_dir, positive_int
 
 __all__ = ["add_cell_commands"]
 
@@ -16,6 +16,31 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from depthguard.runner.calibrate import calibrate_cell
 
     out = calibrate_cell(args.cell, args.source, write=args.write, quick=args.quick)
+    print(json.dumps(out, indent=None if args.json else 2, default=float))
+    return 0
+
+
+# --------------------------------------------------------------------------------------------- commission
+def _cmd_commission(args: argparse.Namespace) -> int:
+    from depthguard.cli_common import CliExit
+    from depthguard.errors import InputError
+    from depthguard.runner.commission import check_out_file, commission_cell
+
+    if args.out is not None:  # before any work: a bad --out must not cost the recording
+        try:
+            check_out_file(args.out)
+        except InputError as exc:
+            raise CliExit(str(exc)) from None
+    out = commission_cell(
+        args.cell,
+        args.source,
+        frames=args.frames,
+        out=args.out,
+        quick=args.quick,
+        progress=not args.json,
+        noise_coeff=args.noise_coeff,
+        margin=args.margin,
+    )
     print(json.dumps(out, indent=None if args.json else 2, default=float))
     return 0
 
@@ -119,6 +144,36 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--quick", action="store_true", help="the scenario's low-resolution form (sim sources)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser(
+        "commission",
+        help="record the empty cell's background for SSM ([controller] background); nobody may be in the cell",
+        description="Record the background of the EMPTY cell for speed and separation monitoring: per camera the"
+        " nearest non-robot depth over N frame sets (the robot self-filtered with its joint state; it may stand or"
+        ' move), written as an .npz that the cell file references with [controller] background = "FILE".'
+        " bag:PATH and realsense: record with NOBODY in the cell (whatever is there is hidden from the monitor"
+        " afterwards); sim:SCENARIO: the scenario's cell without its people, the arm following its task.",
+    )
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument(
+        "--source", required=True, metavar="bag:PATH|sim:SCENARIO|realsense",
+        help="the empty cell: a bag or live camera recorded with nobody in it, or a scenario (its people left out)",
+    )  # fmt: skip
+    p.add_argument(
+        "--frames", type=positive_int, default=30, metavar="N",
+        help="frame sets to read, spread over a bag or scenario (default 30)",
+    )  # fmt: skip
+    p.add_argument(
+        "--out", default=None, metavar="FILE", help="the background file (default CELL.background.npz)"
+    )  # fmt: skip
+    p.add_argument("--quick", action="store_true", help="the scenario's low-resolution form (sim sources)")
+    p.add_argument(
+        "--noise-coeff", type=float, default=None, metavar="C",
+        help="depth noise sigma = C z^2 of the tolerance (default: the simulated camera's, or measured)",
+    )  # fmt: skip
+    p.add_argument("--margin", type=float, default=0.01, metavar="M", help="extra tolerance, m (default 0.01)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (no progress line)")
+    p.set_defaults(func=_cmd_commission)
 
     p = sub.add_parser("node", help="run one node of a cell on Zenoh: sim, a camera, distance, controller, monitor")
     p.add_argument("name", help="node name: sim, a camera name of the cell, distance, controller or monitor")

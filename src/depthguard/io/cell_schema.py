@@ -11,7 +11,7 @@ import numpy as np
 from depthguard.control.ssm import SSM_RANGE
 from depthguard.kernels.records import direction_stride
 
-__all__ = ["CellError", "apply_calibration", "distance_section"]
+__all__ = ["CellError", "apply_calibration", "check_background", "distance_section"]
 
 _SHAPES = ("box", "cylinder", "sphere", "mesh")
 
@@ -96,6 +96,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "v_rep_max": (_NUM, 2.0),
         "ssm": (bool, False),
         "ssm_range": (_NUM, SSM_RANGE),
+        "background": (str, None),
     },
     "topics": {
         "joint_states": (str, "/joint_states"),
@@ -240,3 +241,38 @@ def apply_calibration(src: Path, ref: Any, cams: tuple) -> tuple:
         t = np.asarray(_vector(path, f"cameras[{i}].t", entry.get("t"), 3))
         by_name[name] = dataclasses.replace(by_name[name], R=R, t=t, extrinsics="file")
     return tuple(by_name[c.name] for c in cams)
+
+
+def check_background(src: Path, ctrl: dict[str, Any], cams: tuple) -> None:
+    """``[controller] background``: the background file of ``depthguard commission`` (a path relative to the
+    cell file ``src``) must be one, for the cell's cameras (names; cameras fixed in the world); the key becomes
+    the resolved path. The image sizes are checked when a run starts, against the cameras of its source (a
+    simulated ``--quick`` run is 160x120 whatever the cell file says)."""
+    ref = ctrl.get("background")
+    if ref is None:
+        return
+    from depthguard.io.background import read_background
+
+    if not ref.strip():
+        raise CellError(f"{src}: controller.background must be the path of a background file (depthguard commission)")
+    path = (src.parent / ref).resolve()
+    if not path.is_file():
+        raise CellError(
+            f"{src}: controller.background '{ref}' is not a file (looked at {path}; `depthguard commission` writes it)"
+        )
+    try:
+        bg = read_background(path)
+    except ValueError as exc:
+        raise CellError(f"{src}: controller.background '{ref}': {exc}") from None
+    names = [c.name for c in cams]
+    if sorted(bg.names) != sorted(names):
+        raise CellError(
+            f"{src}: controller.background '{ref}' holds the cameras {list(bg.names)}, the cell file has {names}:"
+            " commission this cell again"
+        )
+    carried = [f"cameras[{i}].parent = {c.parent!r}" for i, c in enumerate(cams) if c.parent != "world"]
+    if carried:
+        raise CellError(
+            f"{src}: controller.background with {', '.join(carried)}: a background needs cameras fixed in the world"
+        )
+    ctrl["background"] = str(path)

@@ -31,7 +31,9 @@ cell file are relative to the file's folder. Sections:
   ``velocity_scale``, ``a_max``, ``j_max``, ``rho_ee``, ``rho_body``, ``alpha``, ``v_rep_max``, ``ssm`` (bool:
   speed and separation monitoring with the repulsion, controller mode "both", docs/ssm.md), ``ssm_range``
   (m, default 0.6: with ``ssm``, the distances reach max(``rho``, ``ssm_range``) for the monitor; the
-  repulsion keeps ``rho``);
+  repulsion keeps ``rho``), ``background`` (a path: the background file of ``depthguard commission``, the
+  empty cell; applied to the depth images before the distances when ``ssm`` is on, not otherwise: the
+  repulsion must still see the table; docs/ssm.md);
 * ``calibration = "FILE"`` (top level): extrinsics from ``depthguard calibrate`` override the cameras' own;
 * ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
   (Float64MultiArray), ``distances``, ``status``, ``markers``;
@@ -61,6 +63,7 @@ from depthguard.io.cell_schema import (
     _section,
     _vector,
     apply_calibration,
+    check_background,
     distance_section,
 )
 
@@ -292,6 +295,7 @@ def read_cell(path: str | Path) -> CellFile:
         raise CellError(f"{src}: controller.velocity_scale must be in (0, 1], got {ctrl['velocity_scale']}")
     if not 0 < ctrl["ssm_range"] < float("inf"):
         raise CellError(f"{src}: controller.ssm_range must be a finite number of metres > 0, got {ctrl['ssm_range']}")
+    check_background(src, ctrl, cams)
     topics = _section(src, "topics", "topics", data.get("topics", {}))
     net = _network(src, data.get("network", {}))
     robot = _robot(src, data["robot"])
@@ -343,6 +347,26 @@ def _calibration_notes(cell: CellFile) -> dict[str, str]:
     return notes
 
 
+def _background_line(cell: CellFile) -> str:
+    """Whether ``run`` applies a background (``[controller] background``) and what it holds."""
+    ref = cell.controller.get("background")
+    if ref is None:
+        return "background: none" + (
+            " (SSM takes every surface the cameras see, table and floor included, for a person:"
+            " `depthguard commission` records the empty cell)" * bool(cell.controller["ssm"])
+        )
+    from depthguard.io.background import read_background
+
+    bg = read_background(ref)
+    sizes = ", ".join(f"{n} {bg.size(k)[0]}x{bg.size(k)[1]}" for k, n in enumerate(bg.names))
+    valid = ", ".join(f"{v:.0%}" for v in bg.valid_fraction)
+    what = f"'{cell.raw['controller']['background']}' ({sizes}; {bg.frames} frame sets of {bg.source} on {bg.date};"
+    what += f" valid {valid})"
+    if cell.controller["ssm"]:
+        return f"background: {what}: applied to the depth images before the distances (SSM on)"
+    return f"background: {what}: not applied (SSM off: the repulsion sees the whole scene, the table included)"
+
+
 def describe_cell(cell: CellFile) -> str:
     """A human-readable summary of what the cell file says (``depthguard cell check``)."""
     r = cell.robot
@@ -385,5 +409,6 @@ def describe_cell(cell: CellFile) -> str:
         f" resume after {c['resume_time']} s valid; SSM "
         + (f"on (distances up to {ssm_range(cell):g} m)" if c["ssm"] else "off")
     )
+    lines.append(_background_line(cell))
     lines.append("topics: " + ", ".join(f"{k} {v}" for k, v in cell.topics.items()))
     return "\n".join(lines)

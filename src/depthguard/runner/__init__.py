@@ -28,10 +28,17 @@ def _check_sim_cameras(cell: CellFile, cameras: list, scenario: str) -> None:
 
 
 def open_source(
-    spec: str, cell: CellFile, joint_names: tuple[str, ...], *, quick: bool = False, links: frozenset[str] = frozenset()
+    spec: str,
+    cell: CellFile,
+    joint_names: tuple[str, ...],
+    *,
+    quick: bool = False,
+    links: frozenset[str] = frozenset(),
+    people: bool = True,
 ):
     """A source from ``bag:PATH``, ``sim:SCENARIO`` or ``realsense``. ``links``: the robot's frame names (a
-    bag's TF that reaches one of them carries the camera on that link)."""
+    bag's TF that reaches one of them carries the camera on that link). ``people=False``: the simulated
+    scenario's cell without its people (``depthguard commission``; recorded sources are what they are)."""
     kind, _, arg = spec.partition(":")
     if kind == "sim":
         carried = [f"'{c.name}' on '{c.parent}'" for c in cell.cameras if c.parent != "world"]
@@ -41,7 +48,13 @@ def open_source(
             )
         from depthguard.runner.sources import SimSource
 
-        src = SimSource(arg, quick=quick, control_dt=1.0 / float(cell.controller["rate"]))
+        try:  # as many of the scenario's cameras as the cell file has ("ral": a third one for 3)
+            dt = 1.0 / float(cell.controller["rate"])
+            src = SimSource(arg, quick=quick, control_dt=dt, cameras=len(cell.cameras), people=people)
+        except ValueError as exc:
+            if "cameras must be" not in str(exc):
+                raise
+            raise ValueError(f"{cell.path}: {len(cell.cameras)} camera(s) in the cell file; {exc}") from None
         _check_sim_cameras(cell, src.cameras, arg)
         if tuple(src.joint_names) != tuple(joint_names):
             raise ValueError(
@@ -78,7 +91,7 @@ def run_cell(
     ``transport="zenoh"`` also publishes the topics on Zenoh (:mod:`depthguard.nodes.runpub`; ROS domain
     ``zenoh_domain``, endpoints ``zenoh_connect``); ``view`` serves the live view (:mod:`depthguard.viz.live`).
     """
-    from depthguard.runner.chain import Chain, load_cell_robot
+    from depthguard.runner.chain import Chain, background_applied, load_cell_robot
     from depthguard.runner.run import run_chain
 
     cell = read_cell(cell_path)
@@ -99,7 +112,7 @@ def run_cell(
     summary = run_chain(
         cell, src, chain, realtime=realtime, out_dir=out_dir, progress=progress, label=source, log=log, sinks=sinks
     )
-    summary = {"cell": cell.name, "source": source, **summary}
+    summary = {"cell": cell.name, "source": source, **summary, "background": background_applied(cell)}
     if transport == "zenoh":
         summary["zenoh_published"] = dict(sinks[0].count)
     return summary

@@ -16,6 +16,7 @@ import numpy as np
 from depthguard.camera import Camera
 from depthguard.control.cycle import AvoidanceController, ControllerConfig, CycleInput, CycleOutput
 from depthguard.depthspace import PointDistances
+from depthguard.io.background import BackgroundFile
 from depthguard.io.cellfile import CellError, CellFile, ssm_range
 from depthguard.robot.control_points import ControlPointSet
 from depthguard.robot.health import CameraHealth
@@ -24,7 +25,15 @@ from depthguard.robot.selffilter import self_filter
 from depthguard.robot.shapes import Shape
 from depthguard.robot.spheres import shape_cover
 
-__all__ = ["Chain", "load_cell_robot", "cell_control_points", "cell_distance_stage", "check_chain_support"]
+__all__ = [
+    "Chain",
+    "load_cell_robot",
+    "cell_control_points",
+    "cell_distance_stage",
+    "cell_background",
+    "background_applied",
+    "check_chain_support",
+]
 
 
 def _attachment_shapes(cell: CellFile) -> list[Shape]:
@@ -102,10 +111,64 @@ def _controller_config(cell: CellFile) -> ControllerConfig:
     return ControllerConfig(**{k: v for k, v in values.items() if k in known})
 
 
+_BACKGROUNDS: dict[tuple[str, int], BackgroundFile] = {}  # (path, mtime_ns) -> file (stages are rebuilt often)
+
+
+def background_applied(cell: CellFile) -> str | None:
+    """The background file (resolved path) that the chain applies: ``[controller] background`` with
+    ``ssm = true``; None otherwise (without SSM the repulsion sees the whole scene, the table included)."""
+    ref = cell.controller.get("background")
+    return ref if ref is not None and cell.controller["ssm"] else None
+
+
+def cell_background(cell: CellFile, cameras: list[Camera]) -> tuple[list[np.ndarray], list[float]] | None:
+    """Per camera of ``cameras`` (the cell file's order), the background rule's threshold (H, W) and far range
+    (:mod:`depthguard.robot.background`) from the cell's background file, when :func:`background_applied`;
+    a background of another image size than the camera's raises :class:`CellError` naming the key."""
+    from pathlib import Path
+
+    from depthguard.io.background import read_background
+    from depthguard.robot.background import far_range
+
+    path = background_applied(cell)
+    if path is None:
+        return None
+    key = (path, Path(path).stat().st_mtime_ns)
+    if key not in _BACKGROUNDS:
+        try:
+            _BACKGROUNDS[key] = read_background(path)
+        except ValueError as exc:
+            raise CellError(f"{cell.path}: controller.background: {exc}") from None
+    bg = _BACKGROUNDS[key]
+    thresholds = bg.thresholds()
+    out = []
+    for cc, cam in zip(cell.cameras, cameras, strict=True):
+        k = bg.names.index(cc.name)
+        w, h = bg.size(k)
+        if (w, h) != (cam.width, cam.height):
+            raise CellError(
+                f"{cell.path}: controller.background '{cell.raw['controller']['background']}': camera '{cc.name}'"
+                f" is {w}x{h} there but {cam.width}x{cam.height} in this run: commission the cell at the run's"
+                " image size (a simulated --quick run is at the scenario's quick resolution)"
+            )
+        out.append(thresholds[k])
+    return out, [far_range(c) for c in cameras]
+
+
 def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
     """The distance stage (:class:`depthguard.sim.pipeline.DistanceStage`) with every ``[distance]`` setting
     of the cell file: rho, mode, missing-depth policy, hole filling, depth-grid step, workspace and the
-    direction lattice."""
+    direction lattice; with ``ssm = true`` and a ``[controller] background``, wrapped so that it applies the
+    background (:class:`depthguard.robot.background.BackgroundStage`: what the empty cell explains reads as
+    free space) before every update."""
+    from depthguard.robot.background import BackgroundStage
+
+    stage = _distance_stage(cell, cameras)
+    bg = cell_background(cell, cameras)
+    return stage if bg is None else BackgroundStage(stage, *bg)
+
+
+def _distance_stage(cell: CellFile, cameras: list[Camera]):
     from depthguard.sim.pipeline import DistanceStage
 
     d = cell.distance

@@ -62,6 +62,10 @@ class SimSource:
         quick: the scenario's CI form (low resolution, short).
         control_dt: control period, s (the cell file's controller rate).
         frame_period: camera period, s.
+        cameras: how many of the scenario's cameras (None: the scenario's default; ``"ral"`` scenarios take a
+            third one for 3, :func:`depthguard.sim.scenario_setup.build_scenario_cell`).
+        people: False: the scenario's cell without its people (its ``remove_people`` variant: the empty cell
+            of ``depthguard commission``).
     """
 
     def __init__(
@@ -72,13 +76,17 @@ class SimSource:
         control_dt: float = 0.001,
         frame_period: float = 1.0 / 30.0,
         seed: int = 0,
+        cameras: int | None = None,
+        people: bool = True,
     ) -> None:
         from depthguard.sim.depthcam import KinectSim
         from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task
         from depthguard.sim.scenarios import load_scenario
 
         self.sc = load_scenario(scenario)
-        self.cell, self.kin, ee0 = build_scenario_cell(self.sc, quick=quick, cameras=None)
+        if not people:
+            self.sc["people"] = []
+        self.cell, self.kin, ee0 = build_scenario_cell(self.sc, quick=quick, cameras=cameras)
         self.task = scenario_task(self.sc, ee0)
         self.cams = [KinectSim(self.cell.model, c, i, seed=seed + i) for i, c in enumerate(self.cell.cameras)]
         self.cameras = list(self.cell.cameras)

@@ -1,0 +1,235 @@
+"""``depthguard commission``: the background model of a cell's empty workspace, for speed and separation
+monitoring (docs/ssm.md, "The runner's background").
+
+SSM protects people, but a depth camera sees the fixed cell (floor, walls, the table the robot stands on) like
+any other surface, and the arm's lower control points lie within the protective distance of their own table:
+without a background the monitor never lets the arm move. Commissioning records the *empty* cell once — the
+robot may stand or move, **nobody may be in the cell** — and writes a background file
+(:mod:`depthguard.io.background`): per camera the nearest valid non-robot depth seen over the frames (NaN where
+no frame gave one; each frame self-filtered with its joint state, as ``depthguard run`` does) and the tolerance
+model of the pixel rule (:mod:`depthguard.robot.background`). The cell file references it with
+``[controller] background = "FILE"``; ``depthguard run`` and the distance node apply it when ``ssm = true``.
+
+Frames: ``frames`` frame sets spread evenly over the source's duration (a bag; the simulated scenario), or the
+first ``frames`` (a live camera). ``sim:SCENARIO`` is the scenario's cell without its people (its
+``remove_people`` variant) with the arm following the scenario's task (a resolved-rate follower without
+avoidance: nothing is there to avoid), so that the table behind the arm is seen too. A bag or a live camera
+must be recorded with nobody in the cell: DepthGuard cannot tell a person from the background here, and
+whatever stands in the cell while commissioning is hidden from the monitor afterwards.
+
+The tolerance model: a simulated camera's own noise coefficient and quantization; for a bag or a live camera
+the noise coefficient measured from the frames (per pixel the temporal standard deviation over the frame
+sets, ``c = median(σ / z²)`` over the pixels valid in at least 80 % of them; at least 5 frame sets) unless
+``noise_coeff`` is given, and the camera's ``depth_scale`` as quantization; ``margin`` on top (1 cm).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from depthguard.errors import InputError
+from depthguard.io.background import BackgroundFile, write_background
+from depthguard.io.cellfile import read_cell
+from depthguard.robot.background import BACKGROUND_MARGIN
+
+__all__ = ["commission_cell", "check_out_file", "COMMISSION_FRAMES"]
+
+#: Frame sets read by default.
+COMMISSION_FRAMES = 30
+
+
+def check_out_file(path: str | Path, what: str = "--out") -> Path:
+    """``path`` as a file to write: not a folder, in a folder that exists and is writable; else
+    :class:`InputError` naming it (checked before any work)."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{what} '{p}' is a folder, expected a file name (e.g. {p / 'background.npz'})")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.exists():
+        raise InputError(f"{what} '{p}': the folder '{parent}' does not exist")
+    if not parent.is_dir():
+        raise InputError(f"{what} '{p}': '{parent}' is not a folder")
+    if not os.access(parent, os.W_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise InputError(f"{what} '{p}': not writable (permission denied)")
+    return p
+
+
+def default_background_path(cell_path: str | Path) -> Path:
+    """``<cell>.background.npz`` next to the cell file."""
+    return Path(cell_path).with_suffix(".background.npz")
+
+
+class _Accumulator:
+    """Per camera: the nearest valid non-robot depth over the frames, and the per-pixel moments for the noise."""
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.near = np.full(shape, np.nan, np.float32)
+        self.n = np.zeros(shape, np.int32)
+        self.s = np.zeros(shape, np.float64)
+        self.s2 = np.zeros(shape, np.float64)
+
+    def add(self, depth: np.ndarray, robot: np.ndarray) -> None:
+        d = np.asarray(depth, np.float32)
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(d) & (d > 0) & ~np.asarray(robot, bool)
+        self.near = np.fmin(self.near, np.where(valid, d, np.float32(np.nan)))
+        self.n += valid
+        dv = np.where(valid, d, 0.0).astype(np.float64)
+        self.s += dv
+        self.s2 += dv * dv
+
+    def noise_coeff(self, frames: int) -> float | None:
+        """``median(σ / z²)`` over the pixels valid in >= 80 % of ``frames`` (>= 5); None if not measurable."""
+        keep = self.n >= max(5, int(np.ceil(0.8 * frames)))
+        if frames < 5 or int(keep.sum()) < 100:
+            return None
+        n = self.n[keep].astype(float)
+        mean = self.s[keep] / n
+        var = np.maximum(self.s2[keep] / n - mean * mean, 0.0) * n / (n - 1)
+        return float(np.median(np.sqrt(var) / (mean * mean)))
+
+
+def _sim_follower(src):
+    """Commands for the simulated arm: the scenario's task by damped least squares on the end effector
+    (no avoidance: the commissioned cell is empty), within the joint limits."""
+    kin, dt = src.kin, src.control_dt
+
+    def command(q: np.ndarray, xdot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        J = kin.evaluate(q).jacobians[0]
+        qdot = J.T @ np.linalg.solve(J @ J.T + 1e-3 * np.eye(3), np.asarray(xdot, float))
+        q_cmd = np.clip(q + qdot * dt, kin.q_min + 0.02, kin.q_max - 0.02)
+        return q_cmd, (q_cmd - q) / dt
+
+    return command
+
+
+def _progress(k: int, n: int, label: str) -> None:
+    sys.stderr.write(f"\r{label:<24} frame set {k:3d}/{n}")
+    sys.stderr.flush()
+
+
+def commission_cell(
+    cell_path: str | Path,
+    source: str,
+    *,
+    frames: int = COMMISSION_FRAMES,
+    out: str | Path | None = None,
+    quick: bool = False,
+    progress: bool = False,
+    noise_coeff: float | None = None,
+    margin: float = BACKGROUND_MARGIN,
+) -> dict[str, Any]:
+    """Record the background of the empty cell of ``cell_path`` from ``source`` (``bag:PATH``,
+    ``sim:SCENARIO``: its people-free cell, ``realsense``) over ``frames`` frame sets and write it to ``out``
+    (default ``<cell>.background.npz``). Returns a JSON-ready summary; raises ``ValueError`` naming the problem."""
+    from depthguard.robot.selffilter import self_filter
+    from depthguard.runner import open_source
+    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
+
+    t0 = time.perf_counter()
+    if int(frames) < 1:
+        raise InputError(f"--frames must be an integer >= 1, got {frames}")
+    frames = int(frames)
+    if not (np.isfinite(margin) and margin >= 0):
+        raise InputError(f"--margin must be a number of metres >= 0, got {margin}")
+    if noise_coeff is not None and not (np.isfinite(noise_coeff) and noise_coeff >= 0):
+        raise InputError(f"--noise-coeff must be a number >= 0, got {noise_coeff}")
+    cell = read_cell(cell_path)
+    path = check_out_file(out if out is not None else default_background_path(cell.path))
+    refuse_carried_cameras(cell, "`depthguard commission`", "the background of a moving camera moves with it")
+    model = load_cell_robot(cell)
+    links = frozenset(f.name for f in model.model.frames)
+    src = open_source(source, cell, model.joint_names, quick=quick, links=links, people=False)
+    kind = source.partition(":")[0]
+    follow = _sim_follower(src) if kind == "sim" else None
+    cams = list(src.cameras)
+    acc = [_Accumulator(c.shape) for c in cams]
+    spacing = float(getattr(src, "duration", np.inf)) / frames  # inf: a live camera, every frame set
+    taken, t_first, n_ok = 0, None, len(model.joint_names)
+    try:
+        for tick in src.ticks():
+            t_first = tick.t if t_first is None else t_first
+            if follow is not None and tick.q is not None:
+                src.command(*follow(tick.q, tick.xdot_d))
+            if tick.frames is None or tick.q is None or np.shape(tick.q) != (n_ok,):
+                continue
+            if not np.all(np.isfinite(tick.q)) or tick.faults:
+                continue
+            if np.isfinite(spacing) and tick.t - t_first < taken * spacing - 1e-9:
+                continue
+            for a, c, d in zip(acc, cams, tick.frames, strict=True):
+                if np.shape(d) != c.shape:
+                    raise ValueError(f"{source}: a frame of shape {np.shape(d)} for a camera of {c.width}x{c.height}")
+                a.add(d, np.asarray(self_filter(c, d, tick.q, model)[0]))
+            taken += 1
+            if progress:
+                _progress(taken, frames, f"commission {source}")
+            if taken >= frames:
+                break
+    finally:
+        src.close()
+        if progress:
+            sys.stderr.write("\n")
+    if taken == 0:
+        raise ValueError(f"{source}: no frame set with a joint state: nothing to commission from")
+    entries, coeffs, quants = [], [], []
+    for k, (cc, c, a) in enumerate(zip(cell.cameras, cams, acc, strict=True)):
+        measured = a.noise_coeff(taken)
+        if kind == "sim":
+            coeff, quant = float(src.cams[k].noise_coeff), float(src.cams[k].quantization)
+        else:
+            coeff = noise_coeff if noise_coeff is not None else measured
+            if coeff is None:
+                raise ValueError(
+                    f"{source}: camera '{cc.name}': the depth noise cannot be measured from {taken} frame set(s)"
+                    " (needs 5 or more with a steady view); give --noise-coeff (sigma = c z^2, e.g. 0.0014 for a"
+                    " Kinect v1)"
+                )
+            quant = float(cc.params.get("depth_scale", 0.001))
+        coeffs.append(float(coeff))
+        quants.append(quant)
+        valid = float(np.mean(np.isfinite(a.near)))
+        med = float(np.nanmedian(a.near)) if valid > 0 else float("nan")
+        entries.append(
+            {
+                "name": cc.name,
+                "width": c.width,
+                "height": c.height,
+                "valid_fraction": valid,
+                "median_depth_m": med,
+                "noise_coeff": float(coeff),
+                "noise_coeff_measured": measured,
+                "quantization_m": quant,
+                "margin_m": float(margin),
+                "tolerance_at_median_depth_m": 3.0 * float(coeff) * med * med + quant + float(margin),
+            }
+        )
+    bg = BackgroundFile(
+        names=tuple(c.name for c in cell.cameras),
+        depths=tuple(a.near for a in acc),
+        noise_coeff=tuple(coeffs),
+        quantization=tuple(quants),
+        margin=tuple(float(margin) for _ in acc),
+        date=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        frames=taken,
+        source=source,
+        valid_fraction=tuple(e["valid_fraction"] for e in entries),
+    )
+    write_background(path, bg)
+    rel = os.path.relpath(path.resolve(), Path(cell.path).resolve().parent)
+    return {
+        "cell": cell.name,
+        "source": source,
+        "frames": taken,
+        "cameras": entries,
+        "written": str(path),
+        "cell_file_key": f'[controller] background = "{Path(rel).as_posix()}"',
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
