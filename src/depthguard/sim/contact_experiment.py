@@ -22,6 +22,7 @@ never looks there, and it keeps a 640×480 run within seconds.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass, field
@@ -36,7 +37,7 @@ from depthguard.robot.selffilter import self_filter
 from depthguard.sim.contact_cell import ContactCell, HandScript
 from depthguard.sim.depthcam import KinectSim, kinect_camera
 
-__all__ = ["ExperimentSetup", "ContactLog", "make_setup", "run_experiment", "Q0"]
+__all__ = ["ExperimentSetup", "ContactLog", "make_setup", "run_experiment", "match_contacts", "Q0"]
 
 Q0 = (0.0, -1.1, 0.0, 1.5, 0.0, -0.9, 0.0)
 CAMERA_EYE, CAMERA_TARGET = (-2.8, 0.0, 1.6), (0.3, 0.0, 0.45)
@@ -312,3 +313,22 @@ def run_experiment(setup: ExperimentSetup, progress: bool = False) -> tuple[Cont
         "control_us_p99": 1e6 * float(np.percentile(t_ctrl, 99)),
     }
     return log, cell, camera
+
+
+def match_contacts(p_hat: np.ndarray, p_true: np.ndarray, touching: np.ndarray) -> list[int | None]:
+    """For each estimated contact, the touching hand assigned to it (or None): the assignment with the
+    smallest total distance (few contacts: all permutations)."""
+    hands = [int(j) for j in np.flatnonzero(touching)]
+    k = len(p_hat)
+    cands = hands + [None] * k
+    best, best_cost = [None] * k, np.inf
+    for perm in set(itertools.permutations(cands, k)):
+        if all(j is None for j in perm) and hands:
+            continue
+        n_none = sum(j is None for j in perm)
+        if n_none > max(k - len(hands), 0):
+            continue
+        cost = sum(float(np.linalg.norm(p_true[j] - p_hat[a])) for a, j in enumerate(perm) if j is not None)
+        if cost < best_cost:
+            best, best_cost = list(perm), cost
+    return best

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.sim.contact_experiment import ContactLog, ExperimentSetup
+from depthguard.sim.contact_experiment import ContactLog, ExperimentSetup, match_contacts
 
 __all__ = ["write_outputs", "overlay_image"]
 
@@ -68,7 +68,6 @@ def _series(log: ContactLog, key: str, k: int) -> np.ndarray:
 
 def _observable_true(log: ContactLog) -> list[np.ndarray]:
     """Per cycle, the observable part P F of the true forces matched to the estimated contacts, (k, 3)."""
-    from depthguard.sim.saphari_contact import _match
 
     out = []
     for i in range(len(log.t)):
@@ -76,7 +75,7 @@ def _observable_true(log: ContactLog) -> list[np.ndarray]:
         if k == 0 or len(log.p_hat[i]) != k:
             out.append(np.zeros((0, 3)))
             continue
-        match = _match(log.p_hat[i], log.p_true[i], np.linalg.norm(F, axis=1) > 1.0)
+        match = match_contacts(log.p_hat[i], log.p_true[i], np.linalg.norm(F, axis=1) > 1.0)
         Fm = np.concatenate([F[j] if j is not None else np.zeros(3) for j in match])
         out.append((log.projector[i] @ Fm).reshape(-1, 3))
     return out

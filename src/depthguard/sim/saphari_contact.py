@@ -23,33 +23,13 @@ Also ``observable_fraction`` (``‖P F‖/‖F‖`` in the steady part: the push
 
 from __future__ import annotations
 
-import itertools
 from pathlib import Path
 
 import numpy as np
 
-from depthguard.sim.contact_experiment import ContactLog, ExperimentSetup, make_setup, run_experiment
+from depthguard.sim.contact_experiment import ContactLog, ExperimentSetup, make_setup, match_contacts, run_experiment
 
 __all__ = ["run", "compute_metrics"]
-
-
-def _match(p_hat: np.ndarray, p_true: np.ndarray, touching: np.ndarray) -> list[int | None]:
-    """For each estimated contact, the touching hand assigned to it (or None): the assignment with the
-    smallest total distance (few contacts: all permutations)."""
-    hands = [int(j) for j in np.flatnonzero(touching)]
-    k = len(p_hat)
-    cands = hands + [None] * k
-    best, best_cost = [None] * k, np.inf
-    for perm in set(itertools.permutations(cands, k)):
-        if all(j is None for j in perm) and hands:
-            continue
-        n_none = sum(j is None for j in perm)
-        if n_none > max(k - len(hands), 0):
-            continue
-        cost = sum(float(np.linalg.norm(p_true[j] - p_hat[a])) for a, j in enumerate(perm) if j is not None)
-        if cost < best_cost:
-            best, best_cost = list(perm), cost
-    return best
 
 
 def _errors(log: ContactLog, i: int) -> tuple[float, float, list[float], float]:
@@ -58,7 +38,7 @@ def _errors(log: ContactLog, i: int) -> tuple[float, float, list[float], float]:
     fn = np.linalg.norm(F, axis=1)
     touching = fn > 1.0
     ph, fh = log.p_hat[i], log.f_hat[i]
-    match = _match(ph, Pt, touching)
+    match = match_contacts(ph, Pt, touching)
     Fm = np.concatenate([F[j] if j is not None else np.zeros(3) for j in match]) if match else np.zeros(0)
     P = log.projector[i] if len(match) else np.zeros((0, 0))
     err_vec = fh.ravel() - P @ Fm if len(match) else np.zeros(0)
