@@ -69,6 +69,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "target": (list, None),
         "up": (list, [0.0, 0.0, 1.0]),
         "parent": (str, "world"),
+        "noise_coeff": (_NUM, 0.0),
     },
     "distance": {
         "backend": (str, "depthspace"),

@@ -21,7 +21,10 @@ cell file are relative to the file's folder. Sections:
   the robot (a camera carried by the robot, e.g. on the wrist: its extrinsics map points of that link's
   frame, ``P_C = R P_link + t``, and ``depthguard run`` moves it with the link at every frame's joint
   state, as the camera and distance nodes do; the link is checked against the robot when the chain is
-  built; the simulated cell and ``calibrate`` take world cameras only and say so);
+  built; the simulated cell and ``calibrate`` take world cameras only and say so), ``noise_coeff`` (the
+  depth noise, σ = c z², m⁻¹; default 0: the self-filter's margin is its 3 cm; with c > 0 the margin covers
+  5 σ at the robot's farthest depth in that camera, as in the simulated cell: a simulated Kinect has
+  c = 0.0014);
 * ``[distance]``: ``backend`` (``depthspace`` | ``octree``; ``run`` and the nodes refuse ``octree`` for now),
   ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
@@ -121,6 +124,7 @@ class CellCamera:
     params: dict[str, Any]
     R: np.ndarray | None
     t: np.ndarray | None
+    noise_coeff: float = 0.0
 
     def build(self, width: int | None = None, **intrinsics: float) -> Camera:
         """The :class:`Camera` (extrinsics in ``parent``), with intrinsics from the file or the arguments."""
@@ -237,6 +241,8 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
             R = check_rotation(R, f"{where}.R")
         except ValueError as exc:
             raise CellError(f"{src}: {exc}") from None
+    if c["noise_coeff"] < 0:
+        raise CellError(f"{src}: {where}.noise_coeff must be >= 0 (sigma = c z^2, m^-1), got {c['noise_coeff']}")
     params = {k: v for k, v in intr.items() if v is not None}
     params.update(min_depth=float(c["min_depth"]), max_depth=float(c["max_depth"]), depth_scale=float(c["depth_scale"]))
     if c["intrinsics"] == "file":
@@ -257,6 +263,7 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
         params=params,
         R=R,
         t=t,
+        noise_coeff=float(c["noise_coeff"]),
     )
 
 
@@ -394,6 +401,7 @@ def describe_cell(cell: CellFile) -> str:
         lines.append(
             f"camera '{c.name}': {what}; depth {intr['min_depth']}-{intr['max_depth']} m; {pose};"
             f" topic {c.topic} ({c.rate:g} Hz)"
+            + (f"; depth noise {c.noise_coeff:g} z^2 (self-filter margin >= 5 sigma)" if c.noise_coeff > 0 else "")
         )
     d = cell.distance
     lines.append(

@@ -103,7 +103,13 @@ def run_camera_node(
                 jl.write(ev="bad_frame", error=str(exc))
                 skipped += 1
                 continue
-            mask = np.asarray(self_filter(cam, depth, q, model)[0])
+            if cc.noise_coeff > 0:  # the margin covers the depth noise (runner.chain.self_filter_margins)
+                from depthguard.sim.pipeline import model_filter_margin
+
+                margin = model_filter_margin(cam, q, model, cc.noise_coeff)
+                mask = np.asarray(self_filter(cam, depth, q, model, margin=margin)[0])
+            else:
+                mask = np.asarray(self_filter(cam, depth, q, model)[0])
             fid = msg.header.frame_id
             p1 = pub_d.publish(ros2.image_msg(t, fid, depth, "32FC1"))
             pub_m.publish(mask_msg(t, fid, mask))

@@ -114,6 +114,7 @@ def run_distance_node(
         check_camera_parents,
         check_chain_support,
         load_cell_robot,
+        self_filter_margins,
     )
 
     check_chain_support(cell)
@@ -171,7 +172,8 @@ def run_distance_node(
             w0 = time.perf_counter()
             try:
                 # robot-interior corrections (runner.chain) at the frames' joint state; none without one
-                stage.update(depths, masks, q_frames, points.model)
+                margins = None if q_frames is None else self_filter_margins(cell, cams, q_frames, points.model)
+                stage.update(depths, masks, q_frames, points.model, *([margins] if margins is not None else []))
                 cps = points.evaluate(q)
                 res = stage.query(cps.centres, cps.radii)
                 res = stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)

@@ -32,6 +32,7 @@ __all__ = [
     "cell_distance_stage",
     "cell_background",
     "background_applied",
+    "self_filter_margins",
     "check_chain_support",
 ]
 
@@ -153,6 +154,19 @@ def cell_background(cell: CellFile, cameras: list[Camera]) -> tuple[list[np.ndar
             )
         out.append(thresholds[k])
     return out, [far_range(c) for c in cameras]
+
+
+def self_filter_margins(cell: CellFile, cameras: list[Camera], q: np.ndarray, model: RobotModel) -> list[float] | None:
+    """Per camera, the self-filter margin (m) at joint positions ``q``: with a camera ``noise_coeff`` c > 0 in
+    the cell file, max(3 cm, 5 c z²) at the robot's farthest depth in that camera
+    (:func:`depthguard.sim.pipeline.model_filter_margin`, as the simulated cell does; robot pixels measured
+    more than the margin in front of the robot stay obstacles: phantoms inside the control spheres); None
+    when no camera gives one (the self-filter's own 3 cm everywhere, the distance stage's default)."""
+    if not any(cc.noise_coeff > 0 for cc in cell.cameras):
+        return None
+    from depthguard.sim.pipeline import model_filter_margin
+
+    return [model_filter_margin(c, q, model, cc.noise_coeff) for cc, c in zip(cell.cameras, cameras, strict=True)]
 
 
 def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
@@ -309,10 +323,17 @@ class Chain:
         self.controller.set_sensor_fault(
             "; ".join(f"{k}: {v}" for k, v in self.faults.items()) if self.faults else None
         )
-        masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
+        margins = self_filter_margins(self.cell, self.cameras, q, self.model)  # None: the 3 cm default
+        if margins is None:
+            masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
+        else:
+            masks = [
+                np.asarray(self_filter(c, d, q, self.model, margin=m)[0])
+                for c, d, m in zip(self.cameras, depths, margins, strict=True)
+            ]
         # with the joint state, the principal camera's robot pixels and the secondary cameras' robot windows
         # come from the robot's inner capsules (robot.interior; no phantom zeros behind the arm)
-        self.stage.update(depths, masks, q, self.model)
+        self.stage.update(depths, masks, q, self.model, *([margins] if margins is not None else []))
         self.masks = masks
         self.t_frames = t_frames
         return masks

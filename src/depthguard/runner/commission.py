@@ -18,9 +18,11 @@ must be recorded with nobody in the cell: DepthGuard cannot tell a person from t
 whatever stands in the cell while commissioning is hidden from the monitor afterwards.
 
 The tolerance model: a simulated camera's own noise coefficient and quantization; for a bag or a live camera
-the noise coefficient measured from the frames (per pixel the temporal standard deviation over the frame
-sets, ``c = median(σ / z²)`` over the pixels valid in at least 80 % of them; at least 5 frame sets) unless
-``noise_coeff`` is given, and the camera's ``depth_scale`` as quantization; ``margin`` on top (1 cm).
+``noise_coeff`` when given, else the camera's ``noise_coeff`` in the cell file, else the one measured from
+the frames (per pixel the temporal standard deviation over the frame sets, ``c = median(σ / z²)`` over the
+pixels valid in at least 80 % of them; at least 5 frame sets), and the camera's ``depth_scale`` as
+quantization; ``margin`` on top (1 cm). The self-filter's margin is ``run``'s
+(:func:`depthguard.runner.chain.self_filter_margins`: the cell file's camera ``noise_coeff``).
 """
 
 from __future__ import annotations
@@ -131,7 +133,7 @@ def commission_cell(
     (default ``<cell>.background.npz``). Returns a JSON-ready summary; raises ``ValueError`` naming the problem."""
     from depthguard.robot.selffilter import self_filter
     from depthguard.runner import open_source
-    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
+    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras, self_filter_margins
 
     t0 = time.perf_counter()
     if int(frames) < 1:
@@ -164,10 +166,12 @@ def commission_cell(
                 continue
             if np.isfinite(spacing) and tick.t - t_first < taken * spacing - 1e-9:
                 continue
-            for a, c, d in zip(acc, cams, tick.frames, strict=True):
+            margins = self_filter_margins(cell, cams, tick.q, model) or [None] * len(cams)  # as `run` does
+            for a, c, d, m in zip(acc, cams, tick.frames, margins, strict=True):
                 if np.shape(d) != c.shape:
                     raise ValueError(f"{source}: a frame of shape {np.shape(d)} for a camera of {c.width}x{c.height}")
-                a.add(d, np.asarray(self_filter(c, d, tick.q, model)[0]))
+                kw = {} if m is None else {"margin": m}
+                a.add(d, np.asarray(self_filter(c, d, tick.q, model, **kw)[0]))
             taken += 1
             if progress:
                 _progress(taken, frames, f"commission {source}")
@@ -185,7 +189,7 @@ def commission_cell(
         if kind == "sim":
             coeff, quant = float(src.cams[k].noise_coeff), float(src.cams[k].quantization)
         else:
-            coeff = noise_coeff if noise_coeff is not None else measured
+            coeff = noise_coeff if noise_coeff is not None else (cc.noise_coeff or measured)
             if coeff is None:
                 raise ValueError(
                     f"{source}: camera '{cc.name}': the depth noise cannot be measured from {taken} frame set(s)"

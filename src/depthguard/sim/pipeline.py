@@ -21,7 +21,15 @@ from depthguard.robot.interior import interior_capsules, principal_robot_pixels,
 from depthguard.robot.robots import load_robot
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
 
-__all__ = ["Kinematics", "self_filter", "filter_margin", "DistanceStage", "Controller", "PointDistances"]
+__all__ = [
+    "Kinematics",
+    "self_filter",
+    "filter_margin",
+    "model_filter_margin",
+    "DistanceStage",
+    "Controller",
+    "PointDistances",
+]
 
 SELF_FILTER_MARGIN = 0.03  # m, the self-filter's default capsule inflation (robot.selffilter)
 NOISE_SIGMAS = 5.0  # the margin also covers this many standard deviations of the depth noise at the robot
@@ -36,7 +44,13 @@ def filter_margin(camera: Camera, q: np.ndarray, kin: Kinematics, noise_coeff: f
     pixels per frame, 4-sigma outliers happen every few frames; the margin covers ``NOISE_SIGMAS`` sigmas
     at the robot's farthest depth in this camera (the capsule ends plus radius).
     """
-    a, b, r = kin.model.link_capsules(q)
+    return model_filter_margin(camera, q, kin.model, noise_coeff)
+
+
+def model_filter_margin(camera: Camera, q: np.ndarray, model, noise_coeff: float = 0.0) -> float:
+    """:func:`filter_margin` for a robot ``model`` (:class:`~depthguard.robot.model.RobotModel`; the chain of
+    ``depthguard run`` with a camera's ``noise_coeff`` from the cell file)."""
+    a, b, r = model.link_capsules(q)
     z = np.maximum(camera.world_to_camera(a)[:, 2], camera.world_to_camera(b)[:, 2]) + r
     zmax = float(np.max(z)) if len(z) else 0.0
     return max(SELF_FILTER_MARGIN, NOISE_SIGMAS * float(noise_coeff) * zmax * zmax)
