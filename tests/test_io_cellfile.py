@@ -94,6 +94,39 @@ def test_mistakes_name_their_key(tmp_path, edit, needle):
     assert "cell.toml" in str(info.value)
 
 
+FILE_INTRINSICS = "width = 640\nheight = 480\nfx = 525.0\nfy = 525.0\ncx = 319.5\ncy = 239.5\n"
+DEVICE = BASE.replace(FILE_INTRINSICS, 'intrinsics = "device"\n')
+
+
+def test_align_key_validated_and_described(tmp_path, capsys):
+    """``align`` (live RealSense): default "none"; "color" needs device intrinsics; another value is refused
+    naming the key and the allowed values; ``cell check`` says whose intrinsics and optical frame are used."""
+    assert read_cell(_write(tmp_path, DEVICE)).cameras[0].align == "none"
+    aligned = _write(tmp_path, DEVICE.replace('intrinsics = "device"', 'intrinsics = "device"\nalign = "color"'))
+    assert read_cell(aligned).cameras[0].align == "color"
+    assert main(["cell", "check", str(aligned)]) == 0
+    out = capsys.readouterr().out
+    assert "depth aligned to the colour stream" in out and "intrinsics from the device's colour stream" in out
+    assert "these extrinsics place the colour camera's optical frame" in out
+    assert main(["cell", "check", str(_write(tmp_path, DEVICE))]) == 0
+    assert "colour" not in capsys.readouterr().out  # unaligned: the depth stream's, as before
+    with pytest.raises(ValueError, match=r"cameras\[0\]\.align must be one of \['none', 'color'\], got 'colour'"):
+        read_cell(_write(tmp_path, DEVICE.replace('intrinsics = "device"', 'intrinsics = "device"\nalign = "colour"')))
+    with pytest.raises(ValueError, match=r'cameras\[0\]\.align = "color" needs intrinsics = "device"'):
+        read_cell(_write(tmp_path, BASE + 'align = "color"\n'))
+
+
+def test_align_refused_by_bag_and_sim_sources(tmp_path):
+    from depthguard.runner import open_source
+    from depthguard.runner.bag import BagSource
+
+    cell = read_cell(_write(tmp_path, DEVICE + 'align = "color"\n'))
+    with pytest.raises(ValueError, match=r'cameras\[0\]\.align = "color" .* not for a bag'):
+        BagSource(tmp_path / "none.mcap", cell, ("a",))
+    with pytest.raises(ValueError, match=r'cameras\[0\]\.align = "color" .* not for the simulated cell'):
+        open_source("sim:ral-hexagon", cell, ("a",), quick=True)
+
+
 def test_cli_cell_check(tmp_path, capsys):
     assert main(["cell", "check", str(EXAMPLES / "sim-hexagon.toml")]) == 0
     out = capsys.readouterr().out

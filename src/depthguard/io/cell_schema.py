@@ -69,6 +69,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "target": (list, None),
         "up": (list, [0.0, 0.0, 1.0]),
         "parent": (str, "world"),
+        "align": (str, "none"),
         "noise_coeff": (_NUM, 0.0),
     },
     "distance": {
@@ -127,6 +128,7 @@ _CHOICES = {
     ("distance", "invalid"): ("conservative", "ignore"),
     ("camera", "intrinsics"): ("file", "camera_info", "device"),
     ("camera", "extrinsics"): ("file", "tf"),
+    ("camera", "align"): ("none", "color"),
     ("attachment", "shape"): _SHAPES,
 }
 _POSITIVE = {"rho", "grid_dd", "octree_res", "period", "rate", "distance_timeout", "joint_timeout", "a_max", "j_max"}

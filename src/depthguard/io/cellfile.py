@@ -21,10 +21,14 @@ cell file are relative to the file's folder. Sections:
   the robot (a camera carried by the robot, e.g. on the wrist: its extrinsics map points of that link's
   frame, ``P_C = R P_link + t``, and ``depthguard run`` moves it with the link at every frame's joint
   state, as the camera and distance nodes do; the link is checked against the robot when the chain is
-  built; the simulated cell and ``calibrate`` take world cameras only and say so), ``noise_coeff`` (the
-  depth noise, σ = c z², m⁻¹; default 0: the self-filter's margin is its 3 cm; with c > 0 the margin covers
-  5 σ at the robot's farthest depth in that camera, as in the simulated cell: a simulated Kinect has
-  c = 0.0014);
+  built; the simulated cell and ``calibrate`` take world cameras only and say so), ``align`` (``"none"``, the
+  default, or ``"color"``: the live RealSense source aligns the depth stream to the device's colour stream
+  with ``pyrealsense2``'s ``rs.align``, so that depth pixels are colour pixels; the camera then has the
+  colour stream's intrinsics at the colour resolution, and the extrinsics place the **colour** camera's
+  optical frame; needs ``intrinsics = "device"``; bag and simulated sources refuse it, see
+  :mod:`depthguard.runner.realsense`), ``noise_coeff`` (the depth noise, σ = c z², m⁻¹; default 0: the
+  self-filter's margin is its 3 cm; with c > 0 the margin covers 5 σ at the robot's farthest depth in that
+  camera, as in the simulated cell: a simulated Kinect has c = 0.0014);
 * ``[distance]``: ``backend`` (``depthspace`` | ``octree``; ``run`` and the nodes refuse ``octree`` for now),
   ``rho`` (m), ``mode`` (min | all | hybrid),
   ``invalid`` (conservative | ignore), ``fill_radius`` (px), ``grid_dd`` (m), ``workspace`` (6 numbers, m),
@@ -70,7 +74,16 @@ from depthguard.io.cell_schema import (
     distance_section,
 )
 
-__all__ = ["CellFile", "CellCamera", "CellRobot", "Attachment", "Sphere", "read_cell", "describe_cell"]
+__all__ = [
+    "CellFile",
+    "CellCamera",
+    "CellRobot",
+    "Attachment",
+    "Sphere",
+    "read_cell",
+    "describe_cell",
+    "refuse_align",
+]
 
 
 @dataclass(frozen=True)
@@ -111,7 +124,9 @@ class CellRobot:
 class CellCamera:
     """One camera. ``camera`` holds the intrinsics and extrinsics when the file gives both; ``intrinsics``
     and ``extrinsics`` say where they come from otherwise (``"file"``, ``"camera_info"``, ``"device"``;
-    ``"file"``, ``"tf"``). ``parent`` is the frame the extrinsics are given in."""
+    ``"file"``, ``"tf"``). ``parent`` is the frame the extrinsics are given in. ``align``: ``"none"`` or
+    ``"color"`` (the live RealSense's depth aligned to its colour stream: colour intrinsics, and the
+    extrinsics are the colour camera's)."""
 
     name: str
     topic: str
@@ -125,6 +140,7 @@ class CellCamera:
     R: np.ndarray | None
     t: np.ndarray | None
     noise_coeff: float = 0.0
+    align: str = "none"
 
     def build(self, width: int | None = None, **intrinsics: float) -> Camera:
         """The :class:`Camera` (extrinsics in ``parent``), with intrinsics from the file or the arguments."""
@@ -241,6 +257,11 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
             R = check_rotation(R, f"{where}.R")
         except ValueError as exc:
             raise CellError(f"{src}: {exc}") from None
+    if c["align"] != "none" and c["intrinsics"] != "device":
+        raise CellError(
+            f'{src}: {where}.align = "{c["align"]}" needs intrinsics = "device" (got "{c["intrinsics"]}"): the'
+            " aligned depth has the intrinsics of the RealSense's colour stream, read from the device"
+        )
     if c["noise_coeff"] < 0:
         raise CellError(f"{src}: {where}.noise_coeff must be >= 0 (sigma = c z^2, m^-1), got {c['noise_coeff']}")
     params = {k: v for k, v in intr.items() if v is not None}
@@ -263,8 +284,21 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
         params=params,
         R=R,
         t=t,
+        align=c["align"],
         noise_coeff=float(c["noise_coeff"]),
     )
+
+
+def refuse_align(cell: CellFile, source: str, hint: str = "") -> None:
+    """``ValueError`` naming ``cameras[i].align`` when a camera of ``cell`` asks for alignment and the source
+    (``source``: its description, e.g. ``"a bag"``) is not the live RealSense, the only one that can align;
+    ``hint`` ends the message."""
+    for i, c in enumerate(cell.cameras):
+        if c.align != "none":
+            raise CellError(
+                f"{cell.path}: cameras[{i}].align = \"{c.align}\" (camera '{c.name}') is for the live RealSense source"
+                f" (--source realsense) only, not for {source}: its depth images are used as they come{hint}"
+            )
 
 
 def read_cell(path: str | Path) -> CellFile:
@@ -398,6 +432,12 @@ def describe_cell(cell: CellFile) -> str:
         if c.R is not None:
             centre = -c.R.T @ c.t
             pose = f"centre {np.round(centre, 3).tolist()} m in '{c.parent}'" + calibrated.get(c.name, "")
+        if c.align == "color":
+            what = (
+                'depth aligned to the colour stream (align = "color", rs.align; live RealSense only): intrinsics'
+                " from the device's colour stream at the aligned resolution"
+            )
+            pose += "; these extrinsics place the colour camera's optical frame"
         lines.append(
             f"camera '{c.name}': {what}; depth {intr['min_depth']}-{intr['max_depth']} m; {pose};"
             f" topic {c.topic} ({c.rate:g} Hz)"

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from depthguard.io.cellfile import CellFile, read_cell
+from depthguard.io.cellfile import CellFile, read_cell, refuse_align
 
 __all__ = ["open_source", "run_cell"]
 
@@ -41,6 +41,7 @@ def open_source(
     scenario's cell without its people (``depthguard commission``; recorded sources are what they are)."""
     kind, _, arg = spec.partition(":")
     if kind == "sim":
+        refuse_align(cell, "the simulated cell")
         carried = [f"'{c.name}' on '{c.parent}'" for c in cell.cameras if c.parent != "world"]
         if carried:
             raise ValueError(

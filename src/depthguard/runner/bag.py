@@ -22,7 +22,7 @@ import numpy as np
 
 from depthguard.camera import Camera
 from depthguard.io import ros2
-from depthguard.io.cellfile import CellCamera, CellFile
+from depthguard.io.cellfile import CellCamera, CellFile, refuse_align
 from depthguard.io.mcap_ros2 import read_messages
 from depthguard.runner.sources import Tick
 
@@ -101,12 +101,19 @@ class BagSource:
     Raises:
         ValueError: a named topic is missing, a CameraInfo contradicts the image size, an unsupported
             encoding or distortion model, TF that never gives a camera's pose; the message names the bag
-            and the topic.
+            and the topic. A camera with ``align`` (live RealSense only) is refused, naming the key.
     """
 
     def __init__(
         self, path: str | Path, cell: CellFile, joint_names: tuple[str, ...], links: frozenset[str] = frozenset()
     ) -> None:
+        refuse_align(
+            cell,
+            f"a bag ({path})",
+            " (a recording of an aligned run holds the aligned depth and, in its CameraInfo, the colour intrinsics:"
+            " drop align to replay it; for depth aligned by the RealSense ROS driver, name its aligned_depth_to_color"
+            " topics and drop align)",
+        )
         self.path = Path(path)
         self.cell = cell
         self.joint_names = tuple(joint_names)
