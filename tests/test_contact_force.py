@@ -45,6 +45,21 @@ def test_point_jacobian_matches_finite_differences(robot):
         np.testing.assert_allclose(J[:, i], fd, atol=1e-7)
 
 
+def test_point_jacobian_compiled_path_equals_the_other_paths_and_checks_q(robot):
+    """The one-call compiled path (float64 q) equals the checked path (a list q), the pinocchio buffer path
+    (``update=False``), and raises the same errors."""
+    p = _contact(robot, Q, "lwr_link_6")
+    J = point_jacobian(robot, Q, "lwr_link_6", p)
+    np.testing.assert_array_equal(J, point_jacobian(robot, list(Q), "lwr_link_6", list(p)))
+    robot.update(Q)
+    np.testing.assert_allclose(J, point_jacobian(robot, Q, "lwr_link_6", p, update=False), atol=1e-14)
+    for bad, msg in ((np.r_[Q[:6], np.nan], "q must be finite"), (Q[:6], "q must have shape")):
+        with pytest.raises(ValueError, match=msg):
+            point_jacobian(robot, bad, "lwr_link_6", p)
+    with pytest.raises(ValueError, match="point_world"):
+        point_jacobian(robot, np.r_[Q[:6], np.nan], "lwr_link_6", p[:2])
+
+
 @pytest.mark.parametrize("link", ["lwr_link_4", "lwr_link_5", "lwr_link_6"])
 def test_single_contact_force_is_recovered_exactly(robot, link):
     p = _contact(robot, Q, link)

@@ -82,6 +82,45 @@ def test_vectorised_nearest_vertex_equals_algorithm_1_loop(surface, p_h):
     assert surface.link_names[surface.link[i]] == surface.link_names[link] or d == pytest.approx(d_loop)
 
 
+def _foreground_numpy(depth, bg, robot_mask, margin, erode, box):
+    """foreground_mask's definition, in numpy (what the compiled pass must reproduce)."""
+    H, W = depth.shape
+    u0, u1, v0, v1 = box or (0, W, 0, H)
+    win = (slice(v0, v1), slice(u0, u1))
+    d, b = depth[win].astype(np.float32), bg[win].astype(np.float32)
+    m = margin[win] if np.ndim(margin) == 2 else margin
+    with np.errstate(invalid="ignore"):
+        fg = np.isfinite(d) & (d > 0) & (d < np.where(np.isfinite(b) & (b > 0), b, np.inf) - m) & ~robot_mask[win]
+    if erode:
+        e = fg.copy()
+        e[1:] &= fg[:-1]
+        e[:-1] &= fg[1:]
+        e[:, 1:] &= fg[:, :-1]
+        e[:, :-1] &= fg[:, 1:]
+        fg = e
+    out = np.zeros((H, W), bool)
+    out[win] = fg
+    return out
+
+
+def test_compiled_foreground_mask_equals_its_numpy_definition():
+    rng = np.random.default_rng(5)
+    depth = rng.uniform(0.5, 3.0, (60, 80)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = np.nan
+    depth[rng.random(depth.shape) < 0.05] = 0.0
+    bg = (depth + rng.uniform(-0.1, 0.3, depth.shape)).astype(np.float32)
+    bg[rng.random(depth.shape) < 0.1] = np.nan
+    robot_mask = rng.random(depth.shape) < 0.1
+    margin = rng.uniform(0.0, 0.2, depth.shape)
+    for m in (margin, margin.astype(np.float32), 0.05, np.float64(0.05), 0):
+        for box in (None, (5, 70, 3, 50), (0, 1, 0, 60)):
+            for erode in (True, False):
+                np.testing.assert_array_equal(
+                    foreground_mask(depth, bg, robot_mask, m, erode=erode, box=box),
+                    _foreground_numpy(depth, bg, robot_mask, m, erode, box),
+                )
+
+
 def test_bad_spacing_raises(robot):
     with pytest.raises(ValueError, match="spacing"):
         RobotSurface(robot, spacing=0.0)

@@ -155,12 +155,88 @@ def test_model_errors_need_a_larger_threshold_which_then_avoids_false_positives(
     assert report["friction 0.5 N m"]["max_r_norm"] > 0.4  # friction shows up in r
 
 
+def _robots():
+    from depthguard.robot.robots import ROBOTS, load_robot
+
+    out = [load_lwr4()]
+    for name in sorted(ROBOTS):
+        try:
+            out.append(load_robot(name))
+        except ValueError:  # example-robot-data not installed
+            pass
+    return out
+
+
+def test_compiled_momentum_terms_equal_pinocchio():
+    """The observer's compiled ``p = M q̇`` and ``Cᵀ q̇ - g`` (M and C never formed) equal pinocchio's crba,
+    computeCoriolisMatrix and computeGeneralizedGravity, on the LWR, the installed robot-data arms
+    (prismatic finger joints included) and random branching trees."""
+    import pinocchio as pin
+
+    from depthguard.robot.fk import ChainKinematics
+    from depthguard.robot.residual import _body_array, _momentum_terms
+
+    rng = np.random.default_rng(3)
+    trees = []  # branching trees of revolute and prismatic joints, unaligned axes, random inertias
+    for size in (3, 6, 9):
+        tree, path = pin.Model(), [0]  # joints numbered depth first, as pinocchio's crba needs (URDF models are)
+        for j in range(1, size + 1):
+            axis = rng.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            joint = pin.JointModelRevoluteUnaligned(*axis) if j % 3 else pin.JointModelPrismaticUnaligned(*axis)
+            placement = pin.SE3(pin.exp3(rng.normal(size=3)), rng.uniform(-0.5, 0.5, 3))
+            path = path[: int(rng.integers(1, len(path) + 1))]  # the parent: on the path to the last joint
+            jid = tree.addJoint(path[-1], joint, placement, f"j{j}")
+            tree.appendBodyToJoint(jid, pin.Inertia.Random(), pin.SE3.Identity())
+            path.append(jid)
+        trees.append(tree)
+    assert any(len(set(t.parents[1:])) < t.njoints - 1 for t in trees)  # some branch
+    for robot in _robots() + trees:
+        dyn = RigidBodyDynamics(robot)
+        ch, body = ChainKinematics.from_model(dyn.model), _body_array(dyn.model)
+        m, d, n = dyn.model, dyn.model.createData(), dyn.n_dof
+        for _ in range(20):
+            q, qd = rng.uniform(-3, 3, n), rng.uniform(-3, 3, n)
+            M = pin.crba(m, d, q)
+            M = np.triu(M) + np.triu(M, 1).T
+            b_ref = pin.computeCoriolisMatrix(m, d, q, qd).T @ qd - pin.computeGeneralizedGravity(m, d, q)
+            p, b = np.empty(n), np.empty(n)
+            _momentum_terms(q, qd, ch.parent, ch.idx_v, ch.kind, ch.axis, ch.placement, body, p, b)
+            np.testing.assert_allclose(p, M @ qd, rtol=0, atol=1e-12 * max(1.0, np.abs(M @ qd).max()))
+            np.testing.assert_allclose(b, b_ref, rtol=0, atol=1e-12 * max(1.0, np.abs(b_ref).max()))
+
+
+def test_observer_compiled_path_equals_the_pinocchio_path():
+    """Along a trajectory, the control-rate path (compiled dynamics) and the path through
+    :meth:`RigidBodyDynamics.raw_terms` (taken when it is overridden) give the same residual."""
+
+    class Pinocchio(RigidBodyDynamics):
+        def raw_terms(self, q, qd):
+            return super().raw_terms(q, qd)
+
+    rng = np.random.default_rng(4)
+    for robot in _robots():
+        n = robot.n_dof
+        arm, damp = rng.uniform(0, 0.2, n), rng.uniform(0, 1, n)
+        fast = MomentumObserver(RigidBodyDynamics(robot, arm, damp), gain=100.0, dt=DT, tau_mode="sample")
+        slow = MomentumObserver(Pinocchio(robot, arm, damp), gain=100.0, dt=DT, tau_mode="sample")
+        assert fast._chain is not None and slow._chain is None
+        w, ph = rng.uniform(0.5, 3, n), rng.uniform(0, 6, n)
+        for k in range(200):
+            t = k * DT
+            q, qd, tau = np.sin(w * t + ph), w * np.cos(w * t + ph), rng.uniform(-5, 5, n)
+            np.testing.assert_allclose(fast.update(q, qd, tau), slow.update(q, qd, tau), rtol=0, atol=1e-11)
+
+
 def test_observer_rejects_bad_input(robot):
     obs = MomentumObserver(RigidBodyDynamics(robot), gain=100.0, dt=DT)
     with pytest.raises(ValueError, match="q"):
         obs.update(np.full(7, np.nan), np.zeros(7), np.zeros(7))
     with pytest.raises(ValueError, match="tau"):
         obs.update(np.zeros(7), np.zeros(7), np.zeros(6))
+    with pytest.raises(ValueError, match="qd must be finite"):  # caught in the compiled step, state untouched
+        obs.update(np.zeros(7), np.array([0.0] * 6 + [np.inf]), np.zeros(7))
+    assert not obs._started and np.all(obs.r == 0)
     with pytest.raises(ValueError, match="gain"):
         MomentumObserver(RigidBodyDynamics(robot), gain=-1.0)
     with pytest.raises(ValueError, match="tau_mode"):

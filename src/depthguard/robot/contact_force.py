@@ -26,11 +26,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from depthguard.robot.fk import world_point_jacobian
+from depthguard.robot.fk import ChainKinematics, _pack_chain, checked_point_jacobian, world_point_jacobian
 
 __all__ = ["ForceEstimate", "estimate_contact_forces", "point_jacobian", "observable_error", "sym_eig_jacobi"]
 
-_JOINT_OF_LINK: dict[int, dict[str, int]] = {}
+_F64 = np.dtype(np.float64)
+_tuple_new = tuple.__new__  # builds the ForceEstimate without its Python-level __new__
 
 
 class ForceEstimate(NamedTuple):
@@ -65,20 +66,45 @@ def point_jacobian(model, q: np.ndarray, link: str, point_world: np.ndarray, upd
         update: compute the kinematics at ``q`` (False: ``computeJointJacobians`` already ran on the
             model's pinocchio buffer for this ``q``, and its ``data.J`` is used).
     """
-    cache = _JOINT_OF_LINK.setdefault(id(model), {})
-    entry = cache.get(link)
-    if entry is None:
-        jid = int(model.model.frames[model.frame_id(link)].parentJoint)
-        entry = cache[link] = (jid, model.joint_support_mask(jid))
-    jid, support = entry
-    p = np.asarray(point_world, dtype=float)
+    try:
+        entry = model._contact_link_entries[link]
+    except (AttributeError, KeyError):
+        entry = _link_entry(model, link)
+    jid, support, chain = entry
+    p = point_world if type(point_world) is np.ndarray and point_world.dtype is _F64 else np.asarray(point_world, float)
     if p.shape != (3,):
         raise ValueError(f"point_world must have shape (3,), got shape {p.shape}")
     if update:  # the compiled kinematics (depthguard.robot.fk), WORLD joint Jacobian
+        if chain is not None and type(q) is np.ndarray and q.dtype is _F64 and q.shape == chain[0]:
+            J = np.zeros(chain[1])
+            if checked_point_jacobian(q, p, chain[2], chain[3], J):  # False: q is not finite
+                return J
         _, Jw = model.joint_kinematics(model.check_q(q))
     else:  # computeJointJacobians already ran on model.data for this q
         Jw = np.asarray(model.data.J)
     return world_point_jacobian(Jw, p, support)
+
+
+def _link_entry(model, link: str) -> tuple:
+    """``(parent joint, its support mask (n,), compiled-chain arguments or None)`` of ``link``, cached on
+    the model (``model._contact_link_entries``) where it takes attributes."""
+    jid = int(model.model.frames[model.frame_id(link)].parentJoint)
+    from depthguard.robot.model import RobotModel
+
+    support = model.joint_support_mask(jid)
+    args = None  # what checked_point_jacobian needs when joint_kinematics is RobotModel's compiled one
+    if isinstance(model, RobotModel) and type(model).joint_kinematics is RobotModel.joint_kinematics:
+        chain = model._chain_kinematics
+        if isinstance(chain, ChainKinematics):
+            n = chain.n_dof
+            args = ((n,), (3, n), *_pack_chain(chain, ints=support))
+    entry = (jid, support, args)
+    try:
+        entries = model.__dict__.setdefault("_contact_link_entries", {})
+    except AttributeError:  # no instance dict: not cached
+        return entry
+    entries[link] = entry
+    return entry
 
 
 def estimate_contact_forces(
@@ -100,7 +126,7 @@ def estimate_contact_forces(
         tol: relative singular value below which a direction is reported unobservable.
     """
     if type(jacobians) is np.ndarray and jacobians.ndim == 2:  # one contact: Aᵀ = J_c
-        At = jacobians if jacobians.dtype == np.float64 else jacobians.astype(float)
+        At = jacobians if jacobians.dtype is _F64 else jacobians.astype(float)
         if At.shape[0] != 3:
             raise ValueError(f"jacobians must all be finite with shape (3, n), got {[jacobians.shape]}")
     else:
@@ -111,17 +137,18 @@ def estimate_contact_forces(
         if any(J.shape != (3, n) for J in Js):
             raise ValueError(f"jacobians must all be finite with shape (3, n), got {[J.shape for J in Js]}")
         At = np.vstack(Js)  # (3k, n) = Aᵀ with A = (J_1ᵀ … J_kᵀ)
-    n, m = At.shape[1], At.shape[0]
-    r = np.asarray(r, float)
+    m, n = At.shape
+    if type(r) is not np.ndarray or r.dtype is not _F64:
+        r = np.asarray(r, float)
     if r.shape != (n,):
         raise ValueError(f"r must be finite with shape ({n},), got shape {r.shape}")
-    out = np.empty((m, 3 + 2 * m))
+    out = np.empty((3 + 2 * m, m))  # rows: F, σ, λ², the projector (m rows), the unobservable directions
     nbad = _estimate_kernel(np.ascontiguousarray(At), r, float(eps), float(lambda_max), float(tol), out)
     if nbad < 0:
         raise ValueError("jacobians and r must be finite (no NaN or inf)")
-    stacked = out[:, 0]
-    return ForceEstimate(
-        stacked.reshape(-1, 3), stacked, out[:, 1], out[:, 3 + m : 3 + m + nbad], out[:, 3 : 3 + m], out[0, 2]
+    stacked = out[0]
+    return _tuple_new(
+        ForceEstimate, (stacked.reshape(-1, 3), stacked, out[1], out[3 + m : 3 + m + nbad].T, out[3 : 3 + m], out[2, 0])
     )
 
 
@@ -177,12 +204,16 @@ def sym_eig_jacobi(S: np.ndarray, max_sweeps: int = 60) -> tuple[np.ndarray, np.
 @njit(cache=True)
 def _estimate_kernel(At, r, eps, lambda_max, tol, out):  # pragma: no cover - compiled
     """Selectively damped ``A^# r`` from the eigen-decomposition of ``AᵀA`` (module docstring), with
-    ``At`` = Aᵀ (m, n). Writes into ``out`` (m, 3 + 2m): column 0 F, column 1 σ descending, ``out[0, 2]``
-    the largest λ², columns 3..3+m the projector, then the u unobservable directions. Returns u, or -1
-    when the input is not finite."""
+    ``At`` = Aᵀ (m, n). Writes into ``out`` (3 + 2m, m): row 0 F, row 1 σ descending, ``out[2, 0]`` the
+    largest λ², rows 3..3+m the projector, then the u unobservable directions (one a row). Returns u, or
+    -1 when the input is not finite."""
     m, n = At.shape
-    if not (np.all(np.isfinite(At)) and np.all(np.isfinite(r))):
-        return -1
+    for k in range(n):
+        if not np.isfinite(r[k]):
+            return -1
+        for i in range(m):
+            if not np.isfinite(At[i, k]):
+                return -1
     G = np.zeros((m, m))
     Ar = np.zeros(m)
     for i in range(m):
@@ -211,20 +242,20 @@ def _estimate_kernel(At, r, eps, lambda_max, tol, out):  # pragma: no cover - co
     for i in range(m):
         if sig[i] < tol * smax:
             for k in range(m):
-                out[k, 3 + m + nbad] = V[k, i]
+                out[3 + m + nbad, k] = V[k, i]
             nbad += 1
     for a in range(m):
         f = 0.0
         for i in range(m):
             f += V[a, i] * coef[i]
-        out[a, 0] = f
-        out[a, 1] = sig[m - 1 - a]
+        out[0, a] = f
+        out[1, a] = sig[m - 1 - a]
         for b in range(m):  # P = I - U Uᵀ
             p = 1.0 if a == b else 0.0
             for u in range(nbad):
-                p -= out[a, 3 + m + u] * out[b, 3 + m + u]
-            out[a, 3 + b] = p
-    out[0, 2] = lam2_max
+                p -= out[3 + m + u, a] * out[3 + m + u, b]
+            out[3 + a, b] = p
+    out[2, 0] = lam2_max
     return nbad
 
 

@@ -24,13 +24,19 @@ corrects. The remaining error is one to three centimetres (measured in the tests
 
 from __future__ import annotations
 
-from dataclasses import replace
+import math
+from dataclasses import fields, replace
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from depthguard.camera import Camera
 from depthguard.depthspace import prepare_frame, query_distances
+
+_F64 = np.dtype(np.float64)
+_F32_F64 = (np.dtype(np.float32), _F64)
+_CAMERA_FIELDS = tuple(f.name for f in fields(Camera))
 
 __all__ = [
     "RobotSurface",
@@ -68,6 +74,106 @@ def _capsule_vertices(a: np.ndarray, b: np.ndarray, r: float, spacing: float) ->
             rr = np.cos(ph)[:, None] * x + np.sin(ph)[:, None] * y
             out.append(c + r * (np.cos(th) * rr + sign * np.sin(th) * z))
     return np.vstack(out)
+
+
+@njit(cache=True)
+def _pose_points(H, joint, start, local, out):  # pragma: no cover - compiled
+    """``out[k] = R_j local[k] + p_j`` for the points ``start[g] <= k < start[g + 1]`` of joint ``j = joint[g]``,
+    with ``H[j]`` (4, 4) its world pose."""
+    for g in range(joint.shape[0]):
+        M = H[joint[g]]
+        r00, r01, r02, p0 = M[0, 0], M[0, 1], M[0, 2], M[0, 3]
+        r10, r11, r12, p1 = M[1, 0], M[1, 1], M[1, 2], M[1, 3]
+        r20, r21, r22, p2 = M[2, 0], M[2, 1], M[2, 2], M[2, 3]
+        for k in range(start[g], start[g + 1]):
+            x, y, z = local[k, 0], local[k, 1], local[k, 2]
+            out[k, 0] = x * r00 + y * r01 + z * r02 + p0
+            out[k, 1] = x * r10 + y * r11 + z * r12 + p1
+            out[k, 2] = x * r20 + y * r21 + z * r22 + p2
+
+
+@njit(cache=True)
+def _masked_window(d, f):  # pragma: no cover - compiled
+    """``(np.where(f, d, nan), ~f)`` of a float32 (h, w) window ``d`` and its bool mask ``f``, in one pass."""
+    h, w = d.shape
+    dm = np.empty((h, w), np.float32)
+    nf = np.empty((h, w), np.bool_)
+    nan32 = np.float32(np.nan)
+    for v in range(h):
+        for u in range(w):
+            dm[v, u] = d[v, u] if f[v, u] else nan32
+            nf[v, u] = not f[v, u]
+    return dm, nf
+
+
+@njit(cache=True)
+def _nearest_vertex_kernel(V, p):  # pragma: no cover - compiled
+    """(index, squared distance) of the row of ``V`` (N >= 1, 3) nearest to ``p`` (3,): the first minimum,
+    or the first NaN distance (as ``np.argmin`` has it)."""
+    best, bi = np.inf, 0
+    p0, p1, p2 = p[0], p[1], p[2]
+    for i in range(V.shape[0]):
+        d0, d1, d2 = V[i, 0] - p0, V[i, 1] - p1, V[i, 2] - p2
+        d = d0 * d0 + d1 * d1 + d2 * d2
+        if d < best:
+            best, bi = d, i
+        elif np.isnan(d):
+            return i, d
+    return bi, best
+
+
+@njit(cache=True)
+def _foreground_kernel(d, bg, robot, margin, scalar, erode, out):  # pragma: no cover - compiled
+    """:func:`foreground_mask` on one window, into ``out`` (h, w) bool: ``d``, ``bg`` (h, w) float32,
+    ``robot`` (h, w) bool, ``margin`` (h, w) float32/float64 or, with ``scalar``, (1, 1); ``bg - margin``
+    and the comparison in the types numpy computes them in."""
+    h, w = d.shape
+    inf32 = np.float32(np.inf)
+    fg = np.empty((h, w), np.bool_) if erode else out
+    for v in range(h):
+        for u in range(w):
+            z, b = d[v, u], bg[v, u]
+            bf = b if (np.isfinite(b) and b > 0) else inf32
+            m = margin[0, 0] if scalar else margin[v, u]
+            fg[v, u] = np.isfinite(z) and z > 0 and z < bf - m and not robot[v, u]
+    if erode:
+        for v in range(h):
+            for u in range(w):
+                out[v, u] = (
+                    fg[v, u]
+                    and (v == 0 or fg[v - 1, u])
+                    and (v == h - 1 or fg[v + 1, u])
+                    and (u == 0 or fg[v, u - 1])
+                    and (u == w - 1 or fg[v, u + 1])
+                )
+
+
+@njit(cache=True)
+def _box_kernel(pc, reach, fx, fy, cx, cy):  # pragma: no cover - compiled
+    """:func:`image_box`'s bounds before clipping: (behind, floor(min(px - wx)) - 1, ceil(max(px + wx)) + 2,
+    floor(min(py - wy)) - 1, ceil(max(py + wy)) + 2), NaN propagated like numpy's min and max."""
+    n = pc.shape[0]
+    for k in range(n):
+        if pc[k, 2] - reach[k] <= 1e-3:
+            return True, 0.0, 0.0, 0.0, 0.0
+    a0, a1, b0, b1 = np.inf, -np.inf, np.inf, -np.inf
+    for k in range(n):
+        z = pc[k, 2] - reach[k]
+        px = fx * pc[k, 0] / pc[k, 2] + cx
+        py = fy * pc[k, 1] / pc[k, 2] + cy
+        wx, wy = fx * reach[k] / z, fy * reach[k] / z
+        a0, a1, b0, b1 = _nanmin(a0, px - wx), _nanmax(a1, px + wx), _nanmin(b0, py - wy), _nanmax(b1, py + wy)
+    return False, np.floor(a0) - 1, np.ceil(a1) + 2, np.floor(b0) - 1, np.ceil(b1) + 2
+
+
+@njit(cache=True)
+def _nanmin(a, b):  # pragma: no cover - compiled
+    return a if (a <= b or np.isnan(a)) else b
+
+
+@njit(cache=True)
+def _nanmax(a, b):  # pragma: no cover - compiled
+    return a if (a >= b or np.isnan(a)) else b
 
 
 class RobotSurface:
@@ -111,6 +217,8 @@ class RobotSurface:
         self.link = np.concatenate(lnk)[order]
         self._groups = [(j, np.flatnonzero(self.joint == j)) for j in np.unique(self.joint)]
         self._slices = [(j, slice(int(ix[0]), int(ix[-1]) + 1)) for j, ix in self._groups]
+        self._group_joint = np.array([j for j, _ in self._slices], dtype=np.int64)
+        self._group_start = np.array([sl.start for _, sl in self._slices] + [len(self.local)], dtype=np.int64)
         self.axis_centres = np.vstack(ac)
         self.axis_joint = np.concatenate(aj)
         self.axis_radii = np.concatenate(ar)
@@ -121,11 +229,14 @@ class RobotSurface:
 
     def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World vertices (V, 3) and axis sphere centres (S, 3) at ``q`` (n,), m."""
-        R, p = self.model.joint_poses(self.model.check_q(q))
+        model = self.model
+        q = model.check_q(q)
+        model._pin.forwardKinematics(model.model, model.data, q)  # as joint_poses(q): the model's buffer at q
+        H, _ = model.joint_kinematics(q)  # the same joint poses, compiled (no read-back from pinocchio)
         v = np.empty_like(self.local)
-        for j, sl in self._slices:
-            v[sl] = self.local[sl] @ R[j].T + p[j]
-        s = np.einsum("kij,kj->ki", R[self.axis_joint], self.axis_centres) + p[self.axis_joint]
+        s = np.empty_like(self.axis_centres)
+        _pose_points(H, self._group_joint, self._group_start, self.local, v)  # vertices grouped by joint
+        _pose_points(H, self.axis_joint, np.arange(len(self.axis_joint) + 1), self.axis_centres, s)
         return v, s
 
     def to_local(self, q: np.ndarray, index: int, point_world: np.ndarray) -> np.ndarray:
@@ -136,7 +247,21 @@ class RobotSurface:
 
 
 def nearest_vertex(vertices: np.ndarray, p_h: np.ndarray) -> tuple[int, float]:
-    """Algorithm 1, vectorised: index of the vertex (V, 3) nearest to ``p_h`` (3,) and its distance (m)."""
+    """Algorithm 1, vectorised: index of the vertex (V, 3) nearest to ``p_h`` (3,) and its distance (m).
+
+    Float arrays take one compiled pass over the vertices (no (V, 3) temporaries), with the same result."""
+    if (
+        type(vertices) is np.ndarray
+        and vertices.dtype is _F64
+        and vertices.ndim == 2
+        and vertices.shape[1] == 3
+        and len(vertices)
+        and type(p_h) is np.ndarray
+        and p_h.dtype in _F32_F64
+        and p_h.shape == (3,)
+    ):  # one compiled pass, the same numbers
+        i, d2 = _nearest_vertex_kernel(vertices, p_h.astype(_F64, copy=False))
+        return int(i), math.sqrt(d2)
     diff = vertices - p_h
     d2 = np.einsum("ij,ij->i", diff, diff)
     i = int(np.argmin(d2))
@@ -179,22 +304,42 @@ def foreground_mask(
     d = np.asarray(depth[win], np.float32)
     bg = np.asarray(background[win], np.float32)
     margin = bg_margin[win] if np.ndim(bg_margin) == 2 else bg_margin
-    ok = np.isfinite(d) & (d > 0)
-    bg_f = np.where(np.isfinite(bg) & (bg > 0), bg, np.inf)
-    with np.errstate(invalid="ignore"):
-        fg = ok & (d < bg_f - margin) & ~np.asarray(robot_mask[win], bool)
-    if erode:
-        e = fg.copy()
-        e[1:] &= fg[:-1]
-        e[:-1] &= fg[1:]
-        e[:, 1:] &= fg[:, :-1]
-        e[:, :-1] &= fg[:, 1:]
-        fg = e
+    m = _window_margin(margin, d.shape) if bg.shape == d.shape else None
+    rm = np.asarray(robot_mask[win], bool) if m is not None else None
+    if rm is not None and rm.shape == d.shape:  # one compiled pass, the same mask
+        fg = np.empty(d.shape, bool)
+        c = np.ascontiguousarray  # (contiguous windows: the kernel runs about twice as fast)
+        _foreground_kernel(c(d), c(bg), c(rm), *m, bool(erode), fg)
+    else:
+        ok = np.isfinite(d) & (d > 0)
+        bg_f = np.where(np.isfinite(bg) & (bg > 0), bg, np.inf)
+        with np.errstate(invalid="ignore"):
+            fg = ok & (d < bg_f - margin) & ~np.asarray(robot_mask[win], bool)
+        if erode:
+            e = fg.copy()
+            e[1:] &= fg[:-1]
+            e[:-1] &= fg[1:]
+            e[:, 1:] &= fg[:, :-1]
+            e[:, :-1] &= fg[:, 1:]
+            fg = e
     if box is None:
         return fg
     out = np.zeros((H, W), bool)
     out[win] = fg
     return out
+
+
+def _window_margin(margin: object, shape: tuple[int, ...]) -> tuple[np.ndarray, bool] | None:
+    """``(margin, scalar)`` for :func:`_foreground_kernel`: the (h, w) float32/float64 window, or a number
+    as a (1, 1) array in the type numpy computes ``background - margin`` in (float32 for a Python number);
+    None for anything else (the numpy path)."""
+    if type(margin) is np.ndarray:
+        return (np.ascontiguousarray(margin), False) if margin.dtype in _F32_F64 and margin.shape == shape else None
+    if type(margin) in (float, int) and abs(margin) < 3.0e38:
+        return np.full((1, 1), margin, np.float32), True
+    if type(margin) in (np.float32, np.float64):
+        return np.full((1, 1), margin, margin.dtype), True
+    return None
 
 
 class HandObservation(NamedTuple):
@@ -220,6 +365,13 @@ def image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray | float) ->
     reaches behind the camera; None if the box is empty."""
     pc = camera.world_to_camera(centres)
     reach = np.broadcast_to(np.asarray(reach, float), (len(pc),))
+    if pc.ndim == 2 and pc.shape[1] == 3 and len(pc):  # one compiled pass, the same box
+        behind, a0, a1, b0, b1 = _box_kernel(pc, reach, camera.fx, camera.fy, camera.cx, camera.cy)
+        if behind:
+            return 0, camera.width, 0, camera.height
+        u0, u1 = int(min(max(a0, 0), camera.width)), int(min(max(a1, 0), camera.width))
+        v0, v1 = int(min(max(b0, 0), camera.height)), int(min(max(b1, 0), camera.height))
+        return (u0, u1, v0, v1) if u1 > u0 and v1 > v0 else None
     z = pc[:, 2] - reach
     if np.any(z <= 1e-3):
         return 0, camera.width, 0, camera.height
@@ -244,11 +396,14 @@ def _hand_at(
     depth_offset: float,
 ) -> tuple[np.ndarray, np.ndarray, int] | None:
     """Hand centroid around the pixel of a depth-space nearest point: (position, seed, n_points)."""
-    uvd = camera.project(nearest)
-    if not np.all(np.isfinite(uvd)):
+    pc = camera.world_to_camera(nearest)  # camera.project of one point, in scalars (the same numbers)
+    z = float(pc[2])
+    inv = 1.0 / z if z > 0 else math.nan
+    px, py = camera.fx * float(pc[0]) * inv + camera.cx, camera.fy * float(pc[1]) * inv + camera.cy
+    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(z)):
         return None
-    u = int(np.clip(np.floor(uvd[0]), 0, camera.width - 1))
-    v = int(np.clip(np.floor(uvd[1]), 0, camera.height - 1))
+    u = min(max(math.floor(px), 0), camera.width - 1)
+    v = min(max(math.floor(py), 0), camera.height - 1)
     # the pixel's own measured point (the nearest point may lie in the gray area behind it)
     win = np.where(
         fg[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], depth[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2], np.inf
@@ -268,6 +423,17 @@ def _hand_at(
     c = pts[near].mean(axis=0)
     ray = c - camera.position
     return c + depth_offset * ray / np.linalg.norm(ray), seed, int(near.sum())
+
+
+def _sub_camera(camera: Camera, u0: int, u1: int, v0: int, v1: int) -> Camera:
+    """``camera`` cropped to the pixel box (u0, u1, v0, v1) (u1 > u0, v1 > v0, inside the image): what
+    ``dataclasses.replace`` gives, without re-validating the unchanged rotation and translation."""
+    if type(camera) is not Camera:
+        return replace(camera, width=u1 - u0, height=v1 - v0, cx=camera.cx - u0, cy=camera.cy - v0)
+    cam = object.__new__(Camera)  # the fields only (nothing derived from the full image can come along)
+    cam.__dict__.update({name: getattr(camera, name) for name in _CAMERA_FIELDS})
+    cam.__dict__.update(width=u1 - u0, height=v1 - v0, cx=camera.cx - u0, cy=camera.cy - v0)
+    return cam
 
 
 def locate_hands(
@@ -308,26 +474,33 @@ def locate_hands(
     if box is None:
         return []
     u0, u1, v0, v1 = box
-    cam = replace(camera, width=u1 - u0, height=v1 - v0, cx=camera.cx - u0, cy=camera.cy - v0)
+    cam = _sub_camera(camera, u0, u1, v0, v1)
     d = np.asarray(depth[v0:v1, u0:u1], np.float32)
     f = np.asarray(fg[v0:v1, u0:u1], bool)
-    frame = prepare_frame(cam, np.where(f, d, np.float32(np.nan)), mask=~f, invalid="ignore", fill_radius=0)
+    if d.shape == f.shape:  # (contiguous windows: the kernel runs faster on them)
+        dm, nf = _masked_window(np.ascontiguousarray(d), np.ascontiguousarray(f))
+    else:
+        dm, nf = np.where(f, d, np.float32(np.nan)), ~f
+    frame = prepare_frame(cam, dm, mask=nf, invalid="ignore", fill_radius=0)
     res = query_distances(frame, centres, radii, rho=rho, mode="min")
     out: list[HandObservation] = []
     taken: list[tuple[float, float, float]] = []  # (u, v, radius) image discs of the hands found
-    uvd = cam.project(np.nan_to_num(res.nearest))
+    uvd = None  # the candidates' pixels, needed once a hand is taken
     for i in np.argsort(res.distance):
         if len(out) >= n or not np.isfinite(res.distance[i]):
             break
+        if taken and uvd is None:
+            uvd = cam.project(np.nan_to_num(res.nearest))
         if any(np.hypot(uvd[i, 0] - u, uvd[i, 1] - v) < w for u, v, w in taken):
             continue  # a hand already found
         found = _hand_at(cam, d, f, res.nearest[i], centres[i], radii[i], hand_radius, depth_offset)
         if found is None:
             continue
-        su = cam.project(found[1])
-        taken.append((su[0], su[1], separation * cam.fx / max(su[2], 1e-3)))
         if not any(np.linalg.norm(found[1] - h.seed) < separation for h in out):
             out.append(HandObservation(found[0], found[1], float(res.distance[i]), found[2]))
+        if len(out) < n:  # (otherwise the search ends here and the disc is never looked at)
+            su = cam.project(found[1])
+            taken.append((su[0], su[1], separation * cam.fx / max(su[2], 1e-3)))
     return out
 
 
