@@ -125,14 +125,15 @@ def background_applied(cell: CellFile) -> str | None:
 def cell_background(cell: CellFile, cameras: list[Camera]) -> tuple[list[np.ndarray], list[float]] | None:
     """Per camera of ``cameras`` (the cell file's order), the background rule's threshold (H, W) and far range
     (:mod:`depthguard.robot.background`) from the cell's background file, when :func:`background_applied`;
-    a background of another image size than the camera's raises :class:`CellError` naming the key."""
+    a background of another image size than the camera's raises :class:`CellError` naming the key. None for
+    a stage of other cameras than the cell's (``calibrate``'s effect of one camera alone)."""
     from pathlib import Path
 
     from depthguard.io.background import read_background
     from depthguard.robot.background import far_range
 
     path = background_applied(cell)
-    if path is None:
+    if path is None or len(cameras) != len(cell.cameras):
         return None
     key = (path, Path(path).stat().st_mtime_ns)
     if key not in _BACKGROUNDS:
