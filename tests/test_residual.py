@@ -218,9 +218,11 @@ def test_observer_compiled_path_equals_the_pinocchio_path():
     for robot in _robots():
         n = robot.n_dof
         arm, damp = rng.uniform(0, 0.2, n), rng.uniform(0, 1, n)
-        fast = MomentumObserver(RigidBodyDynamics(robot, arm, damp), gain=100.0, dt=DT, tau_mode="sample")
-        slow = MomentumObserver(Pinocchio(robot, arm, damp), gain=100.0, dt=DT, tau_mode="sample")
-        assert fast._chain is not None and slow._chain is None
+        dyn = RigidBodyDynamics(robot, arm, damp)
+        fast = MomentumObserver(dyn, gain=100.0, dt=DT, tau_mode="sample", terms="compiled")
+        slow = MomentumObserver(Pinocchio(robot, arm, damp), gain=100.0, dt=DT, tau_mode="sample", terms="compiled")
+        default = MomentumObserver(dyn, gain=100.0, dt=DT, tau_mode="sample")
+        assert fast._chain is not None and slow._chain is None and default._chain is None  # pinocchio by default
         w, ph = rng.uniform(0.5, 3, n), rng.uniform(0, 6, n)
         for k in range(200):
             t = k * DT
@@ -239,6 +241,8 @@ def test_observer_rejects_bad_input(robot):
     assert not obs._started and np.all(obs.r == 0)
     with pytest.raises(ValueError, match="gain"):
         MomentumObserver(RigidBodyDynamics(robot), gain=-1.0)
+    with pytest.raises(ValueError, match="terms must be 'pinocchio' or 'compiled'"):
+        MomentumObserver(RigidBodyDynamics(robot), terms="fast")
     with pytest.raises(ValueError, match="tau_mode"):
         MomentumObserver(RigidBodyDynamics(robot), tau_mode="mean")
 
