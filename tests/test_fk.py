@@ -68,24 +68,6 @@ def test_random_trees_match_pinocchio(seed: int) -> None:
         np.testing.assert_allclose(Jw, J_ref, atol=1e-12)
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_chain_fk_into_equals_chain_fk_bit_for_bit(seed: int) -> None:
-    """The one-scratch variant the one-call kernels use (contact Jacobian, momentum observer)."""
-    from depthguard.robot.fk import _chain_fk, _chain_fk_into
-
-    rng = np.random.default_rng(seed)
-    model = _random_tree(rng, int(rng.integers(1, 10)))
-    chain = ChainKinematics.from_model(model)
-    args = (chain.parent, chain.idx_v, chain.kind, chain.axis, chain.placement)
-    for _ in range(10):
-        q = rng.uniform(-4.0, 4.0, model.nq)
-        H, Jw = _chain_fk(q, *args)
-        H2, Jw2 = np.zeros_like(H), np.zeros_like(Jw)
-        _chain_fk_into(q, *args, H2, Jw2)
-        np.testing.assert_array_equal(H2, H)
-        np.testing.assert_array_equal(Jw2, Jw)
-
-
 @pytest.mark.parametrize(
     "joint",
     [pin.JointModelSpherical(), pin.JointModelFreeFlyer(), pin.JointModelHelicalUnaligned(np.array([0, 0, 1.0]), 0.1)],

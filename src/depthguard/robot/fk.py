@@ -34,57 +34,16 @@ _REVOLUTE, _PRISMATIC = 0, 1
 @njit(cache=True)
 def _chain_fk(q, parent, idx_v, kind, axis, placement):  # pragma: no cover - compiled
     """World poses (J, 4, 4) and WORLD joint Jacobian (6, n) at ``q`` (module docstring)."""
-    nj = parent.shape[0]
-    H = np.zeros((nj, 4, 4))
+    H = np.zeros((parent.shape[0], 4, 4))
     Jw = np.zeros((6, q.shape[0]))
-    for i in range(4):
-        H[0, i, i] = 1.0
-    for j in range(1, nj):
-        A = H[parent[j]]
-        P = placement[j]
-        T = np.empty((4, 4))
-        for r in range(3):
-            for c in range(4):
-                T[r, c] = A[r, 0] * P[0, c] + A[r, 1] * P[1, c] + A[r, 2] * P[2, c] + (A[r, 3] if c == 3 else 0.0)
-        x, y, z = axis[j, 0], axis[j, 1], axis[j, 2]
-        v = q[idx_v[j]]
-        Hj = H[j]
-        Hj[3, 3] = 1.0
-        if kind[j] == _REVOLUTE:  # T · Rot(axis, v) (Rodrigues)
-            s, co = np.sin(v), np.cos(v)
-            t = 1.0 - co
-            R00, R01, R02 = t * x * x + co, t * x * y - s * z, t * x * z + s * y
-            R10, R11, R12 = t * x * y + s * z, t * y * y + co, t * y * z - s * x
-            R20, R21, R22 = t * x * z - s * y, t * y * z + s * x, t * z * z + co
-            for r in range(3):
-                a0, a1, a2 = T[r, 0], T[r, 1], T[r, 2]
-                Hj[r, 0] = a0 * R00 + a1 * R10 + a2 * R20
-                Hj[r, 1] = a0 * R01 + a1 * R11 + a2 * R21
-                Hj[r, 2] = a0 * R02 + a1 * R12 + a2 * R22
-                Hj[r, 3] = T[r, 3]
-        else:  # T · Trans(axis v)
-            for r in range(3):
-                Hj[r, 0], Hj[r, 1], Hj[r, 2] = T[r, 0], T[r, 1], T[r, 2]
-                Hj[r, 3] = T[r, 3] + v * (T[r, 0] * x + T[r, 1] * y + T[r, 2] * z)
-        w0 = Hj[0, 0] * x + Hj[0, 1] * y + Hj[0, 2] * z  # the axis in the world frame
-        w1 = Hj[1, 0] * x + Hj[1, 1] * y + Hj[1, 2] * z
-        w2 = Hj[2, 0] * x + Hj[2, 1] * y + Hj[2, 2] * z
-        col = idx_v[j]
-        if kind[j] == _REVOLUTE:
-            o0, o1, o2 = Hj[0, 3], Hj[1, 3], Hj[2, 3]
-            Jw[0, col] = o1 * w2 - o2 * w1
-            Jw[1, col] = o2 * w0 - o0 * w2
-            Jw[2, col] = o0 * w1 - o1 * w0
-            Jw[3, col], Jw[4, col], Jw[5, col] = w0, w1, w2
-        else:
-            Jw[0, col], Jw[1, col], Jw[2, col] = w0, w1, w2
+    _chain_fk_into(q, parent, idx_v, kind, axis, placement, H, Jw)
     return H, Jw
 
 
 @njit(cache=True)
 def _chain_fk_into(q, parent, idx_v, kind, axis, placement, H, Jw):  # pragma: no cover - compiled
-    """:func:`_chain_fk` into ``H`` (J, 4, 4) and ``Jw`` (6, n), zeros on entry, with one scratch matrix for
-    all joints (not one each): the same numbers, bit for bit (``tests/test_fk.py``)."""
+    """:func:`_chain_fk` into ``H`` (J, 4, 4) and ``Jw`` (6, n), zeros on entry (one scratch matrix for all
+    joints)."""
     nj = parent.shape[0]
     T = np.empty((4, 4))
     for i in range(4):
