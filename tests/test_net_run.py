@@ -92,7 +92,14 @@ def test_run_transport_zenoh_publishes_images_and_joint_states(tmp_path):
     js_key = f"0/joint_states/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
     cmd_key = f"0/depthguard/joint_command/sensor_msgs::msg::dds_::JointState_/{JOINT_STATE_HASH}"
     assert len(got[img_key]) == summary["frames"] > 0
-    assert len(got[js_key]) == summary["commands"] == len(got[cmd_key])
+    # the publishers never block the control loop (zenoh CongestionControl.DROP, as a real-time publisher
+    # must): on a loaded 2-core machine a sample may be dropped (seen once: 199 of 200 joint states), so
+    # allow 1 % lost, and check by sequence number that what arrives is in order and not duplicated
+    n = summary["commands"]
+    for key in (js_key, cmd_key):
+        assert n - max(1, n // 100) <= len(got[key]) <= n, (key, len(got[key]), n)
+        seq = [struct.unpack("<q", a[:8])[0] for _, a in got[key]]
+        assert seq == sorted(seq) and len(set(seq)) == len(seq) and max(seq) <= n
     img = ts.deserialize_cdr(got[img_key][-1][0], "sensor_msgs/msg/Image")
     assert (img.encoding, img.width, img.height) == ("32FC1", 160, 120)
     depth = np.frombuffer(bytes(img.data), "<f4")
