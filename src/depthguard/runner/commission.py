@@ -117,40 +117,24 @@ def _progress(k: int, n: int, label: str) -> None:
     sys.stderr.flush()
 
 
-def commission_cell(
-    cell_path: str | Path,
-    source: str,
-    *,
-    frames: int = COMMISSION_FRAMES,
-    out: str | Path | None = None,
-    quick: bool = False,
-    progress: bool = False,
-    noise_coeff: float | None = None,
-    margin: float = BACKGROUND_MARGIN,
-) -> dict[str, Any]:
-    """Record the background of the empty cell of ``cell_path`` from ``source`` (``bag:PATH``,
-    ``sim:SCENARIO``: its people-free cell, ``realsense``) over ``frames`` frame sets and write it to ``out``
-    (default ``<cell>.background.npz``). Returns a JSON-ready summary; raises ``ValueError`` naming the problem."""
-    from depthguard.robot.selffilter import self_filter
-    from depthguard.runner import open_source
-    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras, self_filter_margins
-
-    t0 = time.perf_counter()
+def _check_options(frames: int, margin: float, noise_coeff: float | None) -> int:
+    """The command's numbers, checked (``InputError`` naming the option); returns ``frames`` as an int."""
     if int(frames) < 1:
         raise InputError(f"--frames must be an integer >= 1, got {frames}")
-    frames = int(frames)
     if not (np.isfinite(margin) and margin >= 0):
         raise InputError(f"--margin must be a number of metres >= 0, got {margin}")
     if noise_coeff is not None and not (np.isfinite(noise_coeff) and noise_coeff >= 0):
         raise InputError(f"--noise-coeff must be a number >= 0, got {noise_coeff}")
-    cell = read_cell(cell_path)
-    path = check_out_file(out if out is not None else default_background_path(cell.path))
-    refuse_carried_cameras(cell, "`depthguard commission`", "the background of a moving camera moves with it")
-    model = load_cell_robot(cell)
-    links = frozenset(f.name for f in model.model.frames)
-    src = open_source(source, cell, model.joint_names, quick=quick, links=links, people=False)
-    kind = source.partition(":")[0]
-    follow = _sim_follower(src) if kind == "sim" else None
+    return int(frames)
+
+
+def _record(src, cell, model, source: str, frames: int, progress: bool, follow_task: bool):
+    """``frames`` frame sets of ``src``, spread over its duration, each self-filtered at its joint state as
+    ``run`` does, into one :class:`_Accumulator` per camera; returns them and the count taken."""
+    from depthguard.robot.selffilter import self_filter
+    from depthguard.runner.chain import self_filter_margins
+
+    follow = _sim_follower(src) if follow_task else None
     cams = list(src.cameras)
     acc = [_Accumulator(c.shape) for c in cams]
     spacing = float(getattr(src, "duration", np.inf)) / frames  # inf: a live camera, every frame set
@@ -183,38 +167,74 @@ def commission_cell(
             sys.stderr.write("\n")
     if taken == 0:
         raise ValueError(f"{source}: no frame set with a joint state: nothing to commission from")
+    return acc, taken
+
+
+def _camera_entry(cc, c, a, taken: int, source: str, sim_cam, noise_coeff: float | None, margin: float) -> dict:
+    """One camera's part of the summary: its tolerance model (a simulated camera's own noise and quantization;
+    otherwise ``--noise-coeff``, the cell file's, or the one measured from the frames) and its figures."""
+    measured = a.noise_coeff(taken)
+    if sim_cam is not None:
+        coeff, quant = float(sim_cam.noise_coeff), float(sim_cam.quantization)
+    else:
+        coeff = noise_coeff if noise_coeff is not None else (cc.noise_coeff or measured)
+        if coeff is None:
+            raise ValueError(
+                f"{source}: camera '{cc.name}': the depth noise cannot be measured from {taken} frame set(s)"
+                " (needs 5 or more with a steady view); give --noise-coeff (sigma = c z^2, e.g. 0.0014 for a"
+                " Kinect v1)"
+            )
+        quant = float(cc.params.get("depth_scale", 0.001))
+    valid = float(np.mean(np.isfinite(a.near)))
+    med = float(np.nanmedian(a.near)) if valid > 0 else float("nan")
+    return {
+        "name": cc.name,
+        "width": c.width,
+        "height": c.height,
+        "valid_fraction": valid,
+        "median_depth_m": med,
+        "noise_coeff": float(coeff),
+        "noise_coeff_measured": measured,
+        "quantization_m": quant,
+        "margin_m": float(margin),
+        "tolerance_at_median_depth_m": 3.0 * float(coeff) * med * med + quant + float(margin),
+    }
+
+
+def commission_cell(
+    cell_path: str | Path,
+    source: str,
+    *,
+    frames: int = COMMISSION_FRAMES,
+    out: str | Path | None = None,
+    quick: bool = False,
+    progress: bool = False,
+    noise_coeff: float | None = None,
+    margin: float = BACKGROUND_MARGIN,
+) -> dict[str, Any]:
+    """Record the background of the empty cell of ``cell_path`` from ``source`` (``bag:PATH``,
+    ``sim:SCENARIO``: its people-free cell, ``realsense``) over ``frames`` frame sets and write it to ``out``
+    (default ``<cell>.background.npz``). Returns a JSON-ready summary; raises ``ValueError`` naming the problem."""
+    from depthguard.runner import open_source
+    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
+
+    t0 = time.perf_counter()
+    frames = _check_options(frames, margin, noise_coeff)
+    cell = read_cell(cell_path)
+    path = check_out_file(out if out is not None else default_background_path(cell.path))
+    refuse_carried_cameras(cell, "`depthguard commission`", "the background of a moving camera moves with it")
+    model = load_cell_robot(cell)
+    links = frozenset(f.name for f in model.model.frames)
+    src = open_source(source, cell, model.joint_names, quick=quick, links=links, people=False)
+    kind = source.partition(":")[0]
+    acc, taken = _record(src, cell, model, source, frames, progress, kind == "sim")
     entries, coeffs, quants = [], [], []
-    for k, (cc, c, a) in enumerate(zip(cell.cameras, cams, acc, strict=True)):
-        measured = a.noise_coeff(taken)
-        if kind == "sim":
-            coeff, quant = float(src.cams[k].noise_coeff), float(src.cams[k].quantization)
-        else:
-            coeff = noise_coeff if noise_coeff is not None else (cc.noise_coeff or measured)
-            if coeff is None:
-                raise ValueError(
-                    f"{source}: camera '{cc.name}': the depth noise cannot be measured from {taken} frame set(s)"
-                    " (needs 5 or more with a steady view); give --noise-coeff (sigma = c z^2, e.g. 0.0014 for a"
-                    " Kinect v1)"
-                )
-            quant = float(cc.params.get("depth_scale", 0.001))
-        coeffs.append(float(coeff))
-        quants.append(quant)
-        valid = float(np.mean(np.isfinite(a.near)))
-        med = float(np.nanmedian(a.near)) if valid > 0 else float("nan")
-        entries.append(
-            {
-                "name": cc.name,
-                "width": c.width,
-                "height": c.height,
-                "valid_fraction": valid,
-                "median_depth_m": med,
-                "noise_coeff": float(coeff),
-                "noise_coeff_measured": measured,
-                "quantization_m": quant,
-                "margin_m": float(margin),
-                "tolerance_at_median_depth_m": 3.0 * float(coeff) * med * med + quant + float(margin),
-            }
-        )
+    for k, (cc, c, a) in enumerate(zip(cell.cameras, src.cameras, acc, strict=True)):
+        sim_cam = src.cams[k] if kind == "sim" else None
+        entry = _camera_entry(cc, c, a, taken, source, sim_cam, noise_coeff, margin)
+        entries.append(entry)
+        coeffs.append(entry["noise_coeff"])
+        quants.append(entry["quantization_m"])
     bg = BackgroundFile(
         names=tuple(c.name for c in cell.cameras),
         depths=tuple(a.near for a in acc),
