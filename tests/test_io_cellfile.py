@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from depthguard.cli import main
-from depthguard.io.cellfile import describe_cell, read_cell
+from depthguard.io.cell_describe import describe_cell
+from depthguard.io.cellfile import read_cell
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "cells"
 

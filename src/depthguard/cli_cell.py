@@ -47,7 +47,8 @@ def _cmd_commission(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------------- cell
 def _cmd_cell(args: argparse.Namespace) -> int:
-    from depthguard.io.cellfile import describe_cell, read_cell
+    from depthguard.io.cell_describe import describe_cell
+    from depthguard.io.cellfile import read_cell
     from depthguard.runner.chain import check_camera_parents, load_cell_robot
 
     cell = read_cell(args.cell)
