@@ -146,6 +146,35 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_calibrate)
 
+    _add_commission_command(sub)
+
+    p = sub.add_parser("node", help="run one node of a cell on Zenoh: sim, a camera, distance, controller, monitor")
+    p.add_argument("name", help="node name: sim, a camera name of the cell, distance, controller or monitor")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument("--source", default=None, metavar="sim:SCENARIO", help="the sim node's scenario")
+    p.add_argument("--quick", action="store_true", help="the scenario's short form (sim node: 160x120 images)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
+    p.add_argument("--log", default=None, metavar="FILE", help="JSON-lines event log (timings)")
+    p.add_argument("--watchdog", type=float, default=0.05, metavar="S", help="sim node: driver watchdog timeout")
+    _zenoh_flags(p)
+    p.set_defaults(func=_cmd_node)
+
+    p = sub.add_parser("view", help="live 3-D view of a cell's nodes in the browser (viser)")
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
+    p.add_argument("--port", type=int, default=8080, help="HTTP port of the page (127.0.0.1)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
+    _zenoh_flags(p)
+    p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
+    p.add_argument("action", choices=["check"])
+    p.add_argument("cell", metavar="CELL.toml")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_cell)
+
+
+def _add_commission_command(sub) -> None:
+    """``depthguard commission``: record the empty cell's background (docs/real-cell.md)."""
     p = sub.add_parser(
         "commission",
         help="record the empty cell's background for SSM ([controller] background); nobody may be in the cell",
@@ -175,27 +204,3 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--margin", type=float, default=0.01, metavar="M", help="extra tolerance, m (default 0.01)")
     p.add_argument("--json", action="store_true", help="print one JSON object (no progress line)")
     p.set_defaults(func=_cmd_commission)
-
-    p = sub.add_parser("node", help="run one node of a cell on Zenoh: sim, a camera, distance, controller, monitor")
-    p.add_argument("name", help="node name: sim, a camera name of the cell, distance, controller or monitor")
-    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
-    p.add_argument("--source", default=None, metavar="sim:SCENARIO", help="the sim node's scenario")
-    p.add_argument("--quick", action="store_true", help="the scenario's short form (sim node: 160x120 images)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
-    p.add_argument("--log", default=None, metavar="FILE", help="JSON-lines event log (timings)")
-    p.add_argument("--watchdog", type=float, default=0.05, metavar="S", help="sim node: driver watchdog timeout")
-    _zenoh_flags(p)
-    p.set_defaults(func=_cmd_node)
-
-    p = sub.add_parser("view", help="live 3-D view of a cell's nodes in the browser (viser)")
-    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
-    p.add_argument("--port", type=int, default=8080, help="HTTP port of the page (127.0.0.1)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
-    _zenoh_flags(p)
-    p.set_defaults(func=_cmd_view)
-
-    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
-    p.add_argument("action", choices=["check"])
-    p.add_argument("cell", metavar="CELL.toml")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=_cmd_cell)

@@ -122,7 +122,7 @@ class AvoidanceController:
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
-        self.compiled = _compiled_parts(self.points, cfg) if M_TASK == 3 else None
+        self.compiled = _compiled_parts(self.points, cfg)  # (the kernels are written for the 3-D task, M_TASK)
         self.sensor_fault: str | None = None
         if cfg.avoidance not in ("repulsion", "ssm", "both"):
             raise ValueError(f"avoidance must be 'repulsion', 'ssm' or 'both', got {cfg.avoidance!r}")
