@@ -145,9 +145,13 @@ def test_missing_depth_inside_the_inflated_silhouette_is_robot_and_beside_it_is_
     sil = np.isfinite(render_depth(cam, Scene(robot)))
     a, b, r = lwr.link_capsules(Q)
     inflated = np.isfinite(render_capsules_depth(cam, a, b, r + MARGIN))  # exact silhouette + margin
+    # the links' capsules are the filter's own geometry; the base's is a stand-in for its cylinder (larger
+    # than it), so its rim is left out of the band: rays there pass more than the margin from the cylinder
+    k = slice(1, None) if lwr.capsules[0].link == "lwr_link_0" else slice(None)
+    links = np.isfinite(render_capsules_depth(cam, a[k], b[k], r[k] + MARGIN))
     rng = np.random.default_rng(0)
     holes = sil & (rng.uniform(size=sil.shape) < 0.2)
-    band = _ring(sil, 1, 2) & inflated  # a real camera's missing edges, within the margin's silhouette
+    band = _ring(sil, 1, 2) & links  # a real camera's missing edges, within the margin's silhouette
     beside = _ring(inflated, 2, 4)  # just outside the inflated silhouette (beyond the prism's sub-pixel corners)
     m = measured.copy()
     m[holes] = np.nan

@@ -15,11 +15,14 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
-def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
+def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows, depth, wn, sg) -> None:
     """Fill one projected triangle (image coordinates ``x, y``, inverse depths ``w = 1 / z > 0``) into the
     per-shape buffers of inverse depth: ``snear`` keeps the largest, ``sfar`` the smallest; ``rows`` (H, 2)
-    holds each row's touched span [lo, hi]. Scanline: the vertices sorted by y, each row's span lies between
-    the long edge and one of the two short ones."""
+    holds each row's touched span [lo, hi]. ``wn`` (H, W) counts the crossings in front of the measured
+    ``depth``: ``sg`` = +1 where the triangle's original face looks at the camera (the ray enters the
+    shape), -1 where it looks away, so that ``wn > 0`` at a pixel means that its measured point lies inside
+    the closed shape (its winding number). Scanline: the vertices sorted by y, each row's span lies between the long edge and one of the
+    two short ones."""
     H, W = snear.shape
     area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     if abs(area) < 1e-12:
@@ -66,16 +69,17 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows) -> None:
             rows[v, 0] = ua
         if ub > rows[v, 1]:
             rows[v, 1] = ub
-        row_n, row_f = snear[v], sfar[v]
+        row_n, row_f, row_d, row_w = snear[v], sfar[v], depth[v], wn[v]
         base = B * py + C
         for u in range(ua, ub + 1):  # branch-free, so that the compiler can vectorise the span
             iz = min(max(A * (u + 0.5) + base, w_lo), w_hi)  # clamp: rounding at the edges
             row_n[u] = max(row_n[u], iz)
             row_f[u] = min(row_f[u], iz)
+            row_w[u] += sg if iz * row_d[u] > 1.0 else 0  # the face lies in front of the measured point
 
 
 @njit(cache=True)
-def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows) -> None:
+def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows, depth, wn, sg) -> None:
     """Clip a triangle against ``z >= znear`` (Sutherland-Hodgman) and fill what is left."""
     pts = (p0, p1, p2)
     out = np.empty((4, 3))
@@ -96,7 +100,7 @@ def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows) -> Non
         out[i, 0], out[i, 1], out[i, 2] = fx * out[i, 0] / z + cx, fy * out[i, 1] / z + cy, 1.0 / z
     for k in range(1, n - 1):
         a, b, c = out[0], out[k], out[k + 1]
-        _raster_tri(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], snear, sfar, rows)
+        _raster_tri(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], snear, sfar, rows, depth, wn, sg)
 
 
 @njit(cache=True)
@@ -118,6 +122,9 @@ def mesh_kernel(
     near: np.ndarray,
     snear: np.ndarray,
     sfar: np.ndarray,
+    wn: np.ndarray,
+    NP: np.ndarray,
+    closed: np.ndarray,
     ubox: np.ndarray,
 ) -> None:
     """Rasterise every inflated mesh shape; mark measured pixels inside a shape in ``mask``.
@@ -127,9 +134,14 @@ def mesh_kernel(
         F: (Ft, 3) vertex indices into V. vr, fr: (S, 2) vertex / face index ranges of each shape.
         T: (S, 3, 4) camera-from-joint transform of each shape. infl: (S,) inflation of each shape, m.
         depth: (H, W) measured z_C, m (no reading: not > 0 or not finite).
-        mask: (H, W) bool, set True where a measured point lies in ``[near, far]`` of a shape.
+        mask: (H, W) bool, set True where a measured point lies in ``[near, far]`` of a shape and inside it
+            (winding number > 0: not in a gap between two of its parts; for a shape cut by the near plane,
+            whose crossings are incomplete, the interval alone decides).
         near: (H, W) running minimum of the inflated robot's depth (inf = none).
         snear, sfar: (H, W) work buffers of inverse depth (largest / smallest 1/z), 0 / inf on entry and exit.
+        wn: (H, W) int work buffer of winding numbers, 0 on entry and exit.
+        NP: (Ft, 4) outward unit normal and offset of each original face (``n . x = h``), joint frame.
+        closed: (S,) bool, the shape is a closed (watertight) mesh: its winding number is meaningful.
         ubox: (4,) int union box (u_lo, u_hi, v_lo, v_hi) of the pixels touched, updated.
     """
     nv_max = 0
@@ -157,15 +169,22 @@ def mesh_kernel(
                 S[i - v_start, 0] = fx * P[i - v_start, 0] * iz + cx
                 S[i - v_start, 1] = fy * P[i - v_start, 1] * iz + cy
                 S[i - v_start, 2] = iz
+        # the interval alone decides for an open mesh, or one cut by the near plane (crossings incomplete)
+        whole = not closed[s] or zmin <= znear
+        ex = -(T[s, 0, 0] * T[s, 0, 3] + T[s, 1, 0] * T[s, 1, 3] + T[s, 2, 0] * T[s, 2, 3])  # camera, joint frame
+        ey = -(T[s, 0, 1] * T[s, 0, 3] + T[s, 1, 1] * T[s, 1, 3] + T[s, 2, 1] * T[s, 2, 3])
+        ez = -(T[s, 0, 2] * T[s, 0, 3] + T[s, 1, 2] * T[s, 1, 3] + T[s, 2, 2] * T[s, 2, 3])
         for f in range(fr[s, 0], fr[s, 1]):
             i0, i1, i2 = F[f, 0] - v_start, F[f, 1] - v_start, F[f, 2] - v_start
+            # the original face's side, not the inflated one's: small faces in a hollow flip when inflated
+            sg = 1 if NP[f, 0] * ex + NP[f, 1] * ey + NP[f, 2] * ez > NP[f, 3] else -1
             if zmin > znear or (P[i0, 2] > znear and P[i1, 2] > znear and P[i2, 2] > znear):
                 _raster_tri(
                     S[i0, 0], S[i0, 1], S[i0, 2], S[i1, 0], S[i1, 1], S[i1, 2], S[i2, 0], S[i2, 1], S[i2, 2],
-                    snear, sfar, rows,
+                    snear, sfar, rows, depth, wn, sg,
                 )  # fmt: skip
             elif P[i0, 2] > znear or P[i1, 2] > znear or P[i2, 2] > znear:
-                _raster_clipped(P[i0], P[i1], P[i2], znear, fx, fy, cx, cy, snear, sfar, rows)
+                _raster_clipped(P[i0], P[i1], P[i2], znear, fx, fy, cx, cy, snear, sfar, rows, depth, wn, sg)
         for v in range(H):
             if rows[v, 1] < 0:
                 continue
@@ -177,8 +196,9 @@ def mesh_kernel(
                     continue
                 zn, zf = 1.0 / izn, 1.0 / sfar[v, u]
                 d = depth[v, u]
-                if d > 0.0 and d < np.inf and zn <= d <= zf:
+                if d > 0.0 and d < np.inf and zn <= d <= zf and (whole or wn[v, u] > 0):
                     mask[v, u] = True
+                wn[v, u] = 0
                 if zn < near[v, u]:
                     near[v, u] = zn
                 snear[v, u] = 0.0

@@ -87,6 +87,23 @@ def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, floa
     return [(Rs @ a + ps, Rs @ b + ps, radius) for a, b in ends]
 
 
+def _is_closed(f: np.ndarray) -> bool:
+    """Every directed edge of the faces ``f`` (F, 3) appears once, and so does its reverse (a closed,
+    consistently wound mesh)."""
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    fwd = {(int(a), int(b)) for a, b in e}
+    return len(fwd) == len(e) and all((b, a) in fwd for a, b in fwd)
+
+
+def _face_planes(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """(F, 4) outward unit normal (right-handed winding) and offset of each face; zeros for a degenerate one."""
+    tri = v[f]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    ln = np.linalg.norm(n, axis=1)
+    n = np.where(ln[:, None] > 1e-15, n / np.maximum(ln, 1e-300)[:, None], 0.0)
+    return np.ascontiguousarray(np.c_[n, np.einsum("ij,ij->i", n, tri[:, 0])])
+
+
 class RobotGeometry:
     """Collision geometry of a robot, rigidly attached to its pinocchio joints.
 
@@ -96,6 +113,9 @@ class RobotGeometry:
         cap_joint (C,), cap_a, cap_b (C, 3), cap_r (C,): analytic capsules in their parent joint frame.
         mesh_joint (S,), V, O (Vt, 3), F (Ft, 3), vr, fr (S, 2), slack (S,): meshes in their joint frame.
         n_triangles: total triangle count of the meshes used by the filter.
+        face_planes (Ft, 4): outward unit normal and offset ``h`` (``n . x = h``) of each face, joint frame.
+        closed (S,) bool: the mesh is closed (every edge shared by two faces in opposite directions), so
+            that the self-filter may count its crossings (winding number).
     """
 
     def __init__(self, model, shapes: Sequence[Shape], max_triangles: int | None = None) -> None:
@@ -103,7 +123,7 @@ class RobotGeometry:
         caps, rest = capsule_idiom(list(self.shapes))
         self.geoms: list[ShapeGeometry] = caps + [shape_geometry(s) for s in rest]
         cj, ca, cb, cr = [], [], [], []
-        mj, Vs, Os, Fs, vr, fr, slack = [], [], [], [], [], [], []
+        mj, Vs, Os, Fs, vr, fr, slack, closed = [], [], [], [], [], [], [], []
         nv = nf = 0
         for g in self.geoms:
             fid = model.frame_id(g.shape.link)
@@ -117,10 +137,15 @@ class RobotGeometry:
                 cr.append(g.radius)
                 continue
             v, f = g.vertices, g.faces
-            if max_triangles is not None and len(f) > max_triangles:
-                v, f, g.slack = _decimate(v, f, max_triangles)
-                g.vertices, g.faces = v, f
-            o = inflation_directions(v, f)
+            if g.filter_mesh is not None:  # box, cylinder: convex, its rounded offset exact enough
+                v, o, f = g.filter_mesh
+                closed.append(False)  # convex: the depth interval alone is exact
+            else:
+                if max_triangles is not None and len(f) > max_triangles:
+                    v, f, g.slack = _decimate(v, f, max_triangles)
+                    g.vertices, g.faces = v, f
+                o = inflation_directions(v, f)
+                closed.append(_is_closed(f))
             mj.append(int(frame.parentJoint))
             Vs.append(v @ Rl.T + pl)
             Os.append(o @ Rl.T)
@@ -142,6 +167,8 @@ class RobotGeometry:
         self.fr = np.array(fr, dtype=np.int64).reshape(-1, 2)
         self.slack = np.array(slack, float)
         self.n_triangles = int(len(self.F))
+        self.face_planes = _face_planes(self.V, self.F)
+        self.closed = np.array(closed, dtype=np.bool_)
         ij, ia, ib, ir = [], [], [], []
         for g in self.geoms:  # capsules inscribed in the mesh-rendered boxes and cylinders
             frame = model.model.frames[model.frame_id(g.shape.link)]

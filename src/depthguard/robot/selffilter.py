@@ -56,12 +56,12 @@ _WORK = threading.local()
 _NO_CAPSULES = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
 
 
-def _work_buffers(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _work_buffers(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-thread (H, W) work buffers: near depth (inf), largest and smallest inverse depth of one shape
-    (0, inf) between calls."""
+    (0, inf) and winding numbers (0) between calls."""
     bufs = getattr(_WORK, "bufs", None)
     if bufs is None or bufs[0].shape != shape:
-        bufs = (np.full(shape, np.inf), np.zeros(shape), np.full(shape, np.inf))
+        bufs = (np.full(shape, np.inf), np.zeros(shape), np.full(shape, np.inf), np.zeros(shape, np.int64))
         _WORK.bufs = bufs
     return bufs
 
@@ -97,7 +97,7 @@ def _run(camera: Camera, d: np.ndarray, margin: float, caps, meshes) -> SelfFilt
     """Shared driver: capsules ``(A, B, R)`` in the camera frame and meshes ``(geometry, T)`` or None."""
     mask = np.zeros(camera.shape, dtype=np.bool_)
     robot_depth = np.full(camera.shape, np.nan)
-    near, snear, sfar = _work_buffers(camera.shape)
+    near, snear, sfar, wn = _work_buffers(camera.shape)
     ubox = np.array([1 << 30, -1, 1 << 30, -1], dtype=np.int64)
     cam = (camera.fx, camera.fy, camera.cx, camera.cy)
     A, B, R = caps
@@ -106,7 +106,7 @@ def _run(camera: Camera, d: np.ndarray, margin: float, caps, meshes) -> SelfFilt
     if meshes is not None:
         g, T = meshes
         infl = float(margin) + g.slack
-        mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, ubox)
+        mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, wn, g.face_planes, g.closed, ubox)
     finish_kernel(d, mask, near, robot_depth, ubox)
     return SelfFilterResult(mask, robot_depth)
 

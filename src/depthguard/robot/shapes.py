@@ -92,6 +92,8 @@ class ShapeGeometry:
     source_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     source_radii: np.ndarray | None = None  # (P,) balls around source_vertices to cover (None: points)
     slack: float = 0.0  # how far the original surface may lie outside ``vertices``' surface (decimation), m
+    # boxes and cylinders: the self-filter's mesh with explicit inflation offsets (:func:`rounded_offset_mesh`)
+    filter_mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def is_mesh(self) -> bool:
@@ -222,6 +224,54 @@ def _prism_mesh(radius: float, length: float, n_sides: int) -> tuple[np.ndarray,
     return v, np.array(faces)
 
 
+def _ball_directions(azimuths: np.ndarray, n_lat: int) -> np.ndarray:
+    """Unit directions: the poles and rings at ``n_lat`` latitudes strictly between them, each ring at
+    ``azimuths`` (rad). Their convex hull is a polyhedral ball inside the unit ball."""
+    lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 2)[1:-1]
+    ring = [np.c_[np.cos(b) * np.cos(azimuths), np.cos(b) * np.sin(azimuths), np.full(len(azimuths), np.sin(b))] for b in lat]
+    return np.vstack([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], *ring])
+
+
+def rounded_offset_mesh(core: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Minkowski sum of a convex polytope (vertices ``core`` (P, 3)) with a polyhedral ball (unit
+    ``directions`` (D, 3)) as a mesh whose vertex ``k`` is ``V[k] + m O[k]`` for any margin ``m > 0``:
+    returns ``V`` (K, 3) core points, ``O`` (K, 3) unit directions, faces (F, 3) wound outward.
+
+    The sum's faces do not depend on ``m > 0`` (its normal fan is the common refinement of the two
+    shapes'), so the convex hull at ``m = 1`` gives them once. Every vertex lies on the surface of the true
+    Minkowski sum (the polytope grown by a ball of radius ``m``), so the mesh lies within ``m`` of the
+    polytope; it contains the polytope grown by ``m`` times the polyhedral ball's inradius."""
+    from scipy.spatial import ConvexHull
+
+    pairs = np.array([(i, j) for i in range(len(core)) for j in range(len(directions))])
+    pts = core[pairs[:, 0]] + directions[pairs[:, 1]]
+    hull = ConvexHull(pts)
+    used = np.unique(hull.simplices)
+    remap = np.full(len(pts), -1)
+    remap[used] = np.arange(len(used))
+    faces = remap[hull.simplices]
+    tri = pts[used][faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    outward = np.einsum("ij,ij->i", n, tri.mean(axis=1) - pts[used].mean(axis=0)) >= 0
+    faces[~outward] = faces[~outward][:, ::-1]
+    return core[pairs[used, 0]], directions[pairs[used, 1]], faces
+
+
+def _rounded_box(size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Box grown by a 26-direction ball (faces exact, edges and corners within 8 % of the margin)."""
+    v, _ = _box_mesh(size)
+    return rounded_offset_mesh(v, _ball_directions(np.arange(8) * np.pi / 4, 3))
+
+
+def _rounded_cylinder(radius: float, length: float, n_sides: int = 24) -> tuple[np.ndarray, ...]:
+    """The ``n_sides``-gon prism inscribed in the cylinder (within ``r (1 - cos(pi / n))`` of it) grown by a
+    ball whose rings point at the prism's side faces (side and caps exact, rims within 8 % of the margin)."""
+    ang = 2 * np.pi * np.arange(n_sides) / n_sides
+    ring = np.c_[radius * np.cos(ang), radius * np.sin(ang)]
+    core = np.vstack([np.c_[ring, np.full(n_sides, -0.5 * length)], np.c_[ring, np.full(n_sides, 0.5 * length)]])
+    return rounded_offset_mesh(core, _ball_directions(ang + np.pi / n_sides, 3))
+
+
 def load_mesh(path: str, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) m and faces (F, 3) of a mesh file, duplicate vertices merged, ``scale`` applied."""
     try:
@@ -240,7 +290,7 @@ def load_mesh(path: str, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]
     return v * np.asarray(scale, float), f
 
 
-def inflation_directions(v: np.ndarray, f: np.ndarray, max_offset: float = 2.0, iters: int = 60) -> np.ndarray:
+def inflation_directions(v: np.ndarray, f: np.ndarray, max_offset: float = 1.0, iters: int = 60) -> np.ndarray:
     """(V, 3) per-vertex offsets ``o`` such that ``v + m o`` moves every face out by at least ``m``.
 
     Each vertex needs ``o . n_f >= 1`` for the outward normals ``n_f`` of its adjacent faces: the moved
@@ -321,14 +371,19 @@ def shape_geometry(shape: Shape, n_sides: int = 24) -> ShapeGeometry:
         half = 0.0 if shape.kind == "sphere" else 0.5 * shape.size[1]
         a, b = p - R[:, 2] * half, p + R[:, 2] * half
         return ShapeGeometry(shape, a=a, b=b, radius=float(r), **capsule_balls(a, b, r))
+    filt = None
     if shape.kind == "mesh":
         v, f = load_mesh(shape.mesh, shape.scale)
     elif shape.kind == "box":
         v, f = _box_mesh(shape.size)
+        filt = _rounded_box(shape.size)
     else:
         v, f = _prism_mesh(shape.size[0], shape.size[1], n_sides)
+        filt = _rounded_cylinder(shape.size[0], shape.size[1])
     v = v @ R.T + p
-    return ShapeGeometry(shape, vertices=v, faces=f, source_vertices=surface_points(v, f))
+    if filt is not None:
+        filt = (filt[0] @ R.T + p, filt[1] @ R.T, filt[2])
+    return ShapeGeometry(shape, vertices=v, faces=f, source_vertices=surface_points(v, f), filter_mesh=filt)
 
 
 def capsule_idiom(shapes: list[Shape]) -> tuple[list[ShapeGeometry], list[Shape]]:
