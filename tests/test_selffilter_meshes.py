@@ -89,10 +89,11 @@ def test_dense_meshes_meet_the_targets(tmp_path) -> None:
     from depthguard.robot.robots import ROBOTS
 
     dense = RobotModel.from_urdf(dense_urdf(robot_urdf("panda"), tmp_path), ee_frame=ROBOTS["panda"][1])
+
     def mesh_triangles(model) -> int:  # the meshes' triangles (the fingers' boxes are not meshes)
         g = model.geometry
         kinds = [x.shape.kind for x in g.geoms if x.is_mesh]
-        return int(sum(b - a for (a, b), k in zip(g.fr, kinds) if k == "mesh"))
+        return int(sum(b - a for (a, b), k in zip(g.fr, kinds, strict=True) if k == "mesh"))
 
     n0, n1 = mesh_triangles(_model("panda")), mesh_triangles(dense)
     assert n1 == 4 * n0, (n0, n1)  # the same surface, each triangle cut into four

@@ -21,8 +21,8 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows, depth, wn
     holds each row's touched span [lo, hi]. ``wn`` (H, W) counts the crossings in front of the measured
     ``depth``: ``sg`` = +1 where the triangle's original face looks at the camera (the ray enters the
     shape), -1 where it looks away, so that ``wn > 0`` at a pixel means that its measured point lies inside
-    the closed shape (its winding number). Scanline: the vertices sorted by y, each row's span lies between the long edge and one of the
-    two short ones."""
+    the closed shape (its winding number). Scanline: the vertices sorted by y, each row's span lies between
+    the long edge and one of the two short ones."""
     H, W = snear.shape
     area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     if abs(area) < 1e-12:

@@ -106,7 +106,8 @@ def _run(camera: Camera, d: np.ndarray, margin: float, caps, meshes) -> SelfFilt
     if meshes is not None:
         g, T = meshes
         infl = float(margin) + g.slack
-        mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, wn, g.face_planes, g.closed, ubox)
+        winding = (wn, g.face_planes, g.closed)
+        mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, *winding, ubox)
     finish_kernel(d, mask, near, robot_depth, ubox)
     return SelfFilterResult(mask, robot_depth)
 

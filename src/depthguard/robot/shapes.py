@@ -228,7 +228,8 @@ def _ball_directions(azimuths: np.ndarray, n_lat: int) -> np.ndarray:
     """Unit directions: the poles and rings at ``n_lat`` latitudes strictly between them, each ring at
     ``azimuths`` (rad). Their convex hull is a polyhedral ball inside the unit ball."""
     lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 2)[1:-1]
-    ring = [np.c_[np.cos(b) * np.cos(azimuths), np.cos(b) * np.sin(azimuths), np.full(len(azimuths), np.sin(b))] for b in lat]
+    c, s = np.cos(azimuths), np.sin(azimuths)
+    ring = [np.c_[np.cos(b) * c, np.cos(b) * s, np.full(len(azimuths), np.sin(b))] for b in lat]
     return np.vstack([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], *ring])
 
 
