@@ -103,6 +103,25 @@ def test_dense_meshes_meet_the_targets(tmp_path) -> None:
 
 
 @pytest.mark.slow
+def test_decimated_dense_meshes_remove_nothing_beyond_the_margin(tmp_path) -> None:
+    """``max_triangles`` (the load-time decimation of the benchmark's ``panda_x4_decimated``): the decimated
+    meshes are inflated by ``margin - excess`` (at least ``slack``), so against the *original* meshes'
+    truth nothing farther than the margin goes and the robot still does."""
+    from depthguard.bench.selffilter_meshes import DECIMATE_TO, dense_urdf
+    from depthguard.robot.model import RobotModel
+    from depthguard.robot.robots import ROBOTS
+
+    urdf = dense_urdf(robot_urdf("panda"), tmp_path)
+    model = RobotModel.from_urdf(urdf, ee_frame=ROBOTS["panda"][1], max_triangles=DECIMATE_TO)
+    g = model.geometry
+    assert np.all(g.excess[g.slack > 0] > 0) and g.slack.max() < MARGIN / 2, (g.slack, g.excess)
+    q = _random_q(model, 7)
+    truth = MeshRobotTruth(str(robot_urdf("panda")), q, ENV)
+    for eye in VIEWS:
+        _assert_targets(_check_view("panda", model, q, truth, eye))
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["panda", "ur5", "xarm7"])
 @pytest.mark.parametrize("seed", [11, 12])
 def test_random_configurations_slow(name: str, seed: int) -> None:

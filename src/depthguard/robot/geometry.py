@@ -7,7 +7,9 @@ URDF's and the user's attachments, :class:`depthguard.robot.shapes.Shape`), spli
   parent *joint* frame, radii;
 * triangle meshes (meshes, boxes, plain cylinders): vertices in the parent joint frame, per-vertex inflation
   offsets (:func:`depthguard.robot.shapes.inflation_directions`), faces; optionally decimated at load time
-  (``max_triangles`` per mesh), in which case the shape is inflated by the decimation error as well.
+  (``max_triangles`` per mesh), in which case the self-filter inflates it by ``margin - excess`` (so that
+  it still removes nothing farther than ``margin`` from the original surface), at least by ``slack`` (so
+  that the original surface stays inside).
 
 Conventions: SI units; world frame = robot base frame (see ``docs/conventions.md``).
 """
@@ -25,16 +27,36 @@ from depthguard.robot.shapes import (
     inflation_directions,
     rpy_to_matrix,
     shape_geometry,
+    surface_points,
 )
 
 __all__ = ["RobotGeometry"]
 
 
-def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Decimate to about ``target`` faces (fast-simplification); returns the mesh and the largest distance
-    from an original vertex to the decimated surface (m), by which the decimated mesh is inflated more."""
+def _point_distances(v: np.ndarray, f: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(P,) distance (m) from each point to the surface of the mesh ``v``, ``f`` (coal BVH)."""
+    import coal
+
+    bvh = coal.BVHModelOBBRSS()
+    bvh.beginModel(len(f), len(v))
+    bvh.addVertices(np.ascontiguousarray(v, dtype=float))
+    bvh.addTriangles(np.ascontiguousarray(f, dtype=np.int64))
+    bvh.endModel()
+    dot, eye, req, res = coal.Sphere(1e-12), coal.Transform3s(), coal.DistanceRequest(), coal.DistanceResult()
+    out = np.empty(len(points))
+    for k, p in enumerate(points):
+        res.clear()
+        out[k] = coal.distance(bvh, eye, dot, coal.Transform3s(np.eye(3), p), req, res)
+    return out
+
+
+def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Decimate to about ``target`` faces (fast-simplification). Returns the mesh, ``slack`` (m): the
+    largest distance from the original surface to the decimated one, and ``excess`` (m): the largest
+    distance from the decimated surface to the original; both over the vertices and points on the faces
+    every 5 mm (:func:`depthguard.robot.shapes.surface_points`)."""
     try:
-        import coal
+        import coal  # noqa: F401
         import fast_simplification
         import trimesh
     except ImportError as e:  # pragma: no cover
@@ -45,17 +67,9 @@ def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np
     m2 = trimesh.Trimesh(np.asarray(v2, float), np.asarray(f2, np.int64), process=True)
     trimesh.repair.fix_normals(m2)
     v2, f2 = np.asarray(m2.vertices, float), np.asarray(m2.faces, np.int64)
-    bvh = coal.BVHModelOBBRSS()  # distance of every original vertex to the decimated surface
-    bvh.beginModel(len(f2), len(v2))
-    bvh.addVertices(np.ascontiguousarray(v2))
-    bvh.addTriangles(np.ascontiguousarray(f2))
-    bvh.endModel()
-    dot, eye, req, res = coal.Sphere(1e-12), coal.Transform3s(), coal.DistanceRequest(), coal.DistanceResult()
-    worst = 0.0
-    for p in v:
-        res.clear()
-        worst = max(worst, coal.distance(bvh, eye, dot, coal.Transform3s(np.eye(3), p), req, res))
-    return v2, f2, worst
+    slack = float(_point_distances(v2, f2, surface_points(v, f, 0.005)).max(initial=0.0))
+    excess = float(_point_distances(v, f, surface_points(v2, f2, 0.005)).max(initial=0.0))
+    return v2, f2, slack, excess
 
 
 def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, float]]:
@@ -111,7 +125,9 @@ class RobotGeometry:
         shapes: the :class:`Shape` list it was built from.
         geoms: per-shape :class:`ShapeGeometry` (link frame), analytic capsules first.
         cap_joint (C,), cap_a, cap_b (C, 3), cap_r (C,): analytic capsules in their parent joint frame.
-        mesh_joint (S,), V, O (Vt, 3), F (Ft, 3), vr, fr (S, 2), slack (S,): meshes in their joint frame.
+        mesh_joint (S,), V, O (Vt, 3), F (Ft, 3), vr, fr (S, 2): meshes in their joint frame.
+        slack, excess (S,): how far (m) a decimated mesh's original surface lies outside it, and how far it
+            lies outside its original surface (0 when not decimated).
         n_triangles: total triangle count of the meshes used by the filter.
         face_planes (Ft, 4): outward unit normal and offset ``h`` (``n . x = h``) of each face, joint frame.
         closed (S,) bool: the mesh is closed (every edge shared by two faces in opposite directions), so
@@ -123,7 +139,7 @@ class RobotGeometry:
         caps, rest = capsule_idiom(list(self.shapes))
         self.geoms: list[ShapeGeometry] = caps + [shape_geometry(s) for s in rest]
         cj, ca, cb, cr = [], [], [], []
-        mj, Vs, Os, Fs, vr, fr, slack, closed = [], [], [], [], [], [], [], []
+        mj, Vs, Os, Fs, vr, fr, slack, excess, closed = [], [], [], [], [], [], [], [], []
         nv = nf = 0
         for g in self.geoms:
             fid = model.frame_id(g.shape.link)
@@ -142,7 +158,7 @@ class RobotGeometry:
                 closed.append(False)  # convex: the depth interval alone is exact
             else:
                 if max_triangles is not None and len(f) > max_triangles:
-                    v, f, g.slack = _decimate(v, f, max_triangles)
+                    v, f, g.slack, g.excess = _decimate(v, f, max_triangles)
                     g.vertices, g.faces = v, f
                 o = inflation_directions(v, f)
                 closed.append(_is_closed(f))
@@ -153,6 +169,7 @@ class RobotGeometry:
             vr.append((nv, nv + len(v)))
             fr.append((nf, nf + len(f)))
             slack.append(g.slack)
+            excess.append(g.excess)
             nv += len(v)
             nf += len(f)
         self.cap_joint = np.array(cj, dtype=np.int64)
@@ -166,6 +183,7 @@ class RobotGeometry:
         self.vr = np.array(vr, dtype=np.int64).reshape(-1, 2)
         self.fr = np.array(fr, dtype=np.int64).reshape(-1, 2)
         self.slack = np.array(slack, float)
+        self.excess = np.array(excess, float)
         self.n_triangles = int(len(self.F))
         self.face_planes = _face_planes(self.V, self.F)
         self.closed = np.array(closed, dtype=np.bool_)

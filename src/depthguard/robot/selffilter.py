@@ -21,10 +21,13 @@ Output (:class:`SelfFilterResult`):
   robot, NaN elsewhere. It is a conservative (nearer) robot depth (RA-L'16 case iv).
 
 Limits: obstacles closer than ``margin`` to the robot are removed with it, and so are points in a
-concavity of one mesh between its first and last surface along the ray; mixed "flying" pixels at depth
-edges outside the inflated robot are kept as obstacles. Near a mesh's corners the inflated polytope reaches
-up to ``2 margin`` from the surface (a rounded Minkowski sum would reach ``margin``), so a little more
-background may go there; spikes sharper than ~60 degrees are inflated by less than ``margin``.
+concavity of an open mesh between its first and last surface along the ray; mixed "flying" pixels at depth
+edges outside the inflated robot are kept as obstacles. Nothing farther than ``margin`` from the
+robot's surface is removed (issue 10): every inflated mesh vertex moves at most ``margin``; boxes and
+cylinders are drawn as their Minkowski sum with a polyhedral ball; a point between two parts of one closed
+mesh (its winding number is 0) is kept. The price: near a mesh's sharp edges and corners the tolerance for
+robot points shrinks (a face there moves out by ``margin / |o|``, ``o`` the smallest offset that moves all
+of the vertex's faces by 1; at least ``margin / 2``), and near box and cylinder edges by up to 8 %.
 """
 
 from __future__ import annotations
@@ -105,7 +108,7 @@ def _run(camera: Camera, d: np.ndarray, margin: float, caps, meshes) -> SelfFilt
         capsule_kernel(A, B, R, float(margin), *cam, d, mask, near, ubox)
     if meshes is not None:
         g, T = meshes
-        infl = float(margin) + g.slack
+        infl = np.maximum(float(margin) - g.excess, g.slack)  # decimated: within margin of the original
         winding = (wn, g.face_planes, g.closed)
         mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, *winding, ubox)
     finish_kernel(d, mask, near, robot_depth, ubox)

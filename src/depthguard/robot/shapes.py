@@ -7,7 +7,9 @@ Geometry (:class:`ShapeGeometry`, computed once at load time, in the *link* fram
 
 * ``mesh`` (STL, OBJ, PLY, ... read with ``trimesh``; DAE needs ``pycollada``), ``box`` and ``cylinder``
   become triangle meshes. A cylinder becomes a prism whose polygon circumscribes its circle
-  (``n_sides`` sides, radius ``r / cos(pi / n_sides)``), so the prism contains the cylinder.
+  (``n_sides`` sides, radius ``r / cos(pi / n_sides)``), so the prism contains the cylinder. For the
+  self-filter boxes and cylinders also get :attr:`ShapeGeometry.filter_mesh`, their Minkowski sum with a
+  polyhedral ball (:func:`rounded_offset_mesh`), which lies within the margin of the shape.
 * ``sphere`` and ``capsule`` stay analytic capsules (segment ``a``-``b`` swept by ``radius``); so does a
   cylinder that has a sphere of its radius at each end (the capsule idiom of URDF, as in the shipped arm).
 
@@ -92,6 +94,7 @@ class ShapeGeometry:
     source_vertices: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     source_radii: np.ndarray | None = None  # (P,) balls around source_vertices to cover (None: points)
     slack: float = 0.0  # how far the original surface may lie outside ``vertices``' surface (decimation), m
+    excess: float = 0.0  # how far ``vertices``' surface may lie outside the original surface (decimation), m
     # boxes and cylinders: the self-filter's mesh with explicit inflation offsets (:func:`rounded_offset_mesh`)
     filter_mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
