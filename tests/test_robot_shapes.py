@@ -11,7 +11,7 @@ pytest.importorskip("pinocchio")
 trimesh = pytest.importorskip("trimesh")
 
 from depthguard.robot.model import RobotModel  # noqa: E402
-from depthguard.robot.shapes import Shape, inflation_directions  # noqa: E402
+from depthguard.robot.shapes import Shape, _rounded_box, inflation_directions  # noqa: E402
 
 URDF = """<robot name="two">
   <link name="base"><collision><geometry><box size="0.2 0.2 0.1"/></geometry></collision></link>
@@ -44,7 +44,8 @@ def test_mesh_paths_resolve_from_the_urdf_folders(tmp_path: Path, ref: str) -> N
     mesh = next(g for g in m.geometry.geoms if g.shape.kind == "mesh")
     np.testing.assert_allclose(np.ptp(mesh.vertices, axis=0), [0.05, 0.05, 0.2], atol=1e-9)  # scale 0.5
     np.testing.assert_allclose(mesh.vertices.mean(axis=0), [0, 0, 0.2], atol=1e-9)
-    assert m.geometry.n_triangles == 12 + 12 + 4 * 24
+    boxes = [g for g in m.geometry.geoms if g.shape.kind == "box"]
+    assert m.geometry.n_triangles == len(boxes[0].filter_mesh[2]) + 12 + 4 * 24  # box (rounded), mesh, prism
 
 
 def test_missing_mesh_is_a_clear_error(tmp_path: Path) -> None:
@@ -59,14 +60,36 @@ def test_missing_mesh_is_a_clear_error(tmp_path: Path) -> None:
         RobotModel.from_urdf(urdf)
 
 
-def test_inflation_moves_every_face_out_by_the_margin() -> None:
-    for mesh in (trimesh.creation.box(extents=(0.1, 0.2, 0.3)), trimesh.creation.icosphere(2, 0.1)):
+def test_inflation_stays_within_the_margin_and_moves_every_face_out() -> None:
+    """Offsets at most one margin long (nothing inflated lies farther than the margin from its face); every
+    face moves out by at least half the margin (a box corner: 1 / sqrt(3)), a smooth surface's by nearly
+    all of it."""
+    for mesh, least in (
+        (trimesh.creation.box(extents=(0.1, 0.2, 0.3)), 1 / np.sqrt(3)),
+        (trimesh.creation.icosphere(2, 0.1), 0.98),
+    ):
         v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
         o = inflation_directions(v, f)
         n = np.asarray(mesh.face_normals)
-        for k in range(3):  # each moved vertex is >= 1 margin above each adjacent face's plane
-            assert np.all(np.einsum("ij,ij->i", o[f[:, k]], n) >= 1 - 1e-9)
-        assert np.max(np.linalg.norm(o, axis=1)) <= np.sqrt(3) + 1e-6  # a box corner needs sqrt(3)
+        assert np.max(np.linalg.norm(o, axis=1)) <= 1 + 1e-9
+        for k in range(3):
+            assert np.all(np.einsum("ij,ij->i", o[f[:, k]], n) >= least - 1e-6)
+
+
+def test_rounded_box_lies_within_the_margin_and_holds_the_box_grown_by_86_percent_of_it() -> None:
+    size, margin = np.array([0.1, 0.2, 0.3]), 0.03
+    v, o, f = _rounded_box(size)
+    inflated = trimesh.Trimesh(v + margin * o, f, process=False)
+    assert inflated.is_watertight and inflated.is_winding_consistent and inflated.volume > 0
+    # every vertex on the true Minkowski sum's surface: exactly the margin from the box
+    dist = np.linalg.norm(np.maximum(np.abs(inflated.vertices) - size / 2, 0.0), axis=1)
+    np.testing.assert_allclose(dist, margin, atol=1e-12)
+    # points 0.86 margin from the box, all around it (faces, edges and corners), are inside
+    y = np.random.default_rng(0).uniform(-1, 1, size=(4000, 3)) * (size / 2 + 2 * margin)
+    c = np.clip(y, -size / 2, size / 2)
+    out = np.linalg.norm(y - c, axis=1) > 1e-9
+    x = c[out] + 0.86 * margin * (y - c)[out] / np.linalg.norm(y - c, axis=1)[out, None]
+    assert len(x) > 2000 and np.all(inflated.contains(x))
 
 
 def test_shape_validation_names_the_field() -> None:

@@ -153,7 +153,7 @@ class RobotGeometry:
                 cr.append(g.radius)
                 continue
             v, f = g.vertices, g.faces
-            if g.filter_mesh is not None:  # box, cylinder: convex, its rounded offset exact enough
+            if g.filter_mesh is not None:  # a box: convex, its rounded offset
                 v, o, f = g.filter_mesh
                 closed.append(False)  # convex: the depth interval alone is exact
             else:
