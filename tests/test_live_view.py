@@ -49,6 +49,11 @@ def _png(data: str) -> np.ndarray:
     return (mpimg.imread(io.BytesIO(base64.b64decode(data)), format="png")[..., :3] * 255).astype(np.int16)
 
 
+def _drawn(canvas: np.ndarray) -> bool:
+    """The 3-D canvas shows a scene: varied colours, not a blank or uniform page."""
+    return bool(canvas.std() > 20 and len(np.unique(canvas.reshape(-1, 3), axis=0)) > 100)
+
+
 @pytest.mark.slow
 def test_live_view_in_headless_chromium():
     sync_playwright, exe = _browser_or_skip()
@@ -92,6 +97,9 @@ def test_live_view_in_headless_chromium():
                 return _png(cdp.send("Page.captureScreenshot", {"format": "png"})["data"])
 
             full = shot()
+            t0 = time.time()  # a loaded machine may take longer than the first 2 s to draw the scene
+            while not _drawn(full[150:, :]) and time.time() - t0 < 60:
+                full = shot()
             view.urdf.show_visual = False
             no_robot = shot()
             view.urdf.show_visual = True
@@ -101,7 +109,7 @@ def test_live_view_in_headless_chromium():
     finally:
         view.close()
     canvas = full[150:, :]  # below the panels
-    assert canvas.std() > 20 and len(np.unique(canvas.reshape(-1, 3), axis=0)) > 100, "blank canvas"
+    assert _drawn(canvas), "blank canvas"
     robot_px = np.abs(full - no_robot).sum(axis=2) > 60
     cloud_px = np.abs(full - no_cloud).sum(axis=2) > 60
     assert robot_px.sum() > 300, f"the robot changed only {robot_px.sum()} pixels"
