@@ -10,8 +10,9 @@ import pytest
 pytest.importorskip("pinocchio")
 trimesh = pytest.importorskip("trimesh")
 
+from depthguard.robot.inflation import inflation_directions, rounded_box  # noqa: E402
 from depthguard.robot.model import RobotModel  # noqa: E402
-from depthguard.robot.shapes import Shape, _rounded_box, inflation_directions  # noqa: E402
+from depthguard.robot.shapes import Shape  # noqa: E402
 
 URDF = """<robot name="two">
   <link name="base"><collision><geometry><box size="0.2 0.2 0.1"/></geometry></collision></link>
@@ -78,7 +79,7 @@ def test_inflation_stays_within_the_margin_and_moves_every_face_out() -> None:
 
 def test_rounded_box_lies_within_the_margin_and_holds_the_box_grown_by_86_percent_of_it() -> None:
     size, margin = np.array([0.1, 0.2, 0.3]), 0.03
-    v, o, f = _rounded_box(size)
+    v, o, f = rounded_box(size)
     inflated = trimesh.Trimesh(v + margin * o, f, process=False)
     assert inflated.is_watertight and inflated.is_winding_consistent and inflated.volume > 0
     # every vertex on the true Minkowski sum's surface: exactly the margin from the box

@@ -9,7 +9,7 @@ Geometry (:class:`ShapeGeometry`, computed once at load time, in the *link* fram
   become triangle meshes. A cylinder becomes a prism whose polygon circumscribes its circle
   (``n_sides`` sides, radius ``r / cos(pi / n_sides)``), so the prism contains the cylinder. For the
   self-filter boxes also get :attr:`ShapeGeometry.filter_mesh`, their Minkowski sum with a polyhedral ball
-  (:func:`rounded_offset_mesh`), which lies within the margin of the box.
+  (:func:`depthguard.robot.inflation.rounded_offset_mesh`), which lies within the margin of the box.
 * ``sphere`` and ``capsule`` stay analytic capsules (segment ``a``-``b`` swept by ``radius``); so does a
   cylinder that has a sphere of its radius at each end (the capsule idiom of URDF, as in the shipped arm).
 
@@ -27,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from depthguard.robot.inflation import rounded_box
 
 __all__ = ["Shape", "ShapeGeometry", "parse_collision_shapes", "resolve_mesh_path", "shape_geometry"]
 
@@ -95,7 +97,7 @@ class ShapeGeometry:
     source_radii: np.ndarray | None = None  # (P,) balls around source_vertices to cover (None: points)
     slack: float = 0.0  # how far the original surface may lie outside ``vertices``' surface (decimation), m
     excess: float = 0.0  # how far ``vertices``' surface may lie outside the original surface (decimation), m
-    # boxes: the self-filter's mesh with explicit inflation offsets (:func:`rounded_offset_mesh`)
+    # boxes: the self-filter's mesh with explicit inflation offsets (inflation.rounded_offset_mesh)
     filter_mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
@@ -227,47 +229,6 @@ def _prism_mesh(radius: float, length: float, n_sides: int) -> tuple[np.ndarray,
     return v, np.array(faces)
 
 
-def _ball_directions(azimuths: np.ndarray, n_lat: int) -> np.ndarray:
-    """Unit directions: the poles and rings at ``n_lat`` latitudes strictly between them, each ring at
-    ``azimuths`` (rad). Their convex hull is a polyhedral ball inside the unit ball."""
-    lat = np.linspace(-np.pi / 2, np.pi / 2, n_lat + 2)[1:-1]
-    c, s = np.cos(azimuths), np.sin(azimuths)
-    ring = [np.c_[np.cos(b) * c, np.cos(b) * s, np.full(len(azimuths), np.sin(b))] for b in lat]
-    return np.vstack([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], *ring])
-
-
-def rounded_offset_mesh(core: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The Minkowski sum of a convex polytope (vertices ``core`` (P, 3)) with a polyhedral ball (unit
-    ``directions`` (D, 3)) as a mesh whose vertex ``k`` is ``V[k] + m O[k]`` for any margin ``m > 0``:
-    returns ``V`` (K, 3) core points, ``O`` (K, 3) unit directions, faces (F, 3) wound outward.
-
-    The sum's faces do not depend on ``m > 0`` (its normal fan is the common refinement of the two
-    shapes'), so the convex hull at ``m = 1`` gives them once. Every vertex lies on the surface of the true
-    Minkowski sum (the polytope grown by a ball of radius ``m``), so the mesh lies within ``m`` of the
-    polytope; it contains the polytope grown by ``m`` times the polyhedral ball's inradius."""
-    from scipy.spatial import ConvexHull
-
-    pairs = np.array([(i, j) for i in range(len(core)) for j in range(len(directions))])
-    pts = core[pairs[:, 0]] + directions[pairs[:, 1]]
-    hull = ConvexHull(pts)
-    used = np.unique(hull.simplices)
-    remap = np.full(len(pts), -1)
-    remap[used] = np.arange(len(used))
-    faces = remap[hull.simplices]
-    tri = pts[used][faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    outward = np.einsum("ij,ij->i", n, tri.mean(axis=1) - pts[used].mean(axis=0)) >= 0
-    faces[~outward] = faces[~outward][:, ::-1]
-    return core[pairs[used, 0]], directions[pairs[used, 1]], faces
-
-
-def _rounded_box(size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Box grown by a 26-direction ball (inradius 0.863: faces exact, edges and corners at least 86 % of the
-    margin out)."""
-    v, _ = _box_mesh(size)
-    return rounded_offset_mesh(v, _ball_directions(np.arange(8) * np.pi / 4, 3))
-
-
 def load_mesh(path: str, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) m and faces (F, 3) of a mesh file, duplicate vertices merged, ``scale`` applied."""
     try:
@@ -284,56 +245,6 @@ def load_mesh(path: str, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]
     if len(f) == 0 or not np.all(np.isfinite(v)):
         raise ValueError(f"mesh file '{path}' has no triangles or non-finite vertices")
     return v * np.asarray(scale, float), f
-
-
-def inflation_directions(v: np.ndarray, f: np.ndarray, max_offset: float = 1.0, iters: int = 60) -> np.ndarray:
-    """(V, 3) per-vertex offsets ``o`` such that ``v + m o`` moves every face out by at least ``m``.
-
-    Each vertex needs ``o . n_f >= 1`` for the outward normals ``n_f`` of its adjacent faces: the moved
-    vertex is then ``>= m`` above each adjacent face's plane, hence so is every moved triangle. Starting
-    from the angle-weighted vertex normal, simultaneous projections onto the violated half-spaces find
-    such an ``o``; a final scaling makes ``min o . n_f >= 1`` exact. ``|o|`` is capped at ``max_offset``
-    (spikes sharper than ~60 degrees are inflated less than ``m`` on some adjacent face; the mesh is
-    still contained, only the tolerance shrinks there).
-    """
-    tri = v[f]  # (F, 3, 3)
-    nf = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    ln = np.linalg.norm(nf, axis=1)
-    ok = ln > 1e-15
-    f, nf = f[ok], nf[ok] / ln[ok, None]
-    tri = tri[ok]
-    o = np.zeros_like(v)
-    for k in range(3):  # angle-weighted normal as the start
-        e1 = tri[:, (k + 1) % 3] - tri[:, k]
-        e2 = tri[:, (k + 2) % 3] - tri[:, k]
-        den = np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-30)
-        ang = np.arccos(np.clip(np.einsum("ij,ij->i", e1, e2) / den, -1.0, 1.0))
-        np.add.at(o, f[:, k], nf * ang[:, None])
-    ln = np.linalg.norm(o, axis=1)
-    o[ln > 1e-15] /= ln[ln > 1e-15, None]
-    count = np.zeros(len(v))
-    for k in range(3):
-        np.add.at(count, f[:, k], 1.0)
-    count = np.maximum(count, 1.0)
-    for _ in range(iters):
-        step = np.zeros_like(v)
-        worst = 0.0
-        for k in range(3):
-            viol = np.maximum(1.0 - np.einsum("ij,ij->i", o[f[:, k]], nf), 0.0)
-            worst = max(worst, float(viol.max(initial=0.0)))
-            np.add.at(step, f[:, k], nf * viol[:, None])
-        if worst < 1e-6:
-            break
-        o += 1.5 * step / count[:, None]
-    c = np.full(len(v), np.inf)
-    for k in range(3):
-        np.minimum.at(c, f[:, k], np.einsum("ij,ij->i", o[f[:, k]], nf))
-    c = np.where(np.isfinite(c), c, 1.0)
-    o = o / np.clip(c, 1e-3, 1.0)[:, None]  # exact: min o . n_f >= 1
-    ln = np.linalg.norm(o, axis=1)
-    big = ln > max_offset
-    o[big] *= (max_offset / ln[big])[:, None]
-    return o
 
 
 def capsule_balls(a: np.ndarray, b: np.ndarray, radius: float, spacing: float = 0.005) -> dict:
@@ -372,7 +283,7 @@ def shape_geometry(shape: Shape, n_sides: int = 24) -> ShapeGeometry:
         v, f = load_mesh(shape.mesh, shape.scale)
     elif shape.kind == "box":
         v, f = _box_mesh(shape.size)
-        filt = _rounded_box(shape.size)
+        filt = rounded_box(shape.size)
     else:
         v, f = _prism_mesh(shape.size[0], shape.size[1], n_sides)
     v = v @ R.T + p
