@@ -103,6 +103,32 @@ def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows, depth,
         _raster_tri(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], snear, sfar, rows, depth, wn, sg)
 
 
+@njit(cache=True, inline="always")
+def _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox) -> None:
+    """After one shape is drawn: over its rows' spans, mark in ``mask`` the measured points inside it (depth
+    in ``[near, far]`` and, unless ``whole``, winding number > 0), keep the nearest inflated depth in
+    ``near``, grow ``ubox``, and reset the shape's buffers (``snear`` 0, ``sfar`` inf, ``wn`` 0, ``rows``)."""
+    for v in range(depth.shape[0]):
+        if rows[v, 1] < 0:
+            continue
+        ubox[0], ubox[1] = min(ubox[0], rows[v, 0]), max(ubox[1], rows[v, 1])
+        ubox[2], ubox[3] = min(ubox[2], v), max(ubox[3], v)
+        for u in range(rows[v, 0], rows[v, 1] + 1):
+            izn = snear[v, u]
+            if izn == 0.0:
+                continue
+            zn, zf = 1.0 / izn, 1.0 / sfar[v, u]
+            d = depth[v, u]
+            if d > 0.0 and d < np.inf and zn <= d <= zf and (whole or wn[v, u] > 0):
+                mask[v, u] = True
+            wn[v, u] = 0
+            if zn < near[v, u]:
+                near[v, u] = zn
+            snear[v, u] = 0.0
+            sfar[v, u] = np.inf
+        rows[v, 0], rows[v, 1] = 1 << 30, -1
+
+
 @njit(cache=True)
 def mesh_kernel(
     V: np.ndarray,
@@ -185,25 +211,7 @@ def mesh_kernel(
                 )  # fmt: skip
             elif P[i0, 2] > znear or P[i1, 2] > znear or P[i2, 2] > znear:
                 _raster_clipped(P[i0], P[i1], P[i2], znear, fx, fy, cx, cy, snear, sfar, rows, depth, wn, sg)
-        for v in range(H):
-            if rows[v, 1] < 0:
-                continue
-            ubox[0], ubox[1] = min(ubox[0], rows[v, 0]), max(ubox[1], rows[v, 1])
-            ubox[2], ubox[3] = min(ubox[2], v), max(ubox[3], v)
-            for u in range(rows[v, 0], rows[v, 1] + 1):
-                izn = snear[v, u]
-                if izn == 0.0:
-                    continue
-                zn, zf = 1.0 / izn, 1.0 / sfar[v, u]
-                d = depth[v, u]
-                if d > 0.0 and d < np.inf and zn <= d <= zf and (whole or wn[v, u] > 0):
-                    mask[v, u] = True
-                wn[v, u] = 0
-                if zn < near[v, u]:
-                    near[v, u] = zn
-                snear[v, u] = 0.0
-                sfar[v, u] = np.inf
-            rows[v, 0], rows[v, 1] = 1 << 30, -1
+        _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox)
 
 
 @njit(cache=True)
