@@ -354,3 +354,28 @@ def test_voxel_baseline_agrees_on_the_shadow_scene():
     assert 0.3 - 0.04 <= res.distance[0] <= 0.3 + 1e-9
     voxel.update([depths[0], np.full_like(depths[1], np.nan)])  # blind second camera: the shadow stays
     assert voxel.query(P, 0.0, rho=0.4, mode="min").distance[0] < 0.03
+
+
+def test_write_windows_keeps_only_finite_ordered_windows_and_resets_the_rest():
+    """A window is set only where lo and hi are finite and lo <= hi; everywhere else, and for a camera
+    without windows (including the rows of a smaller camera's padding), the block reads "no window"."""
+    from depthguard.depthgrid.frames import write_windows
+
+    cams = [camera([2.0, 0.0, 1.0], [0.0, 0.0, 1.0], w=4, h=3), camera([0.0, 2.0, 1.2], [0.0, 0.0, 0.9], w=4, h=3)]
+    cams.append(camera([0.0, -2.0, 1.2], [0.0, 0.0, 0.9], w=2, h=2))
+    hm, wm = 3, 4
+    votes = np.full((2, 3 * hm, wm), 7.0, np.float32)  # stale values from an earlier frame everywhere
+    lo = np.array([[1.0, np.nan, 2.0, np.inf], [1.0, 1.0, -np.inf, 0.5], [3.0, 3.0, 3.0, 3.0]], np.float32)
+    hi = np.array([[1.5, 2.0, 1.0, np.inf], [np.nan, 1.2, 1.0, 0.5], [4.0, 4.0, 4.0, 4.0]], np.float32)
+    assert write_windows(votes, hm, cams, [None, (lo, hi), None])
+    ok = np.isfinite(lo) & np.isfinite(hi) & (lo <= hi)
+    assert np.array_equal(votes[0, hm : 2 * hm], np.where(ok, lo, np.inf))
+    assert np.array_equal(votes[0, 2 * hm :], np.where(ok, hi, -np.inf))
+    assert np.all(votes[1, hm : 2 * hm] == np.inf) and np.all(votes[1, 2 * hm :] == -np.inf)
+    assert np.all(votes[:, :hm] == 7.0)  # the votes themselves are not touched
+    small = (np.ones((2, 2), np.float32), np.full((2, 2), 2.0, np.float32))
+    votes[:] = 7.0
+    write_windows(votes, hm, cams, [None, None, small])
+    assert np.all(votes[1, hm : hm + 2, :2] == 1.0) and np.all(votes[1, 2 * hm : 2 * hm + 2, :2] == 2.0)
+    assert np.all(votes[1, hm + 2 : 2 * hm] == np.inf) and np.all(votes[1, hm : 2 * hm, 2:] == np.inf)
+    assert np.all(votes[1, 2 * hm + 2 :] == -np.inf) and np.all(votes[1, 2 * hm :, 2:] == -np.inf)

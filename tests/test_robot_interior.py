@@ -213,3 +213,60 @@ def test_interior_capsules_lie_in_the_self_filter_geometry(name):
         if len(r):
             d = farthest(a, b, r, q)
             assert d <= MARGIN + 1e-6, f"{d:.4f} m from the collision geometry"
+
+
+def _windows_two_sweeps(cam, a, b, reff, gap):
+    """The windows' definition, pixel by pixel: two sweeps over the capsules in order, every chord tried in
+    both (the kernel skips, in the second sweep, the pixels where nothing was met apart from the window)."""
+    A, B = cam.world_to_camera(a), cam.world_to_camera(b)
+    lo = np.full(cam.shape, np.nan, np.float32)
+    hi = np.full(cam.shape, np.nan, np.float32)
+    for v in range(cam.height):
+        for u in range(cam.width):
+            x, y = (u + 0.5 - cam.cx) / cam.fx, (v + 0.5 - cam.cy) / cam.fy
+            w_lo, w_hi = np.inf, -np.inf
+            for sweep in range(2):
+                for k in range(len(reff)):
+                    s, e = _capsule_chord(x, y, A[k], B[k], reff[k])
+                    if not (s <= e) or e <= 0.0:
+                        continue
+                    s = max(s, 0.0)
+                    if w_lo <= w_hi and s <= w_hi + gap and e >= w_lo - gap:
+                        w_lo, w_hi = min(w_lo, s), max(w_hi, e)
+                    elif sweep == 0 and (not (w_lo <= w_hi) or s < w_lo):
+                        w_lo, w_hi = s, e
+            if w_lo <= w_hi:
+                lo[v, u], hi[v, u] = w_lo, w_hi
+    return lo, hi
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.lists(st.lists(st.floats(-0.35, 0.35), min_size=7, max_size=7), min_size=2, max_size=5))
+def test_robot_windows_equal_the_two_sweep_definition(caps):
+    """Capsules crossing one another in any order (chords met out of order, disjoint stretches along one
+    ray): the kernel's windows are exactly those of the plain two-sweep definition."""
+    cam = camera([2.0, 0.0, 1.0], [0.0, 0.0, 1.0], w=48, h=36, f=40.0)
+    c = np.asarray(caps, float)
+    a = c[:, 0:3] + [0.0, 0.0, 1.0]
+    b = a + c[:, 3:6]
+    r = 0.02 + np.abs(c[:, 6]) / 4
+    lo, hi = robot_windows(cam, a, b, r, margin=MARGIN, gap=0.01)
+    ref_lo, ref_hi = _windows_two_sweeps(cam, a, b, r + MARGIN, 0.01)
+    assert np.array_equal(lo, ref_lo, equal_nan=True)
+    assert np.array_equal(hi, ref_hi, equal_nan=True)
+
+
+def test_robot_windows_join_chords_met_out_of_order():
+    """Along the principal camera's axis: capsule 0 far, capsule 1 near (apart from it), capsule 2 between
+    them. The first sweep sees the near and middle chords join; only the second joins the far one."""
+    cam = camera([2.0, 0.0, 1.0], [0.0, 0.0, 1.0], w=48, h=36, f=40.0)
+    xs = np.array([-0.2, 0.2, 0.0])
+    a = np.stack([xs, np.full(3, -0.1), np.ones(3)], axis=1)
+    b = a + [0.0, 0.2, 0.0]
+    r = np.full(3, 0.1)
+    lo, hi = robot_windows(cam, a, b, r, margin=MARGIN, gap=0.01)
+    ref_lo, ref_hi = _windows_two_sweeps(cam, a, b, r + MARGIN, 0.01)
+    assert np.array_equal(lo, ref_lo, equal_nan=True) and np.array_equal(hi, ref_hi, equal_nan=True)
+    # the centre pixel's window spans all three: from the near capsule's front to the far one's back
+    assert lo[18, 24] == pytest.approx(2.0 - 0.2 - 0.13, abs=0.01)
+    assert hi[18, 24] == pytest.approx(2.0 + 0.2 + 0.13, abs=0.01)

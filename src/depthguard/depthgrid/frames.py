@@ -146,6 +146,20 @@ def limit_robot_votes(cameras, depths, masks, votes, margin: float) -> None:
                 np.minimum.at(vk, (pv[robot], pu[robot]), (zf[robot] - margin).astype(np.float32))
 
 
+@nb.njit(cache=True)
+def _window_block(lo, hi, out_lo, out_hi):
+    """``out_lo`` / ``out_hi`` (H, W) = the window ``[lo, hi]`` where both are finite and ``lo <= hi``,
+    else ``+inf`` / ``-inf`` (no window)."""
+    H, W = lo.shape
+    for v in range(H):
+        for u in range(W):
+            a, b = lo[v, u], hi[v, u]
+            if a <= b and np.isfinite(a) and np.isfinite(b):
+                out_lo[v, u], out_hi[v, u] = a, b
+            else:
+                out_lo[v, u], out_hi[v, u] = np.inf, -np.inf
+
+
 def write_windows(votes: np.ndarray, hm: int, cameras, windows) -> bool:
     """Write the secondary cameras' robot windows into the ``lo`` / ``hi`` row blocks of ``votes``
     (K, 3 hm, W) (:func:`depthguard.depthgrid.votes.pixel_sees_past`; no window: lo = +inf, hi = -inf).
@@ -153,17 +167,17 @@ def write_windows(votes: np.ndarray, hm: int, cameras, windows) -> bool:
     ``windows``: ``None`` or one entry per camera (the principal camera's, ``windows[0]``, is ignored):
     ``None`` or ``(lo, hi)`` (H, W) depth images of camera k (``lo > hi`` or NaN = none). Returns whether
     any window was set."""
-    votes[:, hm : 2 * hm] = np.inf
-    votes[:, 2 * hm :] = -np.inf
     any_set = False
     for k in range(1, len(cameras)):
+        cam = cameras[k]
+        block_lo, block_hi = votes[k - 1, hm : 2 * hm], votes[k - 1, 2 * hm :]
+        if windows is None or windows[k] is None or cam.shape != block_lo.shape:
+            block_lo[...] = np.inf  # no window (and the rows and columns beyond a smaller camera's image)
+            block_hi[...] = -np.inf
         if windows is None or windows[k] is None:
             continue
         any_set = True
-        cam = cameras[k]
-        lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float64)
-        hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float64)
-        ok = np.isfinite(lo) & np.isfinite(hi) & (lo <= hi)
-        votes[k - 1, hm : hm + cam.height, : cam.width] = np.where(ok, lo, np.inf)
-        votes[k - 1, 2 * hm : 2 * hm + cam.height, : cam.width] = np.where(ok, hi, -np.inf)
+        lo = np.asarray(cam.check_image(windows[k][0], f"windows[{k}][0]"), dtype=np.float32)
+        hi = np.asarray(cam.check_image(windows[k][1], f"windows[{k}][1]"), dtype=np.float32)
+        _window_block(lo, hi, block_lo[: cam.height, : cam.width], block_hi[: cam.height, : cam.width])
     return any_set

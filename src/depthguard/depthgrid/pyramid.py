@@ -52,8 +52,21 @@ def pyramid_layout(h: int, w: int) -> tuple[np.ndarray, int]:
 def window_aware_votes(votes: np.ndarray, hm: int) -> np.ndarray:
     """(K, hm, W) float32 values ``e`` that the pyramid is built from when robot windows are set (module
     docstring); ``votes``: the (K, 3 hm, W) vote, ``lo`` and ``hi`` row blocks."""
-    v, lo, hi = votes[:, :hm], votes[:, hm : 2 * hm], votes[:, 2 * hm :]
-    return np.ascontiguousarray(np.where(lo <= v, np.maximum(v, hi), v), dtype=np.float32)
+    return _window_aware(np.ascontiguousarray(votes, dtype=np.float32), int(hm))
+
+
+@nb.njit(cache=True)
+def _window_aware(votes, hm):
+    K, _, W = votes.shape
+    out = np.empty((K, hm, W), dtype=np.float32)
+    for k in range(K):
+        for v in range(hm):
+            for u in range(W):
+                e = votes[k, v, u]
+                if votes[k, hm + v, u] <= e:
+                    e = max(e, votes[k, 2 * hm + v, u])
+                out[k, v, u] = e
+    return out
 
 
 @nb.njit(cache=True, _nrt=False, inline="always")

@@ -60,44 +60,88 @@ def _capsule_chord(x, y, A, B, r):
     """Depth interval ``(s_in, s_out)`` of the ray ``s (x, y, 1)`` inside the capsule (A, B, r), camera
     frame; ``(inf, -inf)`` when the ray misses it. The capsule is convex: its chord is the hull of the
     chords of its two end spheres and of its cylinder between the end planes."""
-    dx, dy, dz = x, y, 1.0
-    s_in, s_out = np.inf, -np.inf
-    for cx, cy, cz in ((A[0], A[1], A[2]), (B[0], B[1], B[2])):  # end spheres
-        a = dx * dx + dy * dy + dz * dz
-        bh = dx * cx + dy * cy + dz * cz
-        c = cx * cx + cy * cy + cz * cz - r * r
-        disc = bh * bh - a * c
-        if disc >= 0.0:
-            sq = math.sqrt(disc)
-            s_in = min(s_in, (bh - sq) / a)
-            s_out = max(s_out, (bh + sq) / a)
     ux, uy, uz = B[0] - A[0], B[1] - A[1], B[2] - A[2]
     L2 = ux * ux + uy * uy + uz * uz
-    if L2 > 1e-12:
+    au = A[0] * ux + A[1] * uy + A[2] * uz
+    aa = A[0] * A[0] + A[1] * A[1] + A[2] * A[2]
+    qc = aa * L2 - au * au - r * r * L2
+    cA = A[0] * A[0] + A[1] * A[1] + A[2] * A[2] - r * r
+    cB = B[0] * B[0] + B[1] * B[1] + B[2] * B[2] - r * r
+    return _chord_core(x, y, A[0], A[1], A[2], B[0], B[1], B[2], ux, uy, uz, L2, au, qc, cA, cB)
+
+
+N_CONSTS = 16
+
+
+@njit(cache=True)
+def _capsule_consts(A, B, R, grow):
+    """(L, N_CONSTS) per-capsule constants of :func:`_chord_core` for capsules (A, B, R + grow), computed
+    exactly as :func:`_capsule_chord` computes them (the same chords, bit for bit)."""
+    L = A.shape[0]
+    C = np.empty((L, N_CONSTS))
+    for k in range(L):
+        r = R[k] + grow
+        ux, uy, uz = B[k, 0] - A[k, 0], B[k, 1] - A[k, 1], B[k, 2] - A[k, 2]
+        L2 = ux * ux + uy * uy + uz * uz
+        au = A[k, 0] * ux + A[k, 1] * uy + A[k, 2] * uz
+        aa = A[k, 0] * A[k, 0] + A[k, 1] * A[k, 1] + A[k, 2] * A[k, 2]
+        C[k, 0], C[k, 1], C[k, 2] = A[k, 0], A[k, 1], A[k, 2]
+        C[k, 3], C[k, 4], C[k, 5] = B[k, 0], B[k, 1], B[k, 2]
+        C[k, 6], C[k, 7], C[k, 8], C[k, 9], C[k, 10] = ux, uy, uz, L2, au
+        C[k, 11] = aa * L2 - au * au - r * r * L2
+        C[k, 12] = aa - r * r
+        C[k, 13] = B[k, 0] * B[k, 0] + B[k, 1] * B[k, 1] + B[k, 2] * B[k, 2] - r * r
+        C[k, 14], C[k, 15] = r, 0.0
+    return C
+
+
+@njit(cache=True, inline="always")
+def _chord_pre(x, y, C, k):
+    """:func:`_capsule_chord` of capsule ``k`` from its constants ``C`` (:func:`_capsule_consts`)."""
+    return _chord_core(
+        x, y, C[k, 0], C[k, 1], C[k, 2], C[k, 3], C[k, 4], C[k, 5],
+        C[k, 6], C[k, 7], C[k, 8], C[k, 9], C[k, 10], C[k, 11], C[k, 12], C[k, 13],
+    )  # fmt: skip
+
+
+@njit(cache=True, inline="always")
+def _chord_core(x, y, ax, ay, az, bx, by, bz, ux, uy, uz, L2, au, qc, cA, cB):
+    """The chord of :func:`_capsule_chord`, from the capsule's ends, axis ``u = B - A``, ``L2 = |u|²``,
+    ``au = A.u``, ``qc = |A|² L2 - au² - r² L2`` and the end spheres' ``|A|² - r²``, ``|B|² - r²``."""
+    dx, dy, dz = x, y, 1.0
+    s_in, s_out = np.inf, -np.inf
+    dd = dx * dx + dy * dy + dz * dz
+    du = dx * ux + dy * uy + dz * uz
+    da = dx * ax + dy * ay + dz * az
+    qa = dd * L2 - du * du
+    qb = da * L2 - du * au
+    # early out: the capsule lies inside the infinite cylinder of radius r around its axis, so a line that
+    # misses that cylinder misses the capsule (the relative slack keeps rays near tangency exact)
+    if L2 > 1e-12 and qa > 1e-15 and qb * qb - qa * qc < -1e-9 * (qb * qb + abs(qa * qc)):
+        return s_in, s_out
+    for cx, cy, cz, c in ((ax, ay, az, cA), (bx, by, bz, cB)):  # end spheres
+        bh = dx * cx + dy * cy + dz * cz
+        disc = bh * bh - dd * c
+        if disc >= 0.0:
+            sq = math.sqrt(disc)
+            s_in = min(s_in, (bh - sq) / dd)
+            s_out = max(s_out, (bh + sq) / dd)
+    if L2 > 1e-12 and qa > 1e-15:
         # |(s d - A) x u|^2 = r^2 |u|^2 (infinite cylinder), then 0 <= (s d - A).u <= |u|^2 (the slab)
-        du = dx * ux + dy * uy + dz * uz
-        au = A[0] * ux + A[1] * uy + A[2] * uz
-        dd = dx * dx + dy * dy + dz * dz
-        da = dx * A[0] + dy * A[1] + dz * A[2]
-        aa = A[0] * A[0] + A[1] * A[1] + A[2] * A[2]
-        qa = dd * L2 - du * du
-        qb = da * L2 - du * au
-        qc = aa * L2 - au * au - r * r * L2
-        if qa > 1e-15:
-            disc = qb * qb - qa * qc
-            if disc >= 0.0:
-                sq = math.sqrt(disc)
-                c0, c1 = (qb - sq) / qa, (qb + sq) / qa
-                if abs(du) > 1e-15:
-                    t0, t1 = au / du, (au + L2) / du
-                    if t0 > t1:
-                        t0, t1 = t1, t0
-                    c0, c1 = max(c0, t0), min(c1, t1)
-                elif not (0.0 <= -au <= L2):
-                    c0, c1 = np.inf, -np.inf
-                if c0 <= c1:
-                    s_in = min(s_in, c0)
-                    s_out = max(s_out, c1)
+        disc = qb * qb - qa * qc
+        if disc >= 0.0:
+            sq = math.sqrt(disc)
+            c0, c1 = (qb - sq) / qa, (qb + sq) / qa
+            if abs(du) > 1e-15:
+                t0, t1 = au / du, (au + L2) / du
+                if t0 > t1:
+                    t0, t1 = t1, t0
+                c0, c1 = max(c0, t0), min(c1, t1)
+            elif not (0.0 <= -au <= L2):
+                c0, c1 = np.inf, -np.inf
+            if c0 <= c1:
+                s_in = min(s_in, c0)
+                s_out = max(s_out, c1)
     return s_in, s_out
 
 
@@ -128,12 +172,13 @@ def _capsule_boxes(A, B, R, fx, fy, cx, cy, W, H):
 
 
 @njit(cache=True, inline="always")
-def _chords(x, y, u, v, A, B, R, grow, box, ins, outs):
-    """Chords of the pixel-centre ray ``(x, y, 1)`` of pixel (u, v) through every capsule (radius
-    ``R[k] + grow``) into ``ins``/``outs``; ``(inf, -inf)`` for a capsule whose ``box`` excludes the pixel."""
-    for k in range(A.shape[0]):
+def _chords(x, y, u, v, C, box, ins, outs):
+    """Chords of the pixel-centre ray ``(x, y, 1)`` of pixel (u, v) through every capsule (constants ``C``,
+    :func:`_capsule_consts`) into ``ins``/``outs``; ``(inf, -inf)`` for a capsule whose ``box`` excludes
+    the pixel."""
+    for k in range(C.shape[0]):
         if box[k, 0] <= u <= box[k, 1] and box[k, 2] <= v <= box[k, 3]:
-            ins[k], outs[k] = _capsule_chord(x, y, A[k], B[k], R[k] + grow)
+            ins[k], outs[k] = _chord_pre(x, y, C, k)
         else:
             ins[k], outs[k] = np.inf, -np.inf
 
@@ -158,22 +203,24 @@ def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy,
     ins = np.empty(n)
     outs = np.empty(n)
     box = _capsule_boxes(A, B, R + margin, fx, fy, cx, cy, W, H)  # (the inflated capsules hold the others)
+    c_in = _capsule_consts(A, B, R, margin)  # the inflated capsules
+    c_0 = _capsule_consts(A, B, R, 0.0)  # the capsules themselves
+    out_depth[:, :] = depth
+    out_mask[:, :] = mask
     for v in range(H):
         for u in range(W):
-            d = depth[v, u]
-            out_depth[v, u] = d
-            out_mask[v, u] = mask[v, u]
             if not mask[v, u]:
                 continue
+            d = depth[v, u]
             x = (u + 0.5 - cx) / fx
             y = (v + 0.5 - cy) / fy
             if d > 0.0 and d < np.inf:
-                _chords(x, y, u, v, A, B, R, margin, box, ins, outs)
+                _chords(x, y, u, v, c_in, box, ins, outs)
                 out_depth[v, u] = _exit_from(d, ins, outs)
                 continue
             # no reading: robot only if the ray meets the capsules themselves (not just the margin)
             entry = np.inf
-            _chords(x, y, u, v, A, B, R, 0.0, box, ins, outs)
+            _chords(x, y, u, v, c_0, box, ins, outs)
             for k in range(n):
                 if ins[k] <= outs[k] and outs[k] > 0.0:
                     entry = min(entry, ins[k])
@@ -193,7 +240,7 @@ def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy,
                         valid = True
                         if not mask[vv, uu] and dv < best:
                             best = dv
-            _chords(x, y, u, v, A, B, R, margin, box, ins, outs)
+            _chords(x, y, u, v, c_in, box, ins, outs)
             s_in = np.inf
             for k in range(n):
                 if ins[k] <= outs[k]:
@@ -267,7 +314,14 @@ def _windows_kernel(A, B, Reff, fx, fy, cx, cy, gap, lo_out, hi_out):
         return
     lo = np.full((v_hi - v_lo + 1, u_hi - u_lo + 1), np.inf)  # the union box, float64 while sweeping
     hi = np.full((v_hi - v_lo + 1, u_hi - u_lo + 1), -np.inf)
-    for sweep in range(2):  # the second sweep joins chords that the first met out of order
+    # the pixels where the first sweep met a chord apart from the window so far: only there can the
+    # second sweep join chords that the first met out of order (elsewhere every chord is in the window)
+    apart = np.zeros((v_hi - v_lo + 1, u_hi - u_lo + 1), dtype=np.bool_)
+    n_apart = 0
+    C = _capsule_consts(A, B, Reff, 0.0)
+    for sweep in range(2):
+        if sweep == 1 and n_apart == 0:
+            break
         for k in range(A.shape[0]):
             r = Reff[k]
             if r <= 0.0:
@@ -277,18 +331,24 @@ def _windows_kernel(A, B, Reff, fx, fy, cx, cy, gap, lo_out, hi_out):
                 y = (v + 0.5 - cy) / fy
                 j = v - v_lo
                 for u in range(u0, u1 + 1):
+                    i = u - u_lo
+                    if sweep == 1 and not apart[j, i]:
+                        continue
                     x = (u + 0.5 - cx) / fx
-                    a, b = _capsule_chord(x, y, A[k], B[k], r)
+                    a, b = _chord_pre(x, y, C, k)
                     if not (a <= b) or b <= 0.0:
                         continue
                     a = max(a, 0.0)
-                    i = u - u_lo
                     if lo[j, i] <= hi[j, i] and a <= hi[j, i] + gap and b >= lo[j, i] - gap:
                         lo[j, i] = min(lo[j, i], a)  # meets the window so far (within gap): union
                         hi[j, i] = max(hi[j, i], b)
-                    elif sweep == 0 and (not (lo[j, i] <= hi[j, i]) or a < lo[j, i]):
-                        lo[j, i] = a  # the first window, or a nearer disjoint one
-                        hi[j, i] = b
+                    elif sweep == 0:
+                        if lo[j, i] <= hi[j, i]:
+                            apart[j, i] = True
+                            n_apart += 1
+                        if not (lo[j, i] <= hi[j, i]) or a < lo[j, i]:
+                            lo[j, i] = a  # the first window, or a nearer disjoint one
+                            hi[j, i] = b
     for j in range(lo.shape[0]):
         for i in range(lo.shape[1]):
             if lo[j, i] <= hi[j, i]:
