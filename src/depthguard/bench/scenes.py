@@ -119,7 +119,8 @@ def shadow_frames(width: int = 640, height: int = 480) -> dict:
     spheres (end-effector radius 0.12 m) are the query points, as in the scenario.
 
     Returns:
-        ``{"cameras", "depths", "masks", "centres", "radii", "workspace"}``.
+        ``{"cameras", "depths", "masks", "centres", "radii", "workspace", "q", "model"}`` (``q``, ``model``:
+        the joint positions and the robot, for the frame stage's robot corrections).
     """
     from depthguard.robot.control_points import ControlPointSet
     from depthguard.robot.model import load_lwr4
@@ -167,4 +168,6 @@ def shadow_frames(width: int = 640, height: int = 480) -> dict:
         "centres": np.asarray(pts.centres),
         "radii": np.asarray(pts.radii),
         "workspace": SHADOW_WORKSPACE,
+        "q": q,
+        "model": model,
     }
