@@ -8,8 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from scipy.spatial import cKDTree
 
-from depthguard.octree.reach import reachability_grid
+from depthguard.octree.reach import ChainSweep, reachability_grid
 from depthguard.robot.model import RobotModel, load_lwr4
 from depthguard.robot.reach import chain_sweep, robot_reachability
 
@@ -143,3 +146,111 @@ def test_bad_input_names_the_field():
         chain_sweep(model, np.full(7, np.nan))
     with pytest.raises(ValueError, match="axis"):
         reachability_grid(ch._replace(axis=np.ones((7, 3))))
+
+
+# ---------------------------------------------------------------------------------- small chains, densely
+def _poe_points(kind, axis, point, offsets, x):
+    """Points ``x`` (P, 3) of the last link moved by joint offsets (S, n): M_1(δ_1) ∘ ... ∘ M_n(δ_n) (x),
+    each M_j the rotation (Rodrigues) or translation about / along joint j's current axis. (S, P, 3)."""
+    p = np.broadcast_to(x, (offsets.shape[0],) + x.shape).copy()
+    for j in range(len(kind) - 1, -1, -1):
+        d = offsets[:, j][:, None, None]
+        if kind[j] == 1:
+            p = p + d * axis[j]
+            continue
+        v = p - point[j]
+        k = axis[j]
+        c, s = np.cos(d), np.sin(d)
+        p = point[j] + v * c + np.cross(k, v) * s + k * (v @ k)[..., None] * (1 - c)
+    return p
+
+
+@st.composite
+def small_chains(draw):
+    n = draw(st.integers(1, 3))
+    rng = np.random.default_rng(draw(st.integers(0, 2**31)))
+    kind = (rng.random(n) < draw(st.floats(0.0, 0.5))).astype(np.int64)
+    axis = rng.normal(size=(n, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    point = rng.uniform(-0.3, 0.3, (n, 3))
+    vmax = rng.uniform(0.2, 2.5, n)
+    lo = -rng.uniform(0.0, 1.5, n) * (rng.random(n) < 0.8)  # some joints at a limit
+    hi = rng.uniform(0.0, 1.5, n) * (rng.random(n) < 0.8)
+    a = rng.uniform(-0.8, 0.8, 3)
+    b = a + rng.uniform(-0.2, 0.2, 3)
+    res = draw(st.sampled_from([0.05, 0.09]))
+    return kind, axis, point, lo, hi, vmax, a, b, res
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(small_chains())
+def test_small_chains_hold_every_densely_sampled_point_no_earlier(chain):
+    """1-3 joints and a thin segment on the last link, where the proven error bound is a cell or two, so the
+    dilation is tight and a sampling step or an error term too small leaves true points outside: every
+    point of a dense grid of joint offsets (and of the segment) lies in a cell reached no later."""
+    kind, axis, point, lo, hi, vmax, a, b, res = chain
+    n = len(kind)
+    ch = ChainSweep(kind, axis, point, lo, hi, vmax, a[None], b[None], np.zeros(1), np.array([n]))
+    horizon = 0.5
+    grid = reachability_grid(ch, horizon=horizon, res=res)
+    lo_t = np.maximum(lo, -vmax * horizon)
+    hi_t = np.minimum(hi, vmax * horizon)
+    per = {1: 3001, 2: 121, 3: 31}[n]
+    axes = [np.linspace(lo_t[j], hi_t[j], per) for j in range(n)]
+    offsets = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, n)
+    t = np.max(np.abs(offsets) / vmax, axis=1)
+    x = a + np.linspace(0.0, 1.0, 5)[:, None] * (b - a)
+    pts = _poe_points(kind, axis, point, offsets, x)
+    t_grid = grid.lookup(pts.reshape(-1, 3)).reshape(pts.shape[:2])
+    late = t_grid > t[:, None] + 1e-6
+    assert not late.any(), f"{late.sum()} of {late.size} true points outside or earlier (δ = {grid.delta:.3f} m)"
+    # tight: every reachable cell lies within the dilation (k = ceil(δ / res) cells each way, a box) of a
+    # cell holding a point within δ of the true set
+    cells = grid.box.centres(np.argwhere(grid.reachable))
+    gap = cKDTree(pts.reshape(-1, 3)).query(cells)[0]
+    lattice = pts.reshape((per,) * n + pts.shape[1:])
+    spacing = max(float(np.linalg.norm(np.diff(lattice, axis=j), axis=-1).max(initial=0.0)) for j in range(n))
+    k = np.ceil(grid.delta / res)
+    assert gap.max() <= grid.delta + np.sqrt(3) * (k + 0.5) * res + spacing + 1e-9
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(small_chains())
+def test_small_chains_every_true_point_is_within_delta_of_a_kept_cell_no_later(chain):
+    """The invariant behind the proof, before the final dilation hides its slack: every true point lies
+    within δ of the cube of a kept cell whose time is no later (the kept sample is in that cube). A sampling
+    step or an error term dropped from δ breaks it."""
+    import depthguard.octree.reach as reach
+
+    kind, axis, point, lo, hi, vmax, a, b, res = chain
+    n = len(kind)
+    ch = ChainSweep(kind, axis, point, lo, hi, vmax, a[None], b[None], np.zeros(1), np.array([n]))
+    kept = []
+    real = reach._dilate
+    try:
+        reach._dilate = lambda g, k: (kept.append(g.copy()), real(g, k))[1]
+        grid = reachability_grid(ch, horizon=0.5, res=res)
+    finally:
+        reach._dilate = real
+    before = kept[-1]
+    lo_t = np.maximum(lo, -vmax * 0.5)
+    hi_t = np.minimum(hi, vmax * 0.5)
+    per = {1: 2001, 2: 61, 3: 15}[n]
+    axes = [np.linspace(lo_t[j], hi_t[j], per) for j in range(n)]
+    offsets = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, n)
+    t = np.max(np.abs(offsets) / vmax, axis=1)
+    x = a + np.linspace(0.0, 1.0, 3)[:, None] * (b - a)
+    pts = _poe_points(kind, axis, point, offsets, x).reshape(-1, 3)
+    t = np.repeat(t, len(x))
+    idx = np.argwhere(np.isfinite(before))
+    centres = grid.box.centres(idx)
+    times = before[tuple(idx.T)]
+    kk = min(len(centres), int(np.ceil(2 * grid.delta / res + 3) ** 3))
+    dist, near = cKDTree(centres).query(pts, k=kk, distance_upper_bound=grid.delta + np.sqrt(3) * res)
+    dist, near = np.atleast_2d(dist.T).T, np.atleast_2d(near.T).T
+    ok = np.zeros(len(pts), bool)
+    valid = near < len(centres)
+    safe = np.where(valid, near, 0)
+    gap = np.linalg.norm(np.maximum(np.abs(pts[:, None] - centres[safe]) - res / 2, 0.0), axis=-1)
+    ok = np.any(valid & (gap <= grid.delta + 1e-9) & (times[safe] <= t[:, None] + 1e-6), axis=1)
+    assert ok.all(), f"{(~ok).sum()} of {len(ok)} true points over δ = {grid.delta:.4f} m from a kept cell no later"

@@ -16,7 +16,8 @@ Method (the joint-by-joint sweep of SAPHARI ref. [1], made provably conservative
   size stays bounded (the "collapse" of [1]). The internal grid adapts to the set: ``cells`` cells along its
   longest side, between ``res / 8`` and ``res``, so the small distal sets collapse finely. Each step has a
   bounded position error: ``h = √3/2 res_i`` per collapse and ``eps = res_i / 2`` per sweep (samples every
-  ``eps / (r⊥ + δ)`` rad, the sample on the side of zero, so that its time is never later).
+  ``eps / r⊥`` rad, the sample on the side of zero, so that its time is never later; a rotation is an
+  isometry, so the error a sample already carries is kept, not grown).
   Every true point lies within ``δ = Σ errors`` of a
   kept sample whose time is no later, so the final grid, min-pooled to ``res`` and dilated by
   ``ceil(δ / res)`` cells (L∞ box), is an **over-approximation** in space and an under-estimate in time.
@@ -42,6 +43,7 @@ __all__ = ["ChainSweep", "ReachabilityGrid", "reachability_grid"]
 REVOLUTE = 0
 PRISMATIC = 1
 _H = math.sqrt(3.0) / 2.0
+_ROUNDING = 1e-9  # m per sweep: the rotation recurrence's drift and float rounding, far above both
 
 
 class ChainSweep(NamedTuple):
@@ -191,16 +193,24 @@ def _collect(grid):
 
 
 @nb.njit(cache=True, fastmath=False)
-def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, delta, eps):
+def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
     """Sweep the kept samples (cell centres of the input grid) about (along) one joint into ``grid`` (min time).
+
+    A sample at distance ``r⊥`` from a revolute axis is taken every ``eps / r⊥`` rad (every ``eps`` m along a
+    prismatic one), from 0 outwards, so a rotation by any angle in the range lies within ``eps`` of a taken
+    sample that is no later. Rotations are isometries, so the error that a sample already carries is kept,
+    not grown. The angles advance by a rotation recurrence (one multiply per step instead of a cosine and a
+    sine; its drift, below 1e-12 m for the few hundred steps of a sweep, is covered by the caller's slack).
 
     Returns (#samples outside the grid, the largest sampling error, whether any sample left its cell centre).
     """
     nx, ny, nz = grid.shape
     iny, inz = in_shape[1], in_shape[2]
+    inv = 1.0 / res
     out = 0
     err = 0.0
     moved = False
+    rng = max(hi, -lo)
     for m in range(idx.size):
         f = idx[m]
         i0 = f // (iny * inz)
@@ -220,86 +230,91 @@ def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, 
             qy = axis[2] * px - axis[0] * pz
             qz = axis[0] * py - axis[1] * px
             rp = math.sqrt(px * px + py * py + pz * pz)
-            step = eps / (rp + delta)
-            err = max(err, min(eps, (rp + delta) * max(hi, -lo)))
+            step = eps / rp if rp * rng > 0.0 else 0.0
+            err = max(err, min(eps, rp * rng))
         else:
             ox, oy, oz = cx, cy, cz
+            px = py = pz = qx = qy = qz = 0.0
             step = eps
-            err = max(err, min(eps, max(hi, -lo)))
+            err = max(err, min(eps, rng))
+        cs = math.cos(step)
         for sgn in (1.0, -1.0):
             bound = hi if sgn > 0 else -lo
-            nk = int(math.floor(bound / step)) if step > 0 else 0
-            kstart = 0 if sgn > 0 else 1
+            nk = int(bound / step) if step > 0.0 else 0
             if nk >= 1:
                 moved = True
+            kstart = 0 if sgn > 0 else 1
+            ss = sgn * math.sin(step)
+            c, s = (1.0, 0.0) if kstart == 0 else (cs, ss)
             for kk in range(kstart, nk + 1):
-                th = sgn * kk * step
-                t = max(t0, abs(th) / vmax)
+                th = kk * step
+                t = max(t0, th / vmax)
                 if kind == 0:
-                    c, s = math.cos(th), math.sin(th)
                     x = ox + c * px + s * qx
                     y = oy + c * py + s * qy
                     z = oz + c * pz + s * qz
+                    c, s = c * cs - s * ss, s * cs + c * ss
                 else:
-                    x = ox + th * axis[0]
-                    y = oy + th * axis[1]
-                    z = oz + th * axis[2]
-                i = int(math.floor((x - origin[0]) / res))
-                j = int(math.floor((y - origin[1]) / res))
-                k = int(math.floor((z - origin[2]) / res))
-                if i < 0 or j < 0 or k < 0 or i >= nx or j >= ny or k >= nz:
+                    x = ox + sgn * th * axis[0]
+                    y = oy + sgn * th * axis[1]
+                    z = oz + sgn * th * axis[2]
+                fx = (x - origin[0]) * inv
+                fy = (y - origin[1]) * inv
+                fz = (z - origin[2]) * inv
+                if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
                     out += 1
                     continue
+                i, j, k = int(fx), int(fy), int(fz)
                 if t < grid[i, j, k]:
                     grid[i, j, k] = t
     return out, err, moved
 
 
-@nb.njit(cache=True)
-def _pool_dilate(fine, sub, k, out):
-    """Min-pool ``fine`` by ``sub`` into ``out``, then min-filter ``out`` with a (2k+1)^3 box (separable)."""
-    nx, ny, nz = out.shape
-    fx, fy, fz = fine.shape
-    for i in range(fx):
-        for j in range(fy):
-            for l in range(fz):
-                v = fine[i, j, l]
-                if v < out[i // sub, j // sub, l // sub]:
-                    out[i // sub, j // sub, l // sub] = v
+def _dilate(grid: np.ndarray, k: int) -> np.ndarray:
+    """``grid`` min-filtered with a (2k+1)^3 box (``scipy.ndimage.minimum_filter`` with an inf border).
+
+    Per axis a running minimum over 2k + 1 cells, by doubling: the minimum over 2^p cells from two of
+    2^(p-1), then two overlapping windows of the largest power of two <= 2k + 1; about log2(2k + 1) array
+    passes per axis whatever k."""
+    out = grid
     if k == 0:
-        return
-    tmp = np.empty_like(out)
+        return grid.copy()
+    w = 2 * k + 1
+    p = 1 << (w.bit_length() - 1)
     for axis in range(3):
-        tmp[:] = np.inf
         n = out.shape[axis]
-        for i in range(nx):
-            for j in range(ny):
-                for l in range(nz):
-                    v = out[i, j, l]
-                    if v == np.inf:
-                        continue
-                    c = (i, j, l)[axis]
-                    for d in range(max(0, c - k), min(n, c + k + 1)):
-                        if axis == 0:
-                            if v < tmp[d, j, l]:
-                                tmp[d, j, l] = v
-                        elif axis == 1:
-                            if v < tmp[i, d, l]:
-                                tmp[i, d, l] = v
-                        elif v < tmp[i, j, d]:
-                            tmp[i, j, d] = v
-        out[:] = tmp
+        pad = [(0, 0)] * 3
+        pad[axis] = (k, k)
+        m = np.pad(out, pad, constant_values=np.inf)
+        span = 1
+        while span < p:  # m[i] = min over cells [i, i + 2 span) of the padded line
+            head = [slice(None)] * 3
+            tail = [slice(None)] * 3
+            head[axis] = slice(0, m.shape[axis] - span)
+            tail[axis] = slice(span, None)
+            m = np.minimum(m[tuple(head)], m[tuple(tail)])
+            span *= 2
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis] = slice(0, n)
+        hi[axis] = slice(w - p, w - p + n)
+        out = np.minimum(m[tuple(lo)], m[tuple(hi)])
+    return out
 
 
 # ----------------------------------------------------------------------------------------------- public
 def chain_box(chain: ChainSweep, horizon: float, res: float, margin: float = 0.0, scale: float = 1.0) -> VoxelBox:
     """A box likely to hold every point the chain can reach within ``horizon`` (plus ``margin``).
 
-    A guess, not a bound: twice the robot's circumradius plus the prismatic travel; :func:`reachability_grid`
-    checks that nothing falls outside and retries with a larger box.
+    A guess, not a bound: twice the circumradius of the robot and its joint points, times ``scale``, plus
+    the prismatic travel; :func:`reachability_grid` checks that nothing falls outside and retries with a
+    larger box. (With ``scale`` >= the number of revolute joints it is a bound: each rotation about a point
+    of the box moves a point by at most twice the circumradius further from its centre.)
     """
-    lo = np.minimum(chain.cap_a, chain.cap_b) - chain.cap_r[:, None]
-    hi = np.maximum(chain.cap_a, chain.cap_b) + chain.cap_r[:, None]
+    # the geometry and the revolute joints' axis points: a rotation about a point inside this box keeps what
+    # it moves within the box's circumradius of that point
+    lo = np.vstack([np.minimum(chain.cap_a, chain.cap_b) - chain.cap_r[:, None], chain.point[chain.kind == REVOLUTE]])
+    hi = np.vstack([np.maximum(chain.cap_a, chain.cap_b) + chain.cap_r[:, None], chain.point[chain.kind == REVOLUTE]])
     travel = float(
         np.sum(
             np.where(chain.kind == PRISMATIC, np.minimum(np.maximum(-chain.lo, chain.hi), chain.vmax * horizon), 0.0)
@@ -370,19 +385,40 @@ def _union(a, b):
     return np.minimum(a[0], b[0]), np.maximum(a[1], b[1])
 
 
-def _swept_bbox(ch: ChainSweep, j: int, lo_j: float, hi_j: float, pts: np.ndarray, pad: float):
-    """A box holding every sample of ``pts`` (N, 3) swept by joint ``j`` over [lo_j, hi_j] (plus ``pad``):
-    the points' box grown by their largest displacement, cut to the ball about the joint that a rotation
-    keeps them in."""
-    rng = max(-lo_j, hi_j)
-    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
-    if ch.kind[j] == PRISMATIC:
-        return lo - rng, hi + rng
-    v = pts - ch.point[j]
-    perp = v - np.outer(v @ ch.axis[j], ch.axis[j])
-    move = float(np.linalg.norm(perp, axis=1).max()) * min(rng, 2.0) + pad
-    rad = float(np.linalg.norm(v, axis=1).max()) + pad
-    return np.maximum(lo - move, ch.point[j] - rad), np.minimum(hi + move, ch.point[j] + rad)
+@nb.njit(cache=True)
+def _swept_bounds(idx, in_origin, in_res, in_shape, kind, axis, point, rng, pad):
+    """A box (lo, hi) holding the cell centres ``idx`` of the input grid swept by a joint over offsets up
+    to ``rng`` (plus ``pad``): the centres' box grown by their largest displacement (a chord: at most
+    ``r⊥ min(rng, 2)`` for a rotation, ``rng`` for a translation), a rotation's cut to the ball about the
+    joint point that it keeps them in."""
+    iny, inz = in_shape[1], in_shape[2]
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    perp2 = 0.0
+    dist2 = 0.0
+    c = np.empty(3)
+    for m in range(idx.size):
+        f = idx[m]
+        c[0] = in_origin[0] + (f // (iny * inz) + 0.5) * in_res
+        c[1] = in_origin[1] + ((f // inz) % iny + 0.5) * in_res
+        c[2] = in_origin[2] + (f % inz + 0.5) * in_res
+        for d in range(3):
+            lo[d] = min(lo[d], c[d])
+            hi[d] = max(hi[d], c[d])
+        vx, vy, vz = c[0] - point[0], c[1] - point[1], c[2] - point[2]
+        al = vx * axis[0] + vy * axis[1] + vz * axis[2]
+        d2 = vx * vx + vy * vy + vz * vz
+        dist2 = max(dist2, d2)
+        perp2 = max(perp2, d2 - al * al)
+    move = rng + pad if kind == PRISMATIC else math.sqrt(max(perp2, 0.0)) * min(rng, 2.0) + pad
+    rad = math.sqrt(dist2) + pad
+    for d in range(3):
+        lo[d] -= move + pad
+        hi[d] += move + pad
+        if kind != PRISMATIC:
+            lo[d] = max(lo[d], point[d] - rad)
+            hi[d] = min(hi[d], point[d] + rad)
+    return lo, hi
 
 
 def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool) -> ReachabilityGrid | None:
@@ -408,20 +444,24 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
         jj = j - 1
         in_spec = (g_origin, g_res, np.array(grid.shape, np.int64))
         if j > 1:
-            cen = g_origin + (np.stack(np.unravel_index(idx, grid.shape), axis=1) + 0.5) * g_res
-            bb_next = _union(_swept_bbox(ch, jj, lo[jj], hi[jj], cen, 1e-6), _caps_bbox(ch, ch.cap_joint == j - 1, 0.0))
+            swept = (
+                _swept_bounds(idx, *in_spec, int(ch.kind[jj]), ch.axis[jj], ch.point[jj], max(-lo[jj], hi[jj]), 1e-6)
+                if idx.size
+                else None
+            )
+            bb_next = _union(swept, _caps_bbox(ch, ch.cap_joint == j - 1, 0.0))
             g_origin, g_res, grid = _grid_for(bb_next[0], bb_next[1], cells, res_floor, res_out)
             target, t_origin, t_res, eps = grid, g_origin, g_res, 0.5 * g_res
         else:
             target, t_origin, t_res, eps = out, box_origin, res_out, 0.5 * res_out
         n_out, err, moved = _sweep(
             idx, tt, *in_spec, t_origin, t_res, target, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
-            np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), delta, eps,
+            np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), eps,
         )  # fmt: skip
         outside += n_out
         # the sampling error, plus the collapse of moved samples to cell centres (the last sweep writes into
         # the output cells, whose containment the final dilation covers)
-        delta += err + (_H * g_res if moved and j > 1 else 0.0)
+        delta += err + _ROUNDING + (_H * g_res if moved and j > 1 else 0.0)
         if j > 1:
             outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, g_origin, g_res, grid)
             delta = max(delta, _H * g_res)
@@ -430,8 +470,7 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
             return None
         raise ValueError(f"reachability box {box} is too small: {outside} reachable samples fall outside it")
     k = math.ceil(delta / res_out - 1e-9)
-    dil = np.full(box.shape, np.inf, dtype=np.float32)
-    _pool_dilate(out, 1, k, dil)
+    dil = _dilate(out, k)
     # the fixed base: cells that meet its capsules, time 0 (exact, no dilation needed)
     _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == 0, box_origin, res_out, dil)
     return ReachabilityGrid(box, dil, float(horizon), float(delta))
