@@ -43,6 +43,7 @@ __all__ = ["ChainSweep", "ReachabilityGrid", "reachability_grid"]
 REVOLUTE = 0
 PRISMATIC = 1
 _H = math.sqrt(3.0) / 2.0
+_PARALLEL_FROM = 400  # kept cells from which a sweep runs on two threads
 _ROUNDING = 1e-9  # m per sweep: the rotation recurrence's drift and float rounding, far above both
 
 
@@ -270,36 +271,71 @@ def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, 
     return out, err, moved
 
 
-def _dilate(grid: np.ndarray, k: int) -> np.ndarray:
-    """``grid`` min-filtered with a (2k+1)^3 box (``scipy.ndimage.minimum_filter`` with an inf border).
+@nb.njit(cache=True, parallel=True)
+def _sweep_two(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
+    """:func:`_sweep` on two threads: each half of the samples into its own grid, then the minimum."""
+    half = idx.size // 2
+    spare = np.full(grid.shape, np.inf, dtype=grid.dtype)
+    outs = np.zeros(2, np.int64)
+    errs = np.zeros(2)
+    moves = np.zeros(2, np.bool_)
+    for part in nb.prange(2):
+        a, b = (0, half) if part == 0 else (half, idx.size)
+        target = grid if part == 0 else spare
+        o, e, m = _sweep(
+            idx[a:b], tt[a:b], in_origin, in_res, in_shape, origin, res, target, kind, axis, point, lo, hi, vmax, eps
+        )
+        outs[part], errs[part], moves[part] = o, e, m
+    flat, other = grid.ravel(), spare.ravel()
+    for f in range(flat.size):
+        if other[f] < flat[f]:
+            flat[f] = other[f]
+    return outs[0] + outs[1], max(errs[0], errs[1]), moves[0] or moves[1]
 
-    Per axis a running minimum over 2k + 1 cells, by doubling: the minimum over 2^p cells from two of
-    2^(p-1), then two overlapping windows of the largest power of two <= 2k + 1; about log2(2k + 1) array
-    passes per axis whatever k."""
-    out = grid
-    if k == 0:
-        return grid.copy()
+
+@nb.njit(cache=True)
+def _min_filter_mid(x, k, out):
+    """``out[a, i, b] = min x[a, i-k..i+k, b]`` (clipped to the array) for (A, n, B) arrays of any layout.
+
+    Per slab ``a`` a padded (n + 2k, B) copy is doubled in place (the minimum over 2^p rows from two of
+    2^(p-1)), then two overlapping windows of the largest power of two P <= 2k + 1 give the 2k + 1 rows;
+    the inner loops run along B, so they vectorise."""
+    A, n, B = x.shape
     w = 2 * k + 1
-    p = 1 << (w.bit_length() - 1)
-    for axis in range(3):
-        n = out.shape[axis]
-        pad = [(0, 0)] * 3
-        pad[axis] = (k, k)
-        m = np.pad(out, pad, constant_values=np.inf)
+    p = 1
+    while 2 * p <= w:
+        p *= 2
+    buf = np.empty((n + 2 * k, B), x.dtype)
+    for a in range(A):
+        buf[:] = np.inf
+        for i in range(n):
+            for b in range(B):
+                buf[k + i, b] = x[a, i, b]
         span = 1
-        while span < p:  # m[i] = min over cells [i, i + 2 span) of the padded line
-            head = [slice(None)] * 3
-            tail = [slice(None)] * 3
-            head[axis] = slice(0, m.shape[axis] - span)
-            tail[axis] = slice(span, None)
-            m = np.minimum(m[tuple(head)], m[tuple(tail)])
+        while span < p:
+            for t in range(n + 2 * k - span):
+                row, ahead = buf[t], buf[t + span]
+                for b in range(B):
+                    row[b] = min(row[b], ahead[b])
             span *= 2
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[axis] = slice(0, n)
-        hi[axis] = slice(w - p, w - p + n)
-        out = np.minimum(m[tuple(lo)], m[tuple(hi)])
-    return out
+        for i in range(n):
+            for b in range(B):
+                out[a, i, b] = min(buf[i, b], buf[i + w - p, b])
+
+
+def _dilate(grid: np.ndarray, k: int) -> np.ndarray:
+    """``grid`` min-filtered with a (2k+1)^3 box (``scipy.ndimage.minimum_filter`` with an inf border):
+    one running minimum per axis (:func:`_min_filter_mid`), the vector axis the contiguous one where it can
+    be."""
+    out = np.ascontiguousarray(grid)
+    if k == 0:
+        return out.copy()
+    nx, ny, nz = out.shape
+    along_x, along_y = np.empty_like(out), np.empty_like(out)
+    _min_filter_mid(out.reshape(1, nx, ny * nz), k, along_x.reshape(1, nx, ny * nz))
+    _min_filter_mid(along_x, k, along_y)
+    _min_filter_mid(along_y.transpose(0, 2, 1), k, along_x.transpose(0, 2, 1))
+    return along_x
 
 
 # ----------------------------------------------------------------------------------------------- public
@@ -454,7 +490,7 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
             target, t_origin, t_res, eps = grid, g_origin, g_res, 0.5 * g_res
         else:
             target, t_origin, t_res, eps = out, box_origin, res_out, 0.5 * res_out
-        n_out, err, moved = _sweep(
+        n_out, err, moved = (_sweep_two if idx.size >= _PARALLEL_FROM else _sweep)(
             idx, tt, *in_spec, t_origin, t_res, target, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
             np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), eps,
         )  # fmt: skip
