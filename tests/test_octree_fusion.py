@@ -254,3 +254,26 @@ def test_random_box_scenes_are_conservative(centre, half, holes, seed):
         assert not (blocked & ((frame.flags[i] & O) == 0)).any()
     must = (refs[0][1] & ~refs[1][0]) | (refs[1][1] & ~refs[0][0])
     assert not (must & ~frame.occupied).any()
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 70), st.integers(1, 70), st.integers(0, 2**31))
+def test_min_pyramid_levels_are_the_minima_of_their_pixel_blocks(h, w, seed):
+    """Level l holds, per 2^l x 2^l block of pixels (clipped at odd sizes), the minimum: compared with
+    numpy's reshape-and-min of the inf-padded image, level by level."""
+    from depthguard.octree.sets import min_pyramid
+
+    rng = np.random.default_rng(seed)
+    img = rng.random((h, w)).astype(np.float32)
+    img[rng.random((h, w)) < 0.2] = np.inf
+    data, offs, hs, ws = min_pyramid(img)
+    level = img
+    for lv in range(len(offs)):
+        assert (hs[lv], ws[lv]) == level.shape
+        got = data[offs[lv] : offs[lv] + hs[lv] * ws[lv]].reshape(level.shape)
+        assert np.array_equal(got, level)
+        a, b = level.shape
+        padded = np.full(((a + 1) // 2 * 2, (b + 1) // 2 * 2), np.inf, np.float32)
+        padded[:a, :b] = level
+        level = padded.reshape((a + 1) // 2, 2, (b + 1) // 2, 2).min(axis=(1, 3))
+    assert hs[-1] == 1 and ws[-1] == 1

@@ -55,17 +55,17 @@ def min_pyramid(img):
     for lv in range(1, L):
         h0, w0, o0 = hs[lv - 1], ws[lv - 1], offs[lv - 1]
         h1, w1, o1 = hs[lv], ws[lv], offs[lv]
+        full_u = w0 // 2  # blocks with two columns; an odd width leaves one block of one column
         for v in range(h1):
-            for u in range(w1):
-                m = np.inf
-                for dv in range(2):
-                    for du in range(2):
-                        vv, uu = 2 * v + dv, 2 * u + du
-                        if vv < h0 and uu < w0:
-                            x = data[o0 + vv * w0 + uu]
-                            if x < m:
-                                m = x
-                data[o1 + v * w1 + u] = m
+            r0 = o0 + 2 * v * w0
+            r1 = r0 + w0 if 2 * v + 1 < h0 else r0  # an odd height: the last block row has one row
+            out = o1 + v * w1
+            for u in range(full_u):
+                data[out + u] = min(
+                    min(data[r0 + 2 * u], data[r0 + 2 * u + 1]), min(data[r1 + 2 * u], data[r1 + 2 * u + 1])
+                )
+            if full_u < w1:
+                data[out + full_u] = min(data[r0 + 2 * full_u], data[r1 + 2 * full_u])
     return data, offs, np.array(hs, np.int64), np.array(ws, np.int64)
 
 
@@ -200,20 +200,26 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     zlo, zhi = np.inf, -np.inf
                     pxl, pxh, pyl, pyh = np.inf, -np.inf, np.inf, -np.inf
                     behind = False
+                    # the block's lowest corner in the camera frame, then the other 7 by adding the edges
+                    x0 = origin[0] + bi * size
+                    y0 = origin[1] + bj * size
+                    z0 = origin[2] + bk * size
+                    xb = Rc[0, 0] * x0 + Rc[0, 1] * y0 + Rc[0, 2] * z0 + tc[0]
+                    yb = Rc[1, 0] * x0 + Rc[1, 1] * y0 + Rc[1, 2] * z0 + tc[1]
+                    zb = Rc[2, 0] * x0 + Rc[2, 1] * y0 + Rc[2, 2] * z0 + tc[2]
                     for c in range(8):
-                        x = origin[0] + bi * size + (c & 1) * size
-                        y = origin[1] + bj * size + ((c >> 1) & 1) * size
-                        z = origin[2] + bk * size + ((c >> 2) & 1) * size
-                        xc = Rc[0, 0] * x + Rc[0, 1] * y + Rc[0, 2] * z + tc[0]
-                        yc = Rc[1, 0] * x + Rc[1, 1] * y + Rc[1, 2] * z + tc[1]
-                        zc = Rc[2, 0] * x + Rc[2, 1] * y + Rc[2, 2] * z + tc[2]
+                        a, b, e = (c & 1) * size, ((c >> 1) & 1) * size, ((c >> 2) & 1) * size
+                        xc = xb + Rc[0, 0] * a + Rc[0, 1] * b + Rc[0, 2] * e
+                        yc = yb + Rc[1, 0] * a + Rc[1, 1] * b + Rc[1, 2] * e
+                        zc = zb + Rc[2, 0] * a + Rc[2, 1] * b + Rc[2, 2] * e
                         zlo = min(zlo, zc)
                         zhi = max(zhi, zc)
                         if zc <= 1e-6:
                             behind = True
                             continue
-                        px = fx * xc / zc + cx
-                        py = fy * yc / zc + cy
+                        iz = 1.0 / zc
+                        px = fx * xc * iz + cx
+                        py = fy * yc * iz + cy
                         pxl, pxh, pyl, pyh = min(pxl, px), max(pxh, px), min(pyl, py), max(pyh, py)
                     if zhi <= 1e-6:
                         continue  # wholly behind the camera: no information
@@ -423,22 +429,23 @@ def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
     fx, fy, cx, cy = intr
     H, W = depth.shape
     nx, ny, nz = mask.shape
+    inv = 1.0 / res
+    ifx = 1.0 / fx
     for v in range(H):
         yv = (v + 0.5 - cy) / fy
         for u in range(W):
             d = depth[v, u]
             if robot[v, u] or not (d >= zlim[0] and d <= zlim[1]):
                 continue  # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
-            xc = (u + 0.5 - cx) / fx * d
+            xc = (u + 0.5 - cx) * ifx * d
             yc = yv * d
-            x = Rt[0, 0] * xc + Rt[0, 1] * yc + Rt[0, 2] * d + pos[0]
-            y = Rt[1, 0] * xc + Rt[1, 1] * yc + Rt[1, 2] * d + pos[1]
-            z = Rt[2, 0] * xc + Rt[2, 1] * yc + Rt[2, 2] * d + pos[2]
-            i = int(math.floor((x - origin[0]) / res))
-            j = int(math.floor((y - origin[1]) / res))
-            k = int(math.floor((z - origin[2]) / res))
-            if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz and mask[i, j, k]:
-                flags[i, j, k] |= 2
+            fi = (Rt[0, 0] * xc + Rt[0, 1] * yc + Rt[0, 2] * d + pos[0] - origin[0]) * inv
+            fj = (Rt[1, 0] * xc + Rt[1, 1] * yc + Rt[1, 2] * d + pos[1] - origin[1]) * inv
+            fk = (Rt[2, 0] * xc + Rt[2, 1] * yc + Rt[2, 2] * d + pos[2] - origin[2]) * inv
+            if fi >= 0.0 and fj >= 0.0 and fk >= 0.0 and fi < nx and fj < ny and fk < nz:
+                i, j, k = int(fi), int(fj), int(fk)
+                if mask[i, j, k]:
+                    flags[i, j, k] |= 2
 
 
 def bin_depth_points(camera, depth: np.ndarray, robot: np.ndarray, box, mask: np.ndarray, flags: np.ndarray) -> None:
