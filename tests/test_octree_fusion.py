@@ -277,3 +277,36 @@ def test_min_pyramid_levels_are_the_minima_of_their_pixel_blocks(h, w, seed):
         padded[:a, :b] = level
         level = padded.reshape((a + 1) // 2, 2, (b + 1) // 2, 2).min(axis=(1, 3))
     assert hs[-1] == 1 and ws[-1] == 1
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 5), st.integers(0, 2**31), st.booleans())
+def test_combine_is_the_set_formula_node_by_node(n_sensors, seed, conservative):
+    """``combine`` against SAPHARI §3.2 written out per node with Python sets: occupied where some sensor
+    holds a measured point (P); occluded where some Oi is seen free by no other sensor j != i; in the
+    conservative mode unseen where no sensor sees the node free, occupied, occluded or robot-hidden."""
+    from depthguard.octree.sets import R, combine
+
+    rng = np.random.default_rng(seed)
+    shape = (4, 5, 3)
+    flags = np.zeros((n_sensors,) + shape, np.uint8)
+    for bit, p in ((1, 0.5), (P, 0.1), (O, 0.35), (R, 0.2), (F, 0.4)):
+        flags |= (rng.random(flags.shape) < p).astype(np.uint8) * np.uint8(bit)
+    # any bits, even Oi with Fi (the kernels never set both; the formula must hold regardless)
+    mask = rng.random(shape) < 0.85
+    kind = np.full(shape, 255, np.uint8)
+    combine(flags, mask, conservative, kind)
+    for idx in np.ndindex(shape):
+        f = [int(flags[(s,) + idx]) for s in range(n_sensors)]
+        free_by = {s for s in range(n_sensors) if f[s] & F}
+        if not mask[idx]:
+            want = 0
+        elif any(x & P for x in f):
+            want = 1
+        elif any(f[s] & O and not (free_by - {s}) for s in range(n_sensors)):
+            want = 2
+        elif conservative and not free_by and not any(x & (O | R) for x in f):
+            want = 3
+        else:
+            want = 0
+        assert kind[idx] == want, (idx, f, bool(mask[idx]))

@@ -460,36 +460,43 @@ def bin_depth_points(camera, depth: np.ndarray, robot: np.ndarray, box, mask: np
 
 @nb.njit(cache=True, nogil=True)
 def combine(flags, mask, conservative, kind):
-    """Fusion of SAPHARI §3.2 over (S, nx, ny, nz) flags into ``kind`` (0 free, 1 occupied, 2 occluded, 3 unseen)."""
+    """Fusion of SAPHARI §3.2 over (S, nx, ny, nz) flags into ``kind`` (0 free, 1 occupied, 2 occluded, 3 unseen).
+
+    A node is occupied when it holds a measured point of some sensor (P), occluded when it is in some O_i
+    that no other sensor sees free, and (conservative mode) unseen when no sensor sees it free, nor occupied,
+    occluded or hidden by the robot. Two passes: the sensors' bits ORed and their F bits counted, sensor by
+    sensor (these loops vectorise), then one decision per node; only a node with an O bit and a single F bit
+    looks at the sensors again (is the F bit its O sensor's own?)."""
     S = flags.shape[0]
     nx, ny, nz = mask.shape
+    bits = np.zeros((nx, ny, nz), np.uint8)
+    nf = np.zeros((nx, ny, nz), np.uint8)
+    for s in range(S):
+        for i in range(nx):
+            for j in range(ny):
+                for k in range(nz):
+                    f = flags[s, i, j, k]
+                    bits[i, j, k] |= f
+                    nf[i, j, k] += (f >> 4) & 1
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):
+                b = bits[i, j, k]
+                n = nf[i, j, k]
                 if not mask[i, j, k]:
                     kind[i, j, k] = 0
-                    continue
-                nf = 0
-                anyp = False
-                anyo = False
-                anyr = False
-                for s in range(S):
-                    f = flags[s, i, j, k]
-                    nf += (f >> 4) & 1
-                    anyp = anyp or (f & 2) != 0
-                    anyo = anyo or (f & 4) != 0
-                    anyr = anyr or (f & 8) != 0
-                if anyp:
+                elif b & 2:
                     kind[i, j, k] = 1
-                    continue
-                occ = False
-                for s in range(S):
-                    f = flags[s, i, j, k]
-                    if (f & 4) != 0 and nf - ((f >> 4) & 1) == 0:  # O_i and no other sensor sees it free
-                        occ = True
-                if occ:
+                elif b & 4 and n == 0:
                     kind[i, j, k] = 2
-                elif conservative and nf == 0 and not anyo and not anyr:
+                elif b & 4 and n == 1:
+                    occ = False
+                    for s in range(S):
+                        f = flags[s, i, j, k]
+                        if (f & 4) != 0 and (f & 16) != 0:  # O_i and the only F is its own
+                            occ = True
+                    kind[i, j, k] = 2 if occ else 0
+                elif conservative and n == 0 and not (b & 12):
                     kind[i, j, k] = 3
                 else:
                     kind[i, j, k] = 0
