@@ -139,7 +139,7 @@ def lower_bound_slack(camera: Camera, depth: float, distance: float = 0.0) -> fl
 
 
 # --------------------------------------------------------------------------------------------- frame stage
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, out):
     """Missing-depth policy (docs/conventions.md). Returns (filled, unknown) counts."""
     H, W = depth.shape
@@ -170,7 +170,7 @@ def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, ou
     return filled, unknown
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def tile_min(img, tile):
     """(ceil(H/tile), ceil(W/tile)) float32 minimum of ``img`` (H, W) over each ``tile x tile`` block."""
     H, W = img.shape

@@ -69,7 +69,7 @@ def machine_info() -> dict[str, object]:
 
 
 # ------------------------------------------------------------------------------------ machine-speed reference
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _nearest_pixel_kernel(depth, fx, fy, cx, cy, points, out):  # pragma: no cover (compiled)
     """out[i] = min over pixels of |points[i] - X(u, v)|, X the back-projected pixel centre (metres)."""
     H, W = depth.shape

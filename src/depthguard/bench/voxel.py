@@ -33,7 +33,7 @@ __all__ = ["VoxelFusion"]
 FREE, OCCUPIED, UNKNOWN = 0, 1, 2
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _fill(origin, res, shape, Rs, ts, intr, depths, out):
     nx, ny, nz = shape
     K = Rs.shape[0]
@@ -64,7 +64,7 @@ def _fill(origin, res, shape, Rs, ts, intr, depths, out):
                 out[i, j, k] = state
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _query_one(grid, origin, res, P, radius, rho, mode, alpha, out):
     nx, ny, nz = grid.shape
     reff = rho + radius
@@ -129,7 +129,7 @@ def _query_one(grid, origin, res, P, radius, rho, mode, alpha, out):
     out[7] = count
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _query_many(grid, origin, res, centres, radii, rho, mode, alpha):
     n = centres.shape[0]
     out = np.empty((n, 8))

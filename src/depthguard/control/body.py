@@ -34,7 +34,7 @@ from depthguard.repulsion import risk  # ICRA'12 eq. 12, shared with the distanc
 __all__ = ["risk", "body_velocity_bounds", "body_bounds_inplace"]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def body_bounds_inplace(
     jac: np.ndarray,
     dist: np.ndarray,

@@ -42,7 +42,7 @@ def _constant_jerk(state: OtgState, a_new: np.ndarray, dt: float) -> OtgState:
     return OtgState(p_new, v_new, a_new)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def enforce_bounds_kernel(
     p0: np.ndarray, v0: np.ndarray, a0_in: np.ndarray, pp: np.ndarray, vp: np.ndarray, ap: np.ndarray,
     lo: np.ndarray, hi: np.ndarray, a_max: np.ndarray, j_max: np.ndarray, dt: float,

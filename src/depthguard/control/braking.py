@@ -41,7 +41,7 @@ class JointStop(NamedTuple):
     travel: np.ndarray
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _stop_from_rest_acc(speed: float, a_max: float, j_max: float) -> tuple[float, float]:
     """Time-optimal stop from speed >= 0 with zero acceleration: (time s, travel)."""
     if speed >= a_max * a_max / j_max:  # trapezoidal deceleration
@@ -51,7 +51,7 @@ def _stop_from_rest_acc(speed: float, a_max: float, j_max: float) -> tuple[float
     return t, speed * t / 2.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def stop_one(v: float, a: float, a_max: float, j_max: float) -> tuple[float, float]:
     """Stopping time (s) and unsigned path length (rad or m) of one joint from velocity ``v`` and
     acceleration ``a`` (module docstring); exact for Ruckig's time-optimal velocity-mode stop."""

@@ -42,7 +42,7 @@ def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho
     return repulsive_velocity_kernel(d, dvec, float(v_max), float(rho), float(alpha))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def repulsive_velocity_kernel(d: float, direction: np.ndarray, v_max: float, rho: float, alpha: float) -> np.ndarray:
     """:func:`repulsive_velocity` for compiled callers (float64 ``direction`` (3,)); returns a new (3,) array."""
     out = np.zeros(3)
@@ -66,7 +66,7 @@ def commanded_task_velocity(xdot_d: np.ndarray, v_repulsive: np.ndarray) -> np.n
     return xc
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dls_damping(J: np.ndarray, eps: float, lambda_max: float) -> float:
     if J.shape[0] > J.shape[1]:
         smin = 0.0
@@ -90,7 +90,7 @@ def dls_inverse(J: np.ndarray, damping: float) -> np.ndarray:
     return J.T @ np.linalg.inv(J @ J.T + damping**2 * np.eye(m))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:
     m = J.shape[0]
     A = J @ J.T

@@ -83,13 +83,13 @@ def _plain(x: object, n: int) -> bool:
     return type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,) and x.flags.c_contiguous
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _finite3(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> int:
     """Bit 0, 1, 2 set when ``a``, ``b``, ``c`` (1-D) are all finite."""
     return int(_all_finite(a)) | (int(_all_finite(b)) << 1) | (int(_all_finite(c)) << 2)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _all_finite(a: np.ndarray) -> bool:
     for i in range(a.shape[0]):
         if not np.isfinite(a[i]):
@@ -97,7 +97,7 @@ def _all_finite(a: np.ndarray) -> bool:
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _distances_valid(d: np.ndarray, dirs: np.ndarray) -> int:
     """0: invalid (NaN or -inf distance, non-finite direction with a finite distance); 1: valid, all
     directions usable; 2: valid, some distance is +inf (its direction is to be ignored)."""

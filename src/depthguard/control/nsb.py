@@ -111,7 +111,7 @@ def nsb_velocity(
     return NSBTerms((1.0 - lam) * qg + lam * (qo + proj), qg, qo, lam)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _energy_kernel(d, rest, axes, Js):  # pragma: no cover
     """eqs. 5.1-5.2 and 5.6-5.7: sigma and J_o (n,) (NaN distances count as 0, negative as 0)."""
     N, n = Js.shape[0], Js.shape[2]
@@ -129,7 +129,7 @@ def _energy_kernel(d, rest, axes, Js):  # pragma: no cover
     return sigma, Jo
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _wpinv_apply(Jg, w, damping, rhs):  # pragma: no cover
     """Footnote 1 applied to ``rhs``: ``W J^T (J W J^T + damping I)^-1 rhs`` by Gaussian elimination."""
     r, n = Jg.shape
@@ -169,7 +169,7 @@ def _wpinv_apply(Jg, w, damping, rhs):  # pragma: no cover
     return qg
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, damping, qdot_max):  # pragma: no cover
     """Compiled cycle: energy and gradient, eqs. 5.4, 5.5, 5.8 and the uniform velocity scaling.
 

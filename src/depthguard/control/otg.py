@@ -60,7 +60,7 @@ def position_limited_velocity_bounds(
     return -vb(q - q_min - margin), vb(q_max - margin - q)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def joint_velocity_bounds(
     q: np.ndarray, v: np.ndarray, q_min: np.ndarray, q_max: np.ndarray, v_max: np.ndarray,
     a_max: np.ndarray, j_max: np.ndarray, latency: float, margin: float, ahead: float,

@@ -41,7 +41,7 @@ def plan_params(cfg) -> np.ndarray:
     )  # fmt: skip
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def plan_prepare(
     q, parent, idx_v, kind, axis, placement, joints, offsets, support,
     dist, dirs, body_use, v_max, xdot_d, prm, repel, nominal, lo, hi, lo_s, hi_s,
@@ -79,7 +79,7 @@ def plan_prepare(
     return jac, J, lam, xdot_c, v_rep, qn
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def plan_repulsion(
     q, parent, idx_v, kind, axis, placement, joints, offsets, support,
     dist, dirs, body_use, v_max, xdot_d, prm, repel, lo, hi, lo_s, hi_s,
@@ -93,7 +93,7 @@ def plan_repulsion(
     return target, scale, xdot_c
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def both_finite(a: np.ndarray, b: np.ndarray) -> bool:
     """True if every element of the 1-D float arrays ``a`` and ``b`` is finite (one call for the cycle's
     check of its plan)."""

@@ -30,7 +30,7 @@ from numba import njit
 __all__ = ["sns_velocity", "sns_velocity_raw", "sns_velocity_unchecked"]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _damped_pinv(A: np.ndarray, damping: float, rcond: float) -> tuple[np.ndarray, int]:
     """Damped pseudo-inverse ``V diag(s / (s^2 + damping^2)) U^T`` of ``A`` (m, n) and its numerical rank."""
     m, n = A.shape
@@ -49,7 +49,7 @@ def _damped_pinv(A: np.ndarray, damping: float, rcond: float) -> tuple[np.ndarra
     return P, rank
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _task_scale(
     a: np.ndarray, b: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, free: np.ndarray
 ) -> tuple[float, int]:
@@ -80,7 +80,7 @@ def _task_scale(
     return hi, crit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _violates(qdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, tol: float) -> bool:
     """True if some ``qdot[i]`` is outside ``[qmin[i] - tol, qmax[i] + tol]`` or NaN."""
     for i in range(qdot.shape[0]):
@@ -89,7 +89,7 @@ def _violates(qdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, tol: float) 
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sns_greedy(
     J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float
 ) -> tuple[np.ndarray, float]:
@@ -141,7 +141,7 @@ def _sns_greedy(
     return qdot, best_s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _facet_normal(J: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Unit normal of the span of the m-1 columns ``cols`` of J (m, n); zeros if they are dependent."""
     m = J.shape[0]
@@ -177,7 +177,7 @@ def _facet_normal(J: np.ndarray, cols: np.ndarray) -> np.ndarray:
     return nrm / norm
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ray_exit(
     J: np.ndarray, origin: np.ndarray, d: np.ndarray, qmin: np.ndarray, qmax: np.ndarray
 ) -> tuple[float, np.ndarray]:
@@ -227,7 +227,7 @@ def _ray_exit(
     return best, best_n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _facet_solution(
     J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, nrm: np.ndarray
 ) -> np.ndarray:
@@ -261,7 +261,7 @@ def _facet_solution(
     return qdot + qp
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _zonotope_point(J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: np.ndarray) -> np.ndarray:
     """A qdot in the box with ``J qdot = target`` for a target inside Z (finite bounds).
 
@@ -281,7 +281,7 @@ def _zonotope_point(J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: n
     return qc + (qf - qc) / t
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sns_velocity_raw(
     J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 0.0
 ) -> tuple[np.ndarray, float]:
@@ -320,7 +320,7 @@ def sns_velocity_raw(
     return q3, s_opt
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sns_velocity_unchecked(
     J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float = 0.0
 ) -> tuple[np.ndarray, float]:

@@ -159,7 +159,7 @@ class SsmOutput(NamedTuple):
     stop_ended: bool
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _s_p(s, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_nom, a_max, j_max, v_h_meas, prm, out):
     """S_p,k(s) for all points into ``out`` (N,); returns T_s. ``prm`` = (T_r, C+Z_d+Z_r, v_near, v_far,
     near_limit, v_floor)."""
@@ -194,7 +194,7 @@ def _s_p(s, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_nom, a_max, j_m
     return T_s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_nom, a_max, j_max, v_h_meas, prm):
     """Largest s in [0, 1] with dist >= S_p(s) (bisection, 1/4096); -1 if even s = 0 fails."""
     N = dist.shape[0]
@@ -221,7 +221,7 @@ def _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_no
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _to_now(dist, sp, appr_cur, appr_nom, s, v_h_meas, prm, age):
     """Shift ``dist`` and ``sp`` (N,) by what the obstacle and the point may have closed over ``age`` s:
     ``(v_h + v_r,k) age``, ``v_h`` as :func:`_s_p` chose it (measured, or ISO 13855 near / far, read back from
@@ -238,7 +238,7 @@ def _to_now(dist, sp, appr_cur, appr_nom, s, v_h_meas, prm, age):
         sp[k] -= shift
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, prm, stopped, hyst, dist, sp, age):
     """:meth:`SsmMonitor.update` in one kernel: fills ``dist`` (N,) and ``sp`` (N,) (both for now: shifted by
     :func:`_to_now` over the data's ``age``); returns (scale or -1, stopped, stop_ended, T_s, binding)."""

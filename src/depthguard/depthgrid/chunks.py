@@ -26,7 +26,7 @@ from depthguard.kernels import FASTMATH
 __all__ = ["tile_max_start", "tile_chunk_cleared", "tile_chunk_prepare"]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def tile_max_start(start, kind, tile):
     """Per tile, the largest start depth of its non-robot pixels (surface or unknown); -inf when none."""
     H, W = start.shape
@@ -44,7 +44,7 @@ def tile_max_start(start, kind, tile):
     return out
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _blocks_cleared(rect, tb0, tb1, grid, mp, vt, stack):
     """:func:`tile_block_cleared` for the tile blocks ``tb0..tb1`` of tile ``rect`` as one piece."""
     ua, va, ub, vb = rect
@@ -52,7 +52,7 @@ def _blocks_cleared(rect, tb0, tb1, grid, mp, vt, stack):
     return tile_block_cleared(ua, va, ub, vb, tb0 * TILE_BLOCK, g1, grid, mp, vt, stack)
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, nogil=True, _nrt=False)
 def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     """Decide at once the tile blocks ``tb0..tb1`` of tile ``rect`` = ``(ua, va, ub, vb)``.
 
@@ -94,7 +94,7 @@ def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     return True
 
 
-@nb.njit(cache=True, _nrt=False, error_model="numpy", fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, _nrt=False, error_model="numpy", fastmath=FASTMATH)
 def tile_chunk_prepare(P, h, lim_t, rect, tmin_t, tmx, intr, grid, mp, vt, sc):
     """Per-tile chunk decision of the query: returns ``(allclear, pending, g0c, g1c, skip_tile, beyond_out)``.
 

@@ -36,7 +36,7 @@ from depthguard.depthgrid.votes import block_cleared, cell_occupied, tile_block_
 __all__ = ["segment", "column_search"]
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _cell_of(s, grid):
     """Search segment holding depth ``s``: -1 before the grid, ``n_cells`` beyond it."""
     if s < grid.d_min:
@@ -45,7 +45,7 @@ def _cell_of(s, grid):
     return g if g < grid.n_cells else grid.n_cells
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def segment(g, s0, grid):
     """Depth interval ``(lo, hi)`` of search segment ``g`` of a column starting at ``s0``."""
     if g < 0:
@@ -60,21 +60,21 @@ _ONE = np.uint64(1)
 _ALL = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _has(words, v, u, base, g):
     """Bit ``g`` of the bit set at word ``base`` of pixel (u, v)'s
     :class:`~depthguard.depthgrid.records.ColumnCache` record."""
     return (words[v, u, base + (g >> 6)] & (_ONE << np.uint64(g & 63))) != np.uint64(0)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _put(words, v, u, base, g0, g1):
     """Set bits ``g0 <= g < g1`` of the bit set at word ``base`` of pixel (u, v)."""
     for g in range(g0, g1):
         words[v, u, base + (g >> 6)] |= _ONE << np.uint64(g & 63)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _refresh(cc, v, u):
     """Forget pixel (u, v)'s bits if they belong to an older frame."""
     gen = np.uint64(cc.gen)
@@ -84,7 +84,7 @@ def _refresh(cc, v, u):
         cc.words[v, u, 0] = gen
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _free_run(words, v, u, g, going_up, lowest, n_cells):
     """Next segment index after the run of cached free cells (bit set at word 1) from cell ``g`` (up: at
     most ``n_cells``, the space beyond the grid; down: at least ``lowest - 1``)."""
@@ -109,7 +109,7 @@ def _free_run(words, v, u, g, going_up, lowest, n_cells):
     return lowest - 1
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _skip_free(words, v, u, g, going_up, up, dn, lowest, n_cells):
     """``(up, dn)`` past the run of cached free cells from cell ``g`` in the search's direction."""
     if going_up:
@@ -117,7 +117,7 @@ def _skip_free(words, v, u, g, going_up, up, dn, lowest, n_cells):
     return up, _free_run(words, v, u, g, False, lowest, n_cells)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _nearer_side(up, dn, g_start, g_end, s0, s_line, s_lo, grid):
     """Which segment a column search visits next: 1 the next one up (``up``), 0 the next one down
     (``dn``), -1 none left. By the depth gap between ``s_line`` and each (module docstring); a direction
@@ -136,7 +136,7 @@ def _nearer_side(up, dn, g_start, g_end, s0, s_line, s_lo, grid):
     return 1 if gu <= gd else 0
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _skip_cleared_run(tstate, tb, going_up, lowest, n_cells):
     """Next segment index after a run of cleared tile blocks from block ``tb`` (up or down)."""
     if going_up:
@@ -150,7 +150,7 @@ def _skip_cleared_run(tstate, tb, going_up, lowest, n_cells):
     return max((t2 + 1) * TILE_BLOCK, lowest) - 1
 
 
-@nb.njit(cache=True, error_model="numpy", _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, inline="always")
 def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, vt, sc):
     """Nearest occupied interval of pixel (u, v) (ray ``(a, b, 1)``) from ``s0`` on (module docstring).
 

@@ -22,7 +22,7 @@ Q_MAX = 32767
 FOOT_MAX = 255  # largest footprint extent (pixels - 1) a cell may have in a secondary camera
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams):
     """Footprint in camera k of the principal frustum over pixels ``[ua, ub) x [va, vb)``, depths [d1, d2]."""
     bx = cams[k, 0]
@@ -69,13 +69,13 @@ def rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams):
     return iu0, iv0, du, dv, q
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def cell_footprint(k, u, v, d1, d2, corner_rays, cams):
     """Footprint ``(u0, v0, du, dv, q)`` of principal cell ``(u, v, [d1, d2])`` in secondary camera k."""
     return rect_footprint(k, u, v, u + 1, v + 1, d1, d2, corner_rays, cams)
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, nogil=True, _nrt=False)
 def pack(u0, v0, du, dv, q):
     """One int64: du | dv << 8 | (u0 + 1) << 16 | v0 << 32 | q << 48 (all fields non-negative)."""
     if u0 < 0:
@@ -83,13 +83,13 @@ def pack(u0, v0, du, dv, q):
     return np.int64(du) | (np.int64(dv) << 8) | (np.int64(u0 + 1) << 16) | (np.int64(v0) << 32) | (np.int64(q) << 48)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def unpack(w):
     """Inverse of :func:`pack`; ``u0 = -1`` for a camera that is not involved."""
     return (((w >> 16) & 0xFFFF) - 1, (w >> 32) & 0xFFFF, w & 0xFF, (w >> 8) & 0xFF, (w >> 48) & 0x7FFF)
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def build_map(corner_rays, cams, d_min, dd, n_cells, pmap):
     """Fill the stored map (RA-L'16 §V) for every cell and secondary camera; rows in parallel."""
     H = pmap.shape[1]

@@ -17,7 +17,7 @@ from depthguard.depthgrid import records as K
 __all__ = ["prepare_principal", "prepare_secondary", "write_windows"]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _filled(depth, missing, robot, has_mask, v, u, r):
     """Hole filling (``docs/conventions.md``), as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
     non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
@@ -30,7 +30,7 @@ def _filled(depth, missing, robot, has_mask, v, u, r):
     return best
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def missing_pixels(depth):
     """(H, W) bool: the pixels without a reading (0, negative, NaN or inf)."""
     H, W = depth.shape
@@ -42,7 +42,7 @@ def missing_pixels(depth):
     return missing
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
     """One pass over the principal image: start depth and kind of every pixel (module docstring)."""
     H, W = depth.shape
@@ -79,7 +79,7 @@ def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservat
                     kind[v, u] = K.KIND_UNKNOWN
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def prepare_secondary(depth, robot, has_mask, conservative, robot_occludes, margin, out):
     """One pass over a secondary image: the depth each pixel sees up to (its vote, see the module docstring).
 
@@ -146,7 +146,7 @@ def limit_robot_votes(cameras, depths, masks, votes, margin: float) -> None:
                 np.minimum.at(vk, (pv[robot], pu[robot]), (zf[robot] - margin).astype(np.float32))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _window_block(lo, hi, out_lo, out_hi):
     """``out_lo`` / ``out_hi`` (H, W) = the window ``[lo, hi]`` where both are finite and ``lo <= hi``,
     else ``+inf`` / ``-inf`` (no window)."""

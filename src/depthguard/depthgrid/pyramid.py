@@ -55,7 +55,7 @@ def window_aware_votes(votes: np.ndarray, hm: int) -> np.ndarray:
     return _window_aware(np.ascontiguousarray(votes, dtype=np.float32), int(hm))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _window_aware(votes, hm):
     K, _, W = votes.shape
     out = np.empty((K, hm, W), dtype=np.float32)
@@ -69,7 +69,7 @@ def _window_aware(votes, hm):
     return out
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def pixel_sees_past(k, pv, pu, dend, votes):
     """Pixel (pu, pv) of camera k does not hold an obstacle before ``dend``: its vote depth exceeds
     ``dend``, or ``dend`` lies in the pixel's robot window (``lo <= dend <= hi``: the part of any cell
@@ -84,7 +84,7 @@ def pixel_sees_past(k, pv, pu, dend, votes):
     return votes[k, hm + pv, pu] <= dend and dend <= votes[k, 2 * hm + pv, pu]
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _leaf_ok(k, pv, pu, thr, vt):
     """The exact per-pixel rule: the vote alone, or with the robot window when windows are set."""
     if vt.windows:
@@ -92,7 +92,7 @@ def _leaf_ok(k, pv, pu, thr, vt):
     return vt.votes[k, pv, pu] > thr
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def build_pyramid(votes, meta, pyr):
     """Fill ``pyr[k]`` (levels 1..L, see :func:`pyramid_layout`) with block minima of ``votes[k]``."""
     H = votes.shape[1]
@@ -128,7 +128,7 @@ def build_pyramid(votes, meta, pyr):
                         pyr[k, off + bv * wl + bu] = m
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, nogil=True, _nrt=False)
 def rect_sees_past(k, u0, v0, u1, v1, thr, vt, stack):
     """True when every pixel of camera k over ``[u0, u1] x [v0, v1]`` (inclusive) sees past ``thr``: its
     vote exceeds ``thr``, or (``vt.windows``) ``thr`` lies in its robot window.

@@ -35,7 +35,7 @@ from depthguard.kernels.region import first_index, next_tile, surveillance_box, 
 __all__ = ["query_one", "query_many", "query_many_parallel"]
 
 
-@nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always", fastmath=FASTMATH)
 def _segment_hit(hits, P, a, b, lo, hi, h, radius, qp, summed):
     """``hits`` plus the piece of pixel ray ``(a, b, 1)`` between depths lo and hi, if within ρ + r
     (``summed``: in the direction sum and count; else only if nearer than ``hits.best``)."""
@@ -57,7 +57,7 @@ def _segment_hit(hits, P, a, b, lo, hi, h, radius, qp, summed):
     return add_hit(hits, D, dx / dr, dy / dr, dz / dr, s * a, s * b, s, True, radius, qp.rho, qp.mode, qp.alpha)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always", fastmath=FASTMATH)
 def _first_segment(s0, surface, P, a, b, h, lim, grid):
     """Column search of a pixel of a cleared tile (every grid cell within reach cleared, the space beyond
     the grid out of reach): only the column's first segment can be occupied, the space ``[s0, d_min)``
@@ -79,7 +79,7 @@ def _first_segment(s0, surface, P, a, b, h, lim, grid):
     return dx * dx + dy * dy + dz * dz < T * T, lo, hi
 
 
-@nb.njit(cache=True, _nrt=False, inline="always", fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always", fastmath=FASTMATH)
 def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks, st, lattice_only):
     """``hits`` plus the pixels of tile (tu, tv) inside ``box``; ``st``: the direction lattice's stride (only
     its pixels with ``lattice_only``); returns ``(hits, column searches, tests)``."""
@@ -151,7 +151,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
     return hits, cells, tests
 
 
-@nb.njit(cache=True, error_model="numpy", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, fastmath=FASTMATH)
 def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out, stride):
     """Fused distance query for one sphere at P (principal camera frame, a 3-tuple); writes ``out[0:10]``
     = distance from the centre, direction (3), nearest point (3), count, column searches, votes taken.
@@ -224,5 +224,5 @@ def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cac
 
 # One implementation, two compilations: one thread (default; no thread start-up latency on a loaded
 # machine) and numba's threads over the spheres (``DepthGridFusion(parallel=True)``).
-query_many = nb.njit(cache=True)(_query_many_py)
-query_many_parallel = nb.njit(cache=True, parallel=True)(_query_many_py)
+query_many = nb.njit(cache=True, nogil=True)(_query_many_py)
+query_many_parallel = nb.njit(cache=True, nogil=True, parallel=True)(_query_many_py)

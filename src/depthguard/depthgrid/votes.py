@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def footprint_sees_past(k, u0, v0, du, dv, q, votes):
     """True when camera k calls the cell free: every covered pixel sees past ``d_end``
     (:func:`pixel_sees_past`)."""
@@ -49,7 +49,7 @@ def footprint_sees_past(k, u0, v0, du, dv, q, votes):
     return True
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _corner(k, cu, cv, d, corner_rays, cams):
     """Image point (x, y) in camera k of the principal corner ray (cu, cv) at depth d."""
     Z = d * corner_rays[k, cv, cu, 2] + cams[k, 2]
@@ -59,7 +59,7 @@ def _corner(k, cu, cv, d, corner_rays, cams):
     )
 
 
-@nb.njit(cache=True, _nrt=False)
+@nb.njit(cache=True, nogil=True, _nrt=False)
 def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
     """False only when pixel square ``[pu, pu+1) x [pv, pv+1)`` of camera k is strictly separated from the
     projection of principal cell ``(u, v, [d1, d2])`` (the convex hull of its 8 projected corners).
@@ -113,7 +113,7 @@ def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
     return True
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _cell_seen_past(k, u, v, d1, d2, u0, v0, du, dv, q, mp, votes):
     """:func:`footprint_sees_past` for one cell, with each failing pixel checked against the cell's exact
     projection (:func:`pixel_touches_cell`)."""
@@ -126,7 +126,7 @@ def _cell_seen_past(k, u, v, d1, d2, u0, v0, du, dv, q, mp, votes):
     return True
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _sees_past(k, u0, v0, du, dv, q, vt, stack):
     """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large
     (exactly the same answer, robot windows included: :mod:`depthguard.depthgrid.pyramid`)."""
@@ -135,7 +135,7 @@ def _sees_past(k, u0, v0, du, dv, q, vt, stack):
     return rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, vt, stack)
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def centre_sees_past(k, u, v, d1, d2, mp, votes):
     """Quick necessary test for camera k clearing the frustum piece ``(u, v, [d1, d2])``.
 
@@ -159,7 +159,7 @@ def centre_sees_past(k, u, v, d1, d2, mp, votes):
     return votes[k, int(pv), int(pu)] > Z or votes[k, 2 * hm + int(pv), int(pu)] > Z
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def cell_occupied(u, v, g, grid, mp, votes, need_vote):
     """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely.
 
@@ -186,7 +186,7 @@ def cell_occupied(u, v, g, grid, mp, votes, need_vote):
     return involved or not need_vote
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def block_cleared(u, v, g0, g1, grid, mp, vt, stack):
     """True when one secondary camera clears every cell ``g0 <= g < g1`` of pixel (u, v) at once.
 
@@ -204,7 +204,7 @@ def block_cleared(u, v, g0, g1, grid, mp, vt, stack):
     return False
 
 
-@nb.njit(cache=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def tile_block_cleared(ua, va, ub, vb, g0, g1, grid, mp, vt, stack):
     """True when one secondary camera clears the cells ``g0 <= g < g1`` of every pixel of a tile at once.
 

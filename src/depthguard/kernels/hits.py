@@ -40,13 +40,13 @@ class Hits(NamedTuple):
     sz: float
 
 
-@nb.njit(cache=True, inline="always", _nrt=False)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False)
 def no_hits(reff):
     """The state before the first hit: nothing within ``reff`` = ρ + sphere radius."""
     return Hits(reff, 0.0, 0.0, 0.0, np.nan, np.nan, np.nan, 0.0, 0.0, 0.0, 0.0)
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def add_hit(h, D, ix, iy, iz, nx, ny, nz, counted, radius, rho, mode, alpha):
     """``h`` plus one piece at distance ``D`` (from the sphere centre, < ρ + r) in unit direction ``i``
     (from the piece towards the point), nearest point ``n``; ``counted``: the piece is an obstacle pixel
@@ -63,7 +63,7 @@ def add_hit(h, D, ix, iy, iz, nx, ny, nz, counted, radius, rho, mode, alpha):
     return Hits(h.best, h.bx, h.by, h.bz, h.nx, h.ny, h.nz, count, sx, sy, sz)
 
 
-@nb.njit(cache=True, inline="always", _nrt=False)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False)
 def nearer_hit(h, D, ix, iy, iz, nx, ny, nz):
     """``h`` plus a piece that competes for the nearest distance only (not in the direction sum nor in
     the count): the pixels off the direction lattice (:func:`depthguard.kernels.records.direction_stride`)."""
@@ -72,7 +72,7 @@ def nearer_hit(h, D, ix, iy, iz, nx, ny, nz):
     return h
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def write_hits(h, mode, out):
     """Write out[0:8] = distance, direction (3), nearest (3), count; the direction of modes 1 and 2 is
     the normalised sum (the nearest piece's when the sum vanishes)."""

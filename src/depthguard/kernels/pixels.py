@@ -28,7 +28,7 @@ from depthguard.kernels.region import (
 __all__ = ["query_many", "query_many_parallel"]
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model):
     """Distance from P to pixel (u, v)'s obstacle from depth ``do`` on (see the module docstring).
 
@@ -53,7 +53,7 @@ def _pixel_distance(px, py, pz, a, b, do, u, v, h, intr, model):
     return dr, dx, dy, dz, dr, s, a, b
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def _pixel_hit(hits, obs, u, v, b, px, py, pz, radius, reff, zmax, h, intr, qp, model, summed):
     """``hits`` plus pixel (u, v) (``b``: its ray's y slope) if within reach; ``summed``: in the direction
     sum and count (else it competes for the nearest distance only)."""
@@ -74,7 +74,7 @@ def _pixel_hit(hits, obs, u, v, b, px, py, pz, radius, reff, zmax, h, intr, qp, 
     return nearer_hit(hits, D, dx / dr, dy / dr, dz / dr, s * ra, s * rb, s)
 
 
-@nb.njit(cache=True, _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, _nrt=False, fastmath=FASTMATH)
 def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr, qp, model, st, lattice_only):
     """``hits`` plus the obstacle pixels of one tile within the box (RA-L'16 case i skipped); ``st``: the
     direction lattice's stride (only its pixels with ``lattice_only``). Two loops: with ``st == 1`` (and in
@@ -104,7 +104,7 @@ def _tile_pixels(hits, obs, tu, tv, u0, u1, v0, v1, px, py, pz, radius, h, intr,
     return hits
 
 
-@nb.njit(cache=True, _nrt=False, fastmath=FASTMATH, error_model="numpy")
+@nb.njit(cache=True, nogil=True, _nrt=False, fastmath=FASTMATH, error_model="numpy")
 def _query_one(obs, tmin, intr, qp, model, Pc, radius, lbs, out, stride):
     """Distance query for one sphere; writes out[0:8] = distance from the centre, direction (3), nearest
     point (3), count (camera frame). ``lbs``: scratch for the tile bounds; ``stride``: the direction
@@ -162,5 +162,5 @@ def _query_many_py(obs, tmin, intr, qp, model, R, t, centres, radii, stride):
 
 # One thread by default: on a loaded machine (a robot PC runs the controller too) a parallel kernel waits for
 # a free core and its latency jumps by a scheduler time slice (several ms); opt in with parallel=True.
-query_many = nb.njit(cache=True, error_model="numpy")(_query_many_py)
-query_many_parallel = nb.njit(cache=True, parallel=True, error_model="numpy")(_query_many_py)
+query_many = nb.njit(cache=True, nogil=True, error_model="numpy")(_query_many_py)
+query_many_parallel = nb.njit(cache=True, nogil=True, parallel=True, error_model="numpy")(_query_many_py)

@@ -34,7 +34,7 @@ __all__ = [
 ]
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def ray_distance_from(px, py, pz, a, b, s_min):
     """Nearest point at depth ``>= s_min`` on the ray ``s (a, b, 1)``: returns ``(dx, dy, dz, s)``, P minus it."""
     s = (px * a + py * b + pz) / (a * a + b * b + 1.0)
@@ -43,7 +43,7 @@ def ray_distance_from(px, py, pz, a, b, s_min):
     return px - s * a, py - s * b, pz - s, s
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def unseen_space(h, px, py, pz, radius, intr, qp):
     """``h`` plus the five unseen half-spaces within reach (see the module docstring)."""
     reff = qp.rho + radius
@@ -78,7 +78,7 @@ def unseen_space(h, px, py, pz, radius, intr, qp):
     return h
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def surveillance_box(px, py, pz, reff, intr):
     """Inclusive pixel box ``(u0, u1, v0, v1)`` of the region of surveillance (empty when u0 > u1 or v0 > v1)."""
     W = intr.width
@@ -104,7 +104,7 @@ def surveillance_box(px, py, pz, reff, intr):
     return u0, u1, v0, v1
 
 
-@nb.njit(cache=True, inline="always", _nrt=False, fastmath=FASTMATH)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def tile_lower_bounds(tmin, px, py, pz, reff, box, intr, tile, lbs):
     """Fill ``lbs[k]`` for the tiles ``k`` over ``box`` = ``(u0, u1, v0, v1)`` (row-major from ``(t_v0, t_u0)``).
 
@@ -137,7 +137,7 @@ def tile_lower_bounds(tmin, px, py, pz, reff, box, intr, tile, lbs):
     return t_u0, t_v0, ntu, ntiles
 
 
-@nb.njit(cache=True, inline="always", _nrt=False)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False)
 def nearest_tile(lbs, ntiles):
     """Index of the smallest entry of ``lbs[:ntiles]`` (``min`` mode visits tiles nearest first)."""
     k = 0
@@ -147,7 +147,7 @@ def nearest_tile(lbs, ntiles):
     return k
 
 
-@nb.njit(cache=True, inline="always", _nrt=False)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False)
 def next_tile(lbs, ntiles, kk, best, reff, mode, stride):
     """The tile to visit at step ``kk`` (``0 <= kk <= ntiles``) of a query: ``(index, lattice_only)``;
     index ``ntiles`` skips the step, -1 stops.
@@ -180,7 +180,7 @@ def next_tile(lbs, ntiles, kk, best, reff, mode, stride):
     return kk, stride > 1 and not lbs[kk] < best
 
 
-@nb.njit(cache=True, inline="always", _nrt=False)
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False)
 def first_index(lo, step):
     """The smallest multiple of ``step`` at or above ``lo`` (``lo >= 0``)."""
     return (lo + step - 1) // step * step

@@ -27,7 +27,7 @@ __all__ = ["sphere_distances", "capsule_distances"]
 _GOLD = 0.5 * (math.sqrt(5.0) - 1.0)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _pbox(px, py, pz, lx, ly, lz, res):
     """Nearest point of the box [l, l + res]^3 to p and the squared distance."""
     nx = min(max(px, lx), lx + res)
@@ -37,7 +37,7 @@ def _pbox(px, py, pz, lx, ly, lz, res):
     return nx, ny, nz, dx * dx + dy * dy + dz * dz
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _spheres(occ, origin, res, centres, radii, rho, mode, alpha, out):
     nx, ny, nz = occ.shape
     for n in range(centres.shape[0]):
@@ -156,7 +156,7 @@ def sphere_distances(
     return _result(out, r, float(rho))
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _seg_box_d2(ax, ay, az, ex, ey, ez, lx, ly, lz, res, iters):
     """min over s in [0, 1] of the squared distance from a + s e to the box (convex in s): golden section."""
     lo, hi = 0.0, 1.0
@@ -186,7 +186,7 @@ def _seg_box_d2(ax, ay, az, ex, ey, ez, lx, ly, lz, res, iters):
     return best[3], s, best[0], best[1], best[2]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _capsules(occ, origin, res, a, b, radii, rho, out):
     nx, ny, nz = occ.shape
     for n in range(a.shape[0]):

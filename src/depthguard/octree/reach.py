@@ -133,7 +133,7 @@ class ReachabilityGrid(NamedTuple):
 
 
 # ------------------------------------------------------------------------------------------------ kernels
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _seg_dist2(px, py, pz, a, b):
     dx, dy, dz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     L2 = dx * dx + dy * dy + dz * dz
@@ -145,7 +145,7 @@ def _seg_dist2(px, py, pz, a, b):
     return ex * ex + ey * ey + ez * ez
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _rasterize(a, b, r, sel, origin, res, grid):
     """Set time 0 in every cell whose centre is within r + √3/2 res of a selected capsule; returns #outside."""
     nx, ny, nz = grid.shape
@@ -173,7 +173,7 @@ def _rasterize(a, b, r, sel, origin, res, grid):
     return out
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _collect(grid):
     """Flat indices and times of the finite cells; resets them to inf."""
     flat = grid.ravel()
@@ -193,7 +193,7 @@ def _collect(grid):
     return idx, tt
 
 
-@nb.njit(cache=True, fastmath=False)
+@nb.njit(cache=True, nogil=True, fastmath=False)
 def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
     """Sweep the kept samples (cell centres of the input grid) about (along) one joint into ``grid`` (min time).
 
@@ -271,7 +271,7 @@ def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, 
     return out, err, moved
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def _sweep_two(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
     """:func:`_sweep` on two threads: each half of the samples into its own grid, then the minimum."""
     half = idx.size // 2
@@ -293,7 +293,7 @@ def _sweep_two(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, ax
     return outs[0] + outs[1], max(errs[0], errs[1]), moves[0] or moves[1]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _min_filter_mid(x, k, out):
     """``out[a, i, b] = min x[a, i-k..i+k, b]`` (clipped to the array) for (A, n, B) arrays of any layout.
 
@@ -421,7 +421,7 @@ def _union(a, b):
     return np.minimum(a[0], b[0]), np.maximum(a[1], b[1])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _swept_bounds(idx, in_origin, in_res, in_shape, kind, axis, point, rng, pad):
     """A box (lo, hi) holding the cell centres ``idx`` of the input grid swept by a joint over offsets up
     to ``rng`` (plus ``pad``): the centres' box grown by their largest displacement (a chord: at most

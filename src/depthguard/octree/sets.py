@@ -109,7 +109,7 @@ def max_pyramid(img):
     return -data, offs, hs, ws
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _rect_bounds(mn, mx, offs, hs, ws, u0, v0, u1, v1):
     """(<= true min, >= true max) of a pixel rectangle from covering pyramid blocks (at most ~4 per side)."""
     span = max(u1 - u0 + 1, v1 - v0 + 1)
@@ -158,13 +158,13 @@ def mask_pyramid(mask, levels):
     return data, offs, shp
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _block_any(mp, lv, i, j, k):
     data, offs, shp = mp
     return data[offs[lv] + (i * shp[lv, 1] + j) * shp[lv, 2] + k] != 0
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True, nogil=True, inline="always")
 def _fill_block(flags, mask, lv, bi, bj, bk, val):
     nx, ny, nz = flags.shape
     s = 1 << lv

@@ -10,7 +10,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _capsule_consts(a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
     """Per-capsule constants for :func:`_line_capsule` (camera at the origin)."""
     c = np.empty(17)
@@ -35,7 +35,7 @@ def _capsule_consts(a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _line_capsule(dx: float, dy: float, c: np.ndarray) -> tuple[float, float]:
     """Interval [t0, t1] of the line ``t (dx, dy, 1)`` (camera at the origin) inside a capsule.
 
@@ -95,7 +95,7 @@ def _line_capsule(dx: float, dy: float, c: np.ndarray) -> tuple[float, float]:
     return t0, t1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sphere_bbox(c: np.ndarray, r: float, fx: float, fy: float, cx: float, cy: float) -> tuple[float, ...]:
     """Exact image bounding box (pixel coordinates) of a sphere fully in front of the camera."""
     out = np.empty(4)
@@ -110,7 +110,7 @@ def _sphere_bbox(c: np.ndarray, r: float, fx: float, fy: float, cx: float, cy: f
     return out[0], out[1], out[2], out[3]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def capsule_kernel(
     A: np.ndarray,
     B: np.ndarray,

@@ -9,7 +9,7 @@ from numba import njit
 __all__: list[str] = []
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pose_points(H, joint, start, local, out):  # pragma: no cover - compiled
     """``out[k] = R_j local[k] + p_j`` for the points ``start[g] <= k < start[g + 1]`` of joint ``j = joint[g]``,
     with ``H[j]`` (4, 4) its world pose."""
@@ -25,7 +25,7 @@ def _pose_points(H, joint, start, local, out):  # pragma: no cover - compiled
             out[k, 2] = x * r20 + y * r21 + z * r22 + p2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _masked_window(d, f):  # pragma: no cover - compiled
     """``(np.where(f, d, nan), ~f)`` of a float32 (h, w) window ``d`` and its bool mask ``f``, in one pass."""
     h, w = d.shape
@@ -39,7 +39,7 @@ def _masked_window(d, f):  # pragma: no cover - compiled
     return dm, nf
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _nearest_vertex_kernel(V, p):  # pragma: no cover - compiled
     """(index, squared distance) of the row of ``V`` (N >= 1, 3) nearest to ``p`` (3,): the first minimum,
     or the first NaN distance (as ``np.argmin`` has it)."""
@@ -55,7 +55,7 @@ def _nearest_vertex_kernel(V, p):  # pragma: no cover - compiled
     return bi, best
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _foreground_kernel(d, bg, robot, margin, scalar, erode, out):  # pragma: no cover - compiled
     """:func:`foreground_mask` on one window, into ``out`` (h, w) bool: ``d``, ``bg`` (h, w) float32,
     ``robot`` (h, w) bool, ``margin`` (h, w) float32/float64 or, with ``scalar``, (1, 1); ``bg - margin``
@@ -81,7 +81,7 @@ def _foreground_kernel(d, bg, robot, margin, scalar, erode, out):  # pragma: no 
                 )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _box_kernel(pc, reach, fx, fy, cx, cy):  # pragma: no cover - compiled
     """:func:`image_box`'s bounds before clipping: (behind, floor(min(px - wx)) - 1, ceil(max(px + wx)) + 2,
     floor(min(py - wy)) - 1, ceil(max(py + wy)) + 2), NaN propagated like numpy's min and max."""
@@ -99,11 +99,11 @@ def _box_kernel(pc, reach, fx, fy, cx, cy):  # pragma: no cover - compiled
     return False, np.floor(a0) - 1, np.ceil(a1) + 2, np.floor(b0) - 1, np.ceil(b1) + 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _nanmin(a, b):  # pragma: no cover - compiled
     return a if (a <= b or np.isnan(a)) else b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _nanmax(a, b):  # pragma: no cover - compiled
     return a if (a >= b or np.isnan(a)) else b

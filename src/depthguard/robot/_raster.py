@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows, depth, wn, sg) -> None:
     """Fill one projected triangle (image coordinates ``x, y``, inverse depths ``w = 1 / z > 0``) into the
     per-shape buffers of inverse depth: ``snear`` keeps the largest, ``sfar`` the smallest; ``rows`` (H, 2)
@@ -78,7 +78,7 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows, depth, wn
             row_w[u] += sg if iz * row_d[u] > 1.0 else 0  # the face lies in front of the measured point
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows, depth, wn, sg) -> None:
     """Clip a triangle against ``z >= znear`` (Sutherland-Hodgman) and fill what is left."""
     pts = (p0, p1, p2)
@@ -103,7 +103,7 @@ def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows, depth,
         _raster_tri(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], snear, sfar, rows, depth, wn, sg)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox) -> None:
     """After one shape is drawn: over its rows' spans, mark in ``mask`` the measured points inside it (depth
     in ``[near, far]`` and, unless ``whole``, winding number > 0), keep the nearest inflated depth in
@@ -129,7 +129,7 @@ def _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox) -> None:
         rows[v, 0], rows[v, 1] = 1 << 30, -1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def mesh_kernel(
     V: np.ndarray,
     O: np.ndarray,
@@ -214,7 +214,7 @@ def mesh_kernel(
         _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def finish_kernel(depth: np.ndarray, mask: np.ndarray, near: np.ndarray, robot_depth: np.ndarray, ubox) -> None:
     """Inside the inflated silhouette (``near`` < inf): robot depth = ``near``; a pixel without reading is
     robot. Outside it nothing is touched (a hole beside the robot follows the missing-depth policy).

@@ -152,7 +152,7 @@ def estimate_contact_forces(
     )
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sym_eig_jacobi(S: np.ndarray, max_sweeps: int = 60) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover
     """Eigenvalues (m,) ascending and orthonormal eigenvectors (m, m) (columns) of a small symmetric
     matrix ``S`` (m, m), by cyclic Jacobi rotations (Golub & Van Loan, Matrix Computations, §8.5).
@@ -201,7 +201,7 @@ def sym_eig_jacobi(S: np.ndarray, max_sweeps: int = 60) -> tuple[np.ndarray, np.
     return w[order].copy(), V[:, order].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _estimate_kernel(At, r, eps, lambda_max, tol, out):  # pragma: no cover - compiled
     """Selectively damped ``A^# r`` from the eigen-decomposition of ``AᵀA`` (module docstring), with
     ``At`` = Aᵀ (m, n). Writes into ``out`` (3 + 2m, m): row 0 F, row 1 σ descending, ``out[2, 0]`` the

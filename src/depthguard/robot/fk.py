@@ -31,7 +31,7 @@ __all__ = ["ChainKinematics", "fixed_points", "fixed_directions", "world_point_j
 _REVOLUTE, _PRISMATIC = 0, 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chain_fk(q, parent, idx_v, kind, axis, placement):  # pragma: no cover - compiled
     """World poses (J, 4, 4) and WORLD joint Jacobian (6, n) at ``q`` (module docstring)."""
     H = np.zeros((parent.shape[0], 4, 4))
@@ -40,7 +40,7 @@ def _chain_fk(q, parent, idx_v, kind, axis, placement):  # pragma: no cover - co
     return H, Jw
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chain_fk_into(q, parent, idx_v, kind, axis, placement, H, Jw):  # pragma: no cover - compiled
     """:func:`_chain_fk` into ``H`` (J, 4, 4) and ``Jw`` (6, n), zeros on entry (one scratch matrix for all
     joints)."""
@@ -139,7 +139,7 @@ class ChainKinematics:
         return _chain_fk(q, self.parent, self.idx_v, self.kind, self.axis, self.placement)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fixed_points(
     H: np.ndarray, slot: np.ndarray, offsets: np.ndarray, Jw: np.ndarray, support: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -165,7 +165,7 @@ def fixed_points(
     return centres, jac
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fixed_directions(H: np.ndarray, joint: np.ndarray, v: np.ndarray) -> np.ndarray:  # pragma: no cover
     """(N, 3) directions ``v`` (N, 3), fixed in the frames ``H[joint[k]]`` (H: (U, 4, 4)), in the world frame."""
     out = np.empty_like(v)
@@ -176,7 +176,7 @@ def fixed_directions(H: np.ndarray, joint: np.ndarray, v: np.ndarray) -> np.ndar
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def world_point_jacobian(Jw: np.ndarray, p: np.ndarray, support: np.ndarray) -> np.ndarray:  # pragma: no cover
     """(3, n) positional Jacobian of the world point ``p`` (3,) m moving with a body whose supporting joints
     are ``support`` (n,) bool, from the WORLD joint Jacobian ``Jw`` (6, n): ``J_lin + J_ang x p``."""
@@ -185,7 +185,7 @@ def world_point_jacobian(Jw: np.ndarray, p: np.ndarray, support: np.ndarray) -> 
     return J
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _point_jacobian_into(Jw, p, support, J):  # pragma: no cover - compiled
     """:func:`world_point_jacobian` into the supported columns of ``J`` (3, n) (the others are left alone)."""
     for j in range(Jw.shape[1]):
@@ -208,7 +208,7 @@ def _pack_chain(chain: ChainKinematics, ints: np.ndarray | None = None, floats: 
     return i, f
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _unpack_chain(ints, floats):  # pragma: no cover - compiled
     """``(parent, idx_v, kind, axis, placement, ints…, floats…)`` views of :func:`_pack_chain`'s buffers."""
     nj = ints[0]
@@ -218,7 +218,7 @@ def _unpack_chain(ints, floats):  # pragma: no cover - compiled
     return parent, idx_v, kind, axis, placement, ints[1 + 3 * nj :], floats[19 * nj :]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def checked_point_jacobian(
     q: np.ndarray, p: np.ndarray, ints: np.ndarray, floats: np.ndarray, J: np.ndarray
 ) -> bool:  # pragma: no cover - compiled

@@ -55,7 +55,7 @@ def interior_capsules(model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     return model.geometry.inner_capsules(H[:, :3, :3], H[:, :3, 3])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _capsule_chord(x, y, A, B, r):
     """Depth interval ``(s_in, s_out)`` of the ray ``s (x, y, 1)`` inside the capsule (A, B, r), camera
     frame; ``(inf, -inf)`` when the ray misses it. The capsule is convex: its chord is the hull of the
@@ -73,7 +73,7 @@ def _capsule_chord(x, y, A, B, r):
 N_CONSTS = 16
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _capsule_consts(A, B, R, grow):
     """(L, N_CONSTS) per-capsule constants of :func:`_chord_core` for capsules (A, B, R + grow), computed
     exactly as :func:`_capsule_chord` computes them (the same chords, bit for bit)."""
@@ -95,7 +95,7 @@ def _capsule_consts(A, B, R, grow):
     return C
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _chord_pre(x, y, C, k):
     """:func:`_capsule_chord` of capsule ``k`` from its constants ``C`` (:func:`_capsule_consts`)."""
     return _chord_core(
@@ -104,7 +104,7 @@ def _chord_pre(x, y, C, k):
     )  # fmt: skip
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _chord_core(x, y, ax, ay, az, bx, by, bz, ux, uy, uz, L2, au, qc, cA, cB):
     """The chord of :func:`_capsule_chord`, from the capsule's ends, axis ``u = B - A``, ``L2 = |u|²``,
     ``au = A.u``, ``qc = |A|² L2 - au² - r² L2`` and the end spheres' ``|A|² - r²``, ``|B|² - r²``."""
@@ -145,7 +145,7 @@ def _chord_core(x, y, ax, ay, az, bx, by, bz, ux, uy, uz, L2, au, qc, cA, cB):
     return s_in, s_out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _capsule_boxes(A, B, R, fx, fy, cx, cy, W, H):
     """(L, 4) int pixel boxes ``(u0, u1, v0, v1)`` (inclusive, clipped to the image; ``u0 > u1`` when
     empty) that hold every pixel whose centre ray meets capsule k (A, B, R), camera frame. From the
@@ -171,7 +171,7 @@ def _capsule_boxes(A, B, R, fx, fy, cx, cy, W, H):
     return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _chords(x, y, u, v, C, box, ins, outs):
     """Chords of the pixel-centre ray ``(x, y, 1)`` of pixel (u, v) through every capsule (constants ``C``,
     :func:`_capsule_consts`) into ``ins``/``outs``; ``(inf, -inf)`` for a capsule whose ``box`` excludes
@@ -183,7 +183,7 @@ def _chords(x, y, u, v, C, box, ins, outs):
             ins[k], outs[k] = np.inf, -np.inf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _exit_from(s, ins, outs):
     """Extend depth ``s`` through every chord ``[ins[k], outs[k]]`` that contains it (their union)."""
     grown = True
@@ -196,7 +196,7 @@ def _exit_from(s, ins, outs):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy, out_depth, out_mask):
     H, W = depth.shape
     n = A.shape[0]
@@ -298,7 +298,7 @@ def principal_robot_pixels(
     return out_d, out_m
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _windows_kernel(A, B, Reff, fx, fy, cx, cy, gap, lo_out, hi_out):
     """Fill ``lo_out``/``hi_out`` (H, W) float32 (NaN: no window), the windows of :func:`robot_windows`."""
     H, W = lo_out.shape

@@ -19,7 +19,7 @@ from depthguard.robot.fk import _chain_fk_into, _unpack_chain
 __all__: list[str] = []
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _observer_step(M, C, g, qd, tau, par, h, average, first, state):  # pragma: no cover - compiled
     """One discrete residual update (module docstring), in place on ``state`` (5, n): the integral I,
     p(0), β of the previous sample, τ of the previous sample, r. ``par`` (3, n): armature, damping D,
@@ -38,7 +38,7 @@ def _observer_step(M, C, g, qd, tau, par, h, average, first, state):  # pragma: 
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _observer_update(i, p, beta, tau, par, h, average, first, state):  # pragma: no cover - compiled
     """The update of joint ``i`` from its momentum ``p`` and ``β = Cᵀ q̇ - g - D q̇`` (:func:`_observer_step`)."""
     if first:
@@ -51,7 +51,7 @@ def _observer_update(i, p, beta, tau, par, h, average, first, state):  # pragma:
         state[0, i], state[2, i], state[3, i], state[4, i] = partial + 0.5 * h * r, beta, tau[i], r
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _checked_observer_step(M, C, g, q, qd, tau, par, h, average, first, state, out):  # pragma: no cover
     """:func:`_observer_step` with r written into ``out`` (n,), after checking that ``q``, ``qd`` and ``tau``
     (n,) are finite; with a NaN or an inf among them it returns False and leaves ``state`` untouched (the
@@ -63,7 +63,7 @@ def _checked_observer_step(M, C, g, q, qd, tau, par, h, average, first, state, o
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _momentum_terms(q, qd, parent, idx_v, kind, axis, placement, body, p_out, b_out):  # pragma: no cover
     """``p = M q̇`` into ``p_out`` (n,) and ``Cᵀ q̇ - g`` into ``b_out`` (n,) of a chain of one-coordinate
     joints (:class:`~depthguard.robot.fk.ChainKinematics`' arrays), without forming M or C.
@@ -127,7 +127,7 @@ def _momentum_terms(q, qd, parent, idx_v, kind, axis, placement, body, p_out, b_
             Wg[pj, a] += Wg[j, a]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chain_observer_step(q, qd, tau, ints, floats, h, first, state, out):  # pragma: no cover - compiled
     """:func:`_checked_observer_step` with ``p`` and ``Cᵀ q̇ - g`` from :func:`_momentum_terms` instead of
     pinocchio's M, C and g: one compiled call. ``ints``, ``floats``: the chain packed with

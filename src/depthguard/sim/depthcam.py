@@ -39,7 +39,7 @@ __all__ = ["kinect_camera", "KinectSim", "egl_available", "raycast_depth", "proj
 KINECT_BASELINE = 0.075  # m, IR projector to IR camera (Kinect v1)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def projector_shadow(z, fx, baseline):
     """(H, W) bool: the pixels whose surface the projector cannot light (structured-light shadow).
 
