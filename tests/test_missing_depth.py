@@ -13,6 +13,8 @@ import re
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from depthguard.camera import Camera, look_at
 from depthguard.cli import main
@@ -62,3 +64,36 @@ def test_fill_radius_must_be_a_non_negative_integer(files, capsys):
     rc = main([*argv, "--points", str(files / "pts.json"), "--fill-radius", "-1"])
     assert rc == 2
     assert re.search("fill[_-]radius", capsys.readouterr().err)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 24), st.integers(1, 24), st.integers(0, 5), st.floats(0.0, 0.95), st.floats(0.0, 0.5),
+    st.booleans(), st.integers(0, 2**31),
+)  # fmt: skip
+def test_hole_filling_is_the_window_minimum_of_valid_non_robot_pixels(h, w, r, p_missing, p_robot, cons, seed):
+    """The frame's obstacle depth against the policy written out pixel by pixel: robot pixels are free
+    (inf); a valid pixel keeps its depth; a missing one takes the smallest valid non-robot depth of its
+    (2r+1)^2 window, or is unknown (the near limit) with none; with the policy "ignore" holes are free.
+    Sparse and dense holes take different paths in the kernel; both must agree with this."""
+    from depthguard.depthspace import _fill_holes
+
+    rng = np.random.default_rng(seed)
+    depth = rng.uniform(0.3, 6.0, (h, w)).astype(np.float32)
+    missing = rng.random((h, w)) < p_missing
+    robot = rng.random((h, w)) < p_robot
+    near = np.float32(0.25)
+    out = np.full((h, w), -1.0, np.float32)
+    filled, unknown = _fill_holes(depth, missing, robot, r, near, cons, out)
+    valid = np.where(missing | robot, np.inf, depth)
+    want = np.where(robot, np.inf, np.where(missing, np.inf, depth)).astype(np.float32)
+    n_filled = n_unknown = 0
+    for v, u in zip(*np.nonzero(missing & ~robot), strict=True):
+        if not cons:
+            continue
+        m = valid[max(0, v - r) : v + r + 1, max(0, u - r) : u + r + 1].min()
+        want[v, u] = m if np.isfinite(m) else near
+        n_filled += int(np.isfinite(m))
+        n_unknown += int(not np.isfinite(m))
+    assert np.array_equal(out, want)
+    assert (filled, unknown) == (n_filled, n_unknown)

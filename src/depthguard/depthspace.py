@@ -141,31 +141,52 @@ def lower_bound_slack(camera: Camera, depth: float, distance: float = 0.0) -> fl
 # --------------------------------------------------------------------------------------------- frame stage
 @nb.njit(cache=True, nogil=True)
 def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, out):
-    """Missing-depth policy (docs/conventions.md). Returns (filled, unknown) counts."""
+    """Missing-depth policy (docs/conventions.md). Returns (filled, unknown) counts.
+
+    A missing non-robot pixel takes the minimum valid non-robot depth of its (2 r + 1)^2 window (or, with
+    none there, the near limit: unknown). One pass writes the valid depths (inf elsewhere); sparse holes then
+    read their windows of it directly, dense ones (more than one pixel in 2 r + 1 missing) read one column of
+    the rows' running minima (the window minimum is separable)."""
     H, W = depth.shape
+    r = fill_radius
     filled = 0
     unknown = 0
+    val = np.empty((H, W), np.float32)  # valid non-robot depth, inf elsewhere
+    hole_value = near_limit if conservative else np.float32(np.inf)
+    holes = 0
     for v in range(H):
         for u in range(W):
-            if robot[v, u]:
-                out[v, u] = np.inf
+            rb, ms = robot[v, u], missing[v, u]
+            val[v, u] = np.inf if rb or ms else depth[v, u]
+            out[v, u] = np.inf if rb else (hole_value if ms else depth[v, u])
+            holes += ms and not rb
+    if not conservative or holes == 0:
+        return filled, unknown
+    dense = holes * (2 * r + 1) > H * W
+    src = val
+    if dense:
+        src = np.empty((H, W), np.float32)  # src[v, u] = min val[v, u - r .. u + r]
+        for v in range(H):
+            for u in range(W):
+                m = np.float32(np.inf)
+                for uu in range(max(0, u - r), min(W, u + r + 1)):
+                    m = min(m, val[v, uu])
+                src[v, u] = m
+    for v in range(H):
+        for u in range(W):
+            if robot[v, u] or not missing[v, u]:
                 continue
-            if not missing[v, u]:
-                out[v, u] = depth[v, u]
-                continue
-            if not conservative:
-                out[v, u] = np.inf
-                continue
-            best = np.inf
-            for vv in range(max(0, v - fill_radius), min(H, v + fill_radius + 1)):
-                for uu in range(max(0, u - fill_radius), min(W, u + fill_radius + 1)):
-                    if not missing[vv, uu] and not robot[vv, uu] and depth[vv, uu] < best:
-                        best = depth[vv, uu]
+            best = np.float32(np.inf)
+            for vv in range(max(0, v - r), min(H, v + r + 1)):
+                if dense:
+                    best = min(best, src[vv, u])
+                else:
+                    for uu in range(max(0, u - r), min(W, u + r + 1)):
+                        best = min(best, val[vv, uu])
             if best < np.inf:
                 out[v, u] = best
                 filled += 1
             else:
-                out[v, u] = near_limit
                 unknown += 1
     return filled, unknown
 
