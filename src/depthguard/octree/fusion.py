@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
 
+import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
@@ -120,9 +121,7 @@ def sensor_sets(
     if isinstance(obs, CameraObservation):
         cam = obs.camera
         frame = prepare_frame(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
-        robot = np.where(
-            frame.robot_mask, np.nan_to_num(frame.robot_depth, nan=np.float32(cam.min_depth)), np.float32(np.inf)
-        ).astype(np.float32)
+        robot = robot_blocking_depth(frame.robot_mask, frame.robot_depth, np.float32(cam.min_depth))
         flags = camera_sets(mask, box, cam, frame.obstacle_depth, robot, mp)
         bin_depth_points(cam, np.asarray(obs.depth, dtype=np.float32), frame.robot_mask, box, mask, flags)
         return flags
@@ -142,6 +141,19 @@ def sensor_sets(
         bin_points(pts[~rob[idx]], box, mask, flags)
         return flags
     raise ValueError(f"observation must be a CameraObservation or a ScanObservation, got {type(obs).__name__}")
+
+
+@nb.njit(cache=True, nogil=True)
+def robot_blocking_depth(robot_mask, robot_depth, near):
+    """(H, W) float32 depth at which each pixel is blocked by the robot: its reading on a robot pixel (the
+    near limit where the reading is missing), inf on every other pixel."""
+    H, W = robot_mask.shape
+    out = np.empty((H, W), np.float32)
+    for v in range(H):
+        for u in range(W):
+            d = robot_depth[v, u]
+            out[v, u] = (near if np.isnan(d) else d) if robot_mask[v, u] else np.inf
+    return out
 
 
 @lru_cache(maxsize=4)
