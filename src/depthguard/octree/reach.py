@@ -30,6 +30,7 @@ front of the arm (SAPHARI §3.2); see :mod:`depthguard.robot.reach` for building
 from __future__ import annotations
 
 import math
+import threading
 from typing import NamedTuple
 
 import numba as nb
@@ -323,6 +324,17 @@ def _min_filter_mid(x, k, out):
                 out[a, i, b] = min(buf[i, b], buf[i + w - p, b])
 
 
+def _threads_ok() -> bool:
+    """Whether a parallel kernel may run here: numba's ``workqueue`` threading layer must not be entered
+    from two threads at once, so off the main thread only the thread-safe layers (tbb, omp) are used."""
+    if threading.current_thread() is threading.main_thread():
+        return True
+    try:
+        return nb.threading_layer() in ("tbb", "omp")
+    except ValueError:  # no parallel kernel has run yet: the layer is not chosen
+        return False
+
+
 def _dilate(grid: np.ndarray, k: int) -> np.ndarray:
     """``grid`` min-filtered with a (2k+1)^3 box (``scipy.ndimage.minimum_filter`` with an inf border):
     one running minimum per axis (:func:`_min_filter_mid`), the vector axis the contiguous one where it can
@@ -490,7 +502,7 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
             target, t_origin, t_res, eps = grid, g_origin, g_res, 0.5 * g_res
         else:
             target, t_origin, t_res, eps = out, box_origin, res_out, 0.5 * res_out
-        n_out, err, moved = (_sweep_two if idx.size >= _PARALLEL_FROM else _sweep)(
+        n_out, err, moved = (_sweep_two if idx.size >= _PARALLEL_FROM and _threads_ok() else _sweep)(
             idx, tt, *in_spec, t_origin, t_res, target, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
             np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), eps,
         )  # fmt: skip

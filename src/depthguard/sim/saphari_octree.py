@@ -125,7 +125,7 @@ def _run_one(sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, 
 
 def _stage_ms(log, stage) -> dict[str, float]:
     out = {"camera_capture": round(1e3 * float(np.median(log.wall_camera)), 3)}
-    upd = np.sum([stage.times[k] for k in ("reachability", "laser", "scan_filter", "fusion")], axis=0)
+    upd = np.asarray(stage.update_wall)
     n = min(len(upd), len(log.wall_frame))
     out["camera_selffilter"] = round(1e3 * float(np.median(np.asarray(log.wall_frame[:n]) - upd[:n])), 3)
     out.update(stage.stage_ms())
