@@ -310,3 +310,30 @@ def test_combine_is_the_set_formula_node_by_node(n_sensors, seed, conservative):
         else:
             want = 0
         assert kind[idx] == want, (idx, f, bool(mask[idx]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31), st.sampled_from([0.02, 0.05, 0.09]), st.sampled_from([0.05, 0.09, 0.13]))
+def test_reach_mask_marks_exactly_the_nodes_whose_boxes_overlap_a_reachable_cell(seed, res, src_res):
+    """``mark_overlaps`` against the definition, cell by cell and node by node: a node is marked when, on
+    every axis, its index lies in the cell's node range widened by 1e-9 of a node (a node that only touches
+    a cell's face counts: C(t) is never cut by rounding)."""
+    from depthguard.octree.sets import mark_overlaps
+
+    rng = np.random.default_rng(seed)
+    src = rng.random(tuple(rng.integers(1, 7, 3))) < rng.uniform(0.05, 0.6)
+    src_origin = rng.uniform(-0.3, 0.3, 3)
+    origin = rng.uniform(-0.4, 0.0, 3)
+    shape = np.array(rng.integers(1, 14, 3), np.int64)
+    out = np.zeros(tuple(shape), bool)
+    mark_overlaps(src, src_origin, src_res, origin, res, shape, out)
+    want = np.zeros_like(out)
+    for a, b, c in np.argwhere(src):
+        s_lo = src_origin + np.array([a, b, c]) * src_res
+        for idx in np.ndindex(*shape):
+            # the kernel's rule: node index range floor((s_lo - o)/res - eps) .. ceil((s_hi - o)/res + eps) - 1
+            lo_i = np.floor((s_lo - origin) / res - 1e-9)
+            hi_i = np.ceil((s_lo + src_res - origin) / res + 1e-9) - 1
+            if np.all((np.array(idx) >= lo_i) & (np.array(idx) <= hi_i)):
+                want[idx] = True
+    assert np.array_equal(out, want)

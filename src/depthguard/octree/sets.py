@@ -503,26 +503,49 @@ def combine(flags, mask, conservative, kind):
 
 
 @nb.njit(cache=True, nogil=True)
+def _overlap_ranges(src_n, src_origin, src_res, n, origin, res):
+    """Per node index i of one axis, the range [lo[i], hi[i]] of source cells whose interval overlaps the
+    node's (lo > hi: none); the source cells' node ranges computed as before, then inverted."""
+    eps = 1e-9
+    lo = np.full(n, src_n, np.int64)
+    hi = np.full(n, -1, np.int64)
+    for a in range(src_n):
+        c0 = src_origin + a * src_res
+        i0 = max(0, int(math.floor((c0 - origin) / res - eps)))
+        i1 = min(n - 1, int(math.ceil((c0 + src_res - origin) / res + eps)) - 1)
+        for i in range(i0, i1 + 1):
+            lo[i] = min(lo[i], a)
+            hi[i] = max(hi[i], a)
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
 def mark_overlaps(src, src_origin, src_res, origin, res, shape, out):
-    """``out`` (dense bool over ``shape``) |= nodes overlapping any True cell of ``src`` (another lattice)."""
+    """``out`` (dense bool over ``shape``) |= nodes overlapping any True cell of ``src`` (another lattice).
+
+    Overlap is a product of per-axis interval overlaps, so it is three separable "any" passes (z, y, x)
+    over the per-axis ranges of :func:`_overlap_ranges`, not a stamp of every source cell's nodes."""
     sx, sy, sz = src.shape
     nx, ny, nz = shape[0], shape[1], shape[2]
-    eps = 1e-9
+    xl, xh = _overlap_ranges(sx, src_origin[0], src_res, nx, origin[0], res)
+    yl, yh = _overlap_ranges(sy, src_origin[1], src_res, ny, origin[1], res)
+    zl, zh = _overlap_ranges(sz, src_origin[2], src_res, nz, origin[2], res)
+    along_z = np.zeros((sx, sy, nz), np.bool_)
     for a in range(sx):
         for b in range(sy):
-            for c in range(sz):
-                if not src[a, b, c]:
-                    continue
-                lo0 = src_origin[0] + a * src_res
-                lo1 = src_origin[1] + b * src_res
-                lo2 = src_origin[2] + c * src_res
-                i0 = max(0, int(math.floor((lo0 - origin[0]) / res - eps)))
-                i1 = min(nx - 1, int(math.ceil((lo0 + src_res - origin[0]) / res + eps)) - 1)
-                j0 = max(0, int(math.floor((lo1 - origin[1]) / res - eps)))
-                j1 = min(ny - 1, int(math.ceil((lo1 + src_res - origin[1]) / res + eps)) - 1)
-                k0 = max(0, int(math.floor((lo2 - origin[2]) / res - eps)))
-                k1 = min(nz - 1, int(math.ceil((lo2 + src_res - origin[2]) / res + eps)) - 1)
-                for i in range(i0, i1 + 1):
-                    for j in range(j0, j1 + 1):
-                        for k in range(k0, k1 + 1):
-                            out[i, j, k] = True
+            for k in range(nz):
+                for c in range(zl[k], zh[k] + 1):
+                    if src[a, b, c]:
+                        along_z[a, b, k] = True
+                        break
+    along_y = np.zeros((sx, ny, nz), np.bool_)
+    for a in range(sx):
+        for j in range(ny):
+            for b in range(yl[j], yh[j] + 1):
+                for k in range(nz):
+                    along_y[a, j, k] |= along_z[a, b, k]
+    for i in range(nx):
+        for a in range(xl[i], xh[i] + 1):
+            for j in range(ny):
+                for k in range(nz):
+                    out[i, j, k] |= along_y[a, j, k]
