@@ -2,7 +2,8 @@
 four sensors (two 640x480 depth cameras, two 541-ray scanners, :mod:`depthguard.bench.octree_scene`), against
 OctoMap's own ray insertion of the same frames (``pyoctomap``) measured in the same run.
 
-Results (``{"results": [{"name", "us_median", "us_p99", "hz_median"}, ...]}``):
+Results (``{"results": [{"name", "us_median", "us_p99", "hz_median", "vs_reference"}, ...]}``; ``vs_reference``
+against the machine-speed reference measured at the start of the run, ``reference`` in the JSON):
 
 * ``octree-reach``: reachability grid at 0.09 m, arm + omnidirectional base (10 joints), T = 0.5 s;
   ``octree-reach-arm``: the 7-DOF arm alone; ``octree-reach-0.05``: arm + base at 0.05 m;
@@ -28,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from depthguard.bench.octree_scene import Q_BENCH, obstacle_scene, omni_model, platform_box, sense
-from depthguard.bench.timing import machine_info, time_calls
+from depthguard.bench.timing import machine_info, reference_speed, time_calls, with_reference
 from depthguard.octree.backend import OctreeBackend
 from depthguard.octree.fusion import CameraObservation, ScanObservation, reach_mask
 from depthguard.octree.reach import reachability_grid
@@ -188,6 +189,7 @@ def run_octree_benchmark(quick: bool = False) -> dict:
         arm = load_lwr4()
     except ImportError:  # pragma: no cover
         pass
+    reference = reference_speed()  # machine-speed reference, same run (see depthguard.bench.timing)
     results = []
     robot_reachability(model, q, res=0.09)  # JIT warm-up
     results.append(_entry("octree-reach", time_calls(lambda: robot_reachability(model, q, res=0.09), repeat)))
@@ -249,7 +251,8 @@ def run_octree_benchmark(quick: bool = False) -> dict:
             "repeat": repeat,
             "pyoctomap_first_call_s": first,
         },
-        "results": results,
+        "reference": reference,
+        "results": [with_reference(r, reference) for r in results],
         "ratios": {
             "pyoctomap_over_fuse": by["pyoctomap-insert"]["us_median"] / by["octree-fuse"]["us_median"],
             "pyoctomap_over_cycle": by["pyoctomap-insert"]["us_median"] / by["octree-cycle"]["us_median"],
