@@ -34,19 +34,15 @@ def chain_sweep(model, q: np.ndarray, v_max: np.ndarray | None = None) -> ChainS
         raise ValueError(f"v_max must be ({model.n_dof},) positive speeds, got {vmax!r}")
     model.update(q)
     J = model.world_jacobian()  # (6, n): linear velocity of the world origin, angular velocity
-    n = model.n_dof
-    kind = np.empty(n, dtype=np.int64)
-    axis = np.empty((n, 3))
-    point = np.zeros((n, 3))
-    for j in range(n):
-        w, v = J[3:, j], J[:3, j]
-        if np.linalg.norm(w) > 0.5:
-            kind[j] = REVOLUTE
-            axis[j] = w / np.linalg.norm(w)
-            point[j] = np.cross(axis[j], v)  # v_O = p x w  ->  w x v_O = p_perp
-        else:
-            kind[j] = PRISMATIC
-            axis[j] = v / np.linalg.norm(v)
+    w, v = J[3:].T, J[:3].T  # (n, 3) angular and linear columns
+    nw, nv = np.linalg.norm(w, axis=1), np.linalg.norm(v, axis=1)
+    revolute = nw > 0.5
+    kind = np.where(revolute, REVOLUTE, PRISMATIC).astype(np.int64)
+    axis = np.where(
+        revolute[:, None], w / np.where(revolute, nw, 1.0)[:, None], v / np.where(revolute, 1.0, nv)[:, None]
+    )
+    # a revolute joint: v_O = p x w, so w x v_O = p_perp (the axis point nearest the origin)
+    point = np.where(revolute[:, None], np.cross(axis, v), 0.0)
     a, b, r = model.link_capsules(q)
     qmin = np.where(np.isfinite(model.q_min), model.q_min, -1e9)
     qmax = np.where(np.isfinite(model.q_max), model.q_max, 1e9)
