@@ -226,12 +226,12 @@ def test_small_chains_every_true_point_is_within_delta_of_a_kept_cell_no_later(c
     n = len(kind)
     ch = ChainSweep(kind, axis, point, lo, hi, vmax, a[None], b[None], np.zeros(1), np.array([n]))
     kept = []
-    real = reach._dilate
+    real = reach.dilate
     try:
-        reach._dilate = lambda g, k: (kept.append(g.copy()), real(g, k))[1]
+        reach.dilate = lambda g, k: (kept.append(g.copy()), real(g, k))[1]
         grid = reachability_grid(ch, horizon=0.5, res=res)
     finally:
-        reach._dilate = real
+        reach.dilate = real
     before = kept[-1]
     lo_t = np.maximum(lo, -vmax * 0.5)
     hi_t = np.minimum(hi, vmax * 0.5)

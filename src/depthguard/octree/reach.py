@@ -30,20 +30,27 @@ front of the arm (SAPHARI §3.2); see :mod:`depthguard.robot.reach` for building
 from __future__ import annotations
 
 import math
-import threading
 from typing import NamedTuple
 
-import numba as nb
 import numpy as np
 
 from depthguard.octree.grid import VoxelBox, check_res
+from depthguard.octree.reach_kernels import (
+    PRISMATIC,
+    REVOLUTE,
+    H,
+    collect,
+    dilate,
+    rasterize,
+    sweep,
+    sweep_two,
+    swept_bounds,
+    threads_ok,
+)
 from depthguard.validation import check_finite_array, check_positive
 
 __all__ = ["ChainSweep", "ReachabilityGrid", "reachability_grid"]
 
-REVOLUTE = 0
-PRISMATIC = 1
-_H = math.sqrt(3.0) / 2.0
 _PARALLEL_FROM = 400  # kept cells from which a sweep runs on two threads
 _ROUNDING = 1e-9  # m per sweep: the rotation recurrence's drift and float rounding, far above both
 
@@ -133,223 +140,6 @@ class ReachabilityGrid(NamedTuple):
         return out
 
 
-# ------------------------------------------------------------------------------------------------ kernels
-@nb.njit(cache=True, nogil=True)
-def _seg_dist2(px, py, pz, a, b):
-    dx, dy, dz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    L2 = dx * dx + dy * dy + dz * dz
-    s = 0.0
-    if L2 > 0:
-        s = ((px - a[0]) * dx + (py - a[1]) * dy + (pz - a[2]) * dz) / L2
-        s = min(1.0, max(0.0, s))
-    ex, ey, ez = px - a[0] - s * dx, py - a[1] - s * dy, pz - a[2] - s * dz
-    return ex * ex + ey * ey + ez * ez
-
-
-@nb.njit(cache=True, nogil=True)
-def _rasterize(a, b, r, sel, origin, res, grid):
-    """Set time 0 in every cell whose centre is within r + √3/2 res of a selected capsule; returns #outside."""
-    nx, ny, nz = grid.shape
-    out = 0
-    h = _H * res
-    for c in range(a.shape[0]):
-        if not sel[c]:
-            continue
-        rr = r[c] + h
-        lo = np.empty(3, np.int64)
-        hi = np.empty(3, np.int64)
-        for d in range(3):
-            lo[d] = int(math.floor((min(a[c, d], b[c, d]) - rr - origin[d]) / res))
-            hi[d] = int(math.floor((max(a[c, d], b[c, d]) + rr - origin[d]) / res))
-        if lo[0] < 0 or lo[1] < 0 or lo[2] < 0 or hi[0] >= nx or hi[1] >= ny or hi[2] >= nz:
-            out += 1
-        for i in range(max(lo[0], 0), min(hi[0], nx - 1) + 1):
-            px = origin[0] + (i + 0.5) * res
-            for j in range(max(lo[1], 0), min(hi[1], ny - 1) + 1):
-                py = origin[1] + (j + 0.5) * res
-                for k in range(max(lo[2], 0), min(hi[2], nz - 1) + 1):
-                    pz = origin[2] + (k + 0.5) * res
-                    if _seg_dist2(px, py, pz, a[c], b[c]) <= rr * rr:
-                        grid[i, j, k] = 0.0
-    return out
-
-
-@nb.njit(cache=True, nogil=True)
-def _collect(grid):
-    """Flat indices and times of the finite cells; resets them to inf."""
-    flat = grid.ravel()
-    n = 0
-    for f in range(flat.size):
-        if flat[f] < np.inf:
-            n += 1
-    idx = np.empty(n, np.int64)
-    tt = np.empty(n, np.float32)
-    n = 0
-    for f in range(flat.size):
-        if flat[f] < np.inf:
-            idx[n] = f
-            tt[n] = flat[f]
-            flat[f] = np.inf
-            n += 1
-    return idx, tt
-
-
-@nb.njit(cache=True, nogil=True, fastmath=False)
-def _sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
-    """Sweep the kept samples (cell centres of the input grid) about (along) one joint into ``grid`` (min time).
-
-    A sample at distance ``r⊥`` from a revolute axis is taken every ``eps / r⊥`` rad (every ``eps`` m along a
-    prismatic one), from 0 outwards, so a rotation by any angle in the range lies within ``eps`` of a taken
-    sample that is no later. Rotations are isometries, so the error that a sample already carries is kept,
-    not grown. The angles advance by a rotation recurrence (one multiply per step instead of a cosine and a
-    sine; its drift, below 1e-12 m for the few hundred steps of a sweep, is covered by the caller's slack).
-
-    Returns (#samples outside the grid, the largest sampling error, whether any sample left its cell centre).
-    """
-    nx, ny, nz = grid.shape
-    iny, inz = in_shape[1], in_shape[2]
-    inv = 1.0 / res
-    out = 0
-    err = 0.0
-    moved = False
-    rng = max(hi, -lo)
-    for m in range(idx.size):
-        f = idx[m]
-        i0 = f // (iny * inz)
-        j0 = (f // inz) % iny
-        k0 = f % inz
-        cx = in_origin[0] + (i0 + 0.5) * in_res
-        cy = in_origin[1] + (j0 + 0.5) * in_res
-        cz = in_origin[2] + (k0 + 0.5) * in_res
-        t0 = tt[m]
-        if kind == 0:
-            vx, vy, vz = cx - point[0], cy - point[1], cz - point[2]
-            al = vx * axis[0] + vy * axis[1] + vz * axis[2]
-            ox, oy, oz = point[0] + al * axis[0], point[1] + al * axis[1], point[2] + al * axis[2]
-            px, py, pz = vx - al * axis[0], vy - al * axis[1], vz - al * axis[2]
-            # axis x perp
-            qx = axis[1] * pz - axis[2] * py
-            qy = axis[2] * px - axis[0] * pz
-            qz = axis[0] * py - axis[1] * px
-            rp = math.sqrt(px * px + py * py + pz * pz)
-            step = eps / rp if rp * rng > 0.0 else 0.0
-            err = max(err, min(eps, rp * rng))
-        else:
-            ox, oy, oz = cx, cy, cz
-            px = py = pz = qx = qy = qz = 0.0
-            step = eps
-            err = max(err, min(eps, rng))
-        cs = math.cos(step)
-        for sgn in (1.0, -1.0):
-            bound = hi if sgn > 0 else -lo
-            nk = int(bound / step) if step > 0.0 else 0
-            if nk >= 1:
-                moved = True
-            kstart = 0 if sgn > 0 else 1
-            ss = sgn * math.sin(step)
-            c, s = (1.0, 0.0) if kstart == 0 else (cs, ss)
-            for kk in range(kstart, nk + 1):
-                th = kk * step
-                t = max(t0, th / vmax)
-                if kind == 0:
-                    x = ox + c * px + s * qx
-                    y = oy + c * py + s * qy
-                    z = oz + c * pz + s * qz
-                    c, s = c * cs - s * ss, s * cs + c * ss
-                else:
-                    x = ox + sgn * th * axis[0]
-                    y = oy + sgn * th * axis[1]
-                    z = oz + sgn * th * axis[2]
-                fx = (x - origin[0]) * inv
-                fy = (y - origin[1]) * inv
-                fz = (z - origin[2]) * inv
-                if not (fx >= 0.0 and fy >= 0.0 and fz >= 0.0 and fx < nx and fy < ny and fz < nz):
-                    out += 1
-                    continue
-                i, j, k = int(fx), int(fy), int(fz)
-                if t < grid[i, j, k]:
-                    grid[i, j, k] = t
-    return out, err, moved
-
-
-@nb.njit(cache=True, nogil=True, parallel=True)
-def _sweep_two(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
-    """:func:`_sweep` on two threads: each half of the samples into its own grid, then the minimum."""
-    half = idx.size // 2
-    spare = np.full(grid.shape, np.inf, dtype=grid.dtype)
-    outs = np.zeros(2, np.int64)
-    errs = np.zeros(2)
-    moves = np.zeros(2, np.bool_)
-    for part in nb.prange(2):
-        a, b = (0, half) if part == 0 else (half, idx.size)
-        target = grid if part == 0 else spare
-        o, e, m = _sweep(
-            idx[a:b], tt[a:b], in_origin, in_res, in_shape, origin, res, target, kind, axis, point, lo, hi, vmax, eps
-        )
-        outs[part], errs[part], moves[part] = o, e, m
-    flat, other = grid.ravel(), spare.ravel()
-    for f in range(flat.size):
-        if other[f] < flat[f]:
-            flat[f] = other[f]
-    return outs[0] + outs[1], max(errs[0], errs[1]), moves[0] or moves[1]
-
-
-@nb.njit(cache=True, nogil=True)
-def _min_filter_mid(x, k, out):
-    """``out[a, i, b] = min x[a, i-k..i+k, b]`` (clipped to the array) for (A, n, B) arrays of any layout.
-
-    Per slab ``a`` a padded (n + 2k, B) copy is doubled in place (the minimum over 2^p rows from two of
-    2^(p-1)), then two overlapping windows of the largest power of two P <= 2k + 1 give the 2k + 1 rows;
-    the inner loops run along B, so they vectorise."""
-    A, n, B = x.shape
-    w = 2 * k + 1
-    p = 1
-    while 2 * p <= w:
-        p *= 2
-    buf = np.empty((n + 2 * k, B), x.dtype)
-    for a in range(A):
-        buf[:] = np.inf
-        for i in range(n):
-            for b in range(B):
-                buf[k + i, b] = x[a, i, b]
-        span = 1
-        while span < p:
-            for t in range(n + 2 * k - span):
-                row, ahead = buf[t], buf[t + span]
-                for b in range(B):
-                    row[b] = min(row[b], ahead[b])
-            span *= 2
-        for i in range(n):
-            for b in range(B):
-                out[a, i, b] = min(buf[i, b], buf[i + w - p, b])
-
-
-def _threads_ok() -> bool:
-    """Whether a parallel kernel may run here: numba's ``workqueue`` threading layer must not be entered
-    from two threads at once, so off the main thread only the thread-safe layers (tbb, omp) are used."""
-    if threading.current_thread() is threading.main_thread():
-        return True
-    try:
-        return nb.threading_layer() in ("tbb", "omp")
-    except ValueError:  # no parallel kernel has run yet: the layer is not chosen
-        return False
-
-
-def _dilate(grid: np.ndarray, k: int) -> np.ndarray:
-    """``grid`` min-filtered with a (2k+1)^3 box (``scipy.ndimage.minimum_filter`` with an inf border):
-    one running minimum per axis (:func:`_min_filter_mid`), the vector axis the contiguous one where it can
-    be."""
-    out = np.ascontiguousarray(grid)
-    if k == 0:
-        return out.copy()
-    nx, ny, nz = out.shape
-    along_x, along_y = np.empty_like(out), np.empty_like(out)
-    _min_filter_mid(out.reshape(1, nx, ny * nz), k, along_x.reshape(1, nx, ny * nz))
-    _min_filter_mid(along_x, k, along_y)
-    _min_filter_mid(along_y.transpose(0, 2, 1), k, along_x.transpose(0, 2, 1))
-    return along_x
-
-
 # ----------------------------------------------------------------------------------------------- public
 def chain_box(chain: ChainSweep, horizon: float, res: float, margin: float = 0.0, scale: float = 1.0) -> VoxelBox:
     """A box likely to hold every point the chain can reach within ``horizon`` (plus ``margin``).
@@ -433,42 +223,6 @@ def _union(a, b):
     return np.minimum(a[0], b[0]), np.maximum(a[1], b[1])
 
 
-@nb.njit(cache=True, nogil=True)
-def _swept_bounds(idx, in_origin, in_res, in_shape, kind, axis, point, rng, pad):
-    """A box (lo, hi) holding the cell centres ``idx`` of the input grid swept by a joint over offsets up
-    to ``rng`` (plus ``pad``): the centres' box grown by their largest displacement (a chord: at most
-    ``r⊥ min(rng, 2)`` for a rotation, ``rng`` for a translation), a rotation's cut to the ball about the
-    joint point that it keeps them in."""
-    iny, inz = in_shape[1], in_shape[2]
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    perp2 = 0.0
-    dist2 = 0.0
-    c = np.empty(3)
-    for m in range(idx.size):
-        f = idx[m]
-        c[0] = in_origin[0] + (f // (iny * inz) + 0.5) * in_res
-        c[1] = in_origin[1] + ((f // inz) % iny + 0.5) * in_res
-        c[2] = in_origin[2] + (f % inz + 0.5) * in_res
-        for d in range(3):
-            lo[d] = min(lo[d], c[d])
-            hi[d] = max(hi[d], c[d])
-        vx, vy, vz = c[0] - point[0], c[1] - point[1], c[2] - point[2]
-        al = vx * axis[0] + vy * axis[1] + vz * axis[2]
-        d2 = vx * vx + vy * vy + vz * vz
-        dist2 = max(dist2, d2)
-        perp2 = max(perp2, d2 - al * al)
-    move = rng + pad if kind == PRISMATIC else math.sqrt(max(perp2, 0.0)) * min(rng, 2.0) + pad
-    rad = math.sqrt(dist2) + pad
-    for d in range(3):
-        lo[d] -= move + pad
-        hi[d] += move + pad
-        if kind != PRISMATIC:
-            lo[d] = max(lo[d], point[d] - rad)
-            hi[d] = min(hi[d], point[d] + rad)
-    return lo, hi
-
-
 def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool) -> ReachabilityGrid | None:
     """The sweep with adaptive internal grids: ``cells`` cells along the set's longest side, between
     ``res / 8`` and ``res``, so the small distal sets collapse finely (small error) and the large proximal ones
@@ -485,15 +239,15 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
     if bb is None:  # no geometry on the last link: start from an empty set at the last joint
         bb = (ch.point[n - 1] - res_out, ch.point[n - 1] + res_out)
     g_origin, g_res, grid = _grid_for(bb[0], bb[1], cells, res_floor, res_out)
-    outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == n, g_origin, g_res, grid)
-    delta = _H * g_res
+    outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == n, g_origin, g_res, grid)
+    delta = H * g_res
     for j in range(n, 0, -1):
-        idx, tt = _collect(grid)
+        idx, tt = collect(grid)
         jj = j - 1
         in_spec = (g_origin, g_res, np.array(grid.shape, np.int64))
         if j > 1:
             swept = (
-                _swept_bounds(idx, *in_spec, int(ch.kind[jj]), ch.axis[jj], ch.point[jj], max(-lo[jj], hi[jj]), 1e-6)
+                swept_bounds(idx, *in_spec, int(ch.kind[jj]), ch.axis[jj], ch.point[jj], max(-lo[jj], hi[jj]), 1e-6)
                 if idx.size
                 else None
             )
@@ -502,23 +256,23 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
             target, t_origin, t_res, eps = grid, g_origin, g_res, 0.5 * g_res
         else:
             target, t_origin, t_res, eps = out, box_origin, res_out, 0.5 * res_out
-        n_out, err, moved = (_sweep_two if idx.size >= _PARALLEL_FROM and _threads_ok() else _sweep)(
+        n_out, err, moved = (sweep_two if idx.size >= _PARALLEL_FROM and threads_ok() else sweep)(
             idx, tt, *in_spec, t_origin, t_res, target, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
             np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), eps,
         )  # fmt: skip
         outside += n_out
         # the sampling error, plus the collapse of moved samples to cell centres (the last sweep writes into
         # the output cells, whose containment the final dilation covers)
-        delta += err + _ROUNDING + (_H * g_res if moved and j > 1 else 0.0)
+        delta += err + _ROUNDING + (H * g_res if moved and j > 1 else 0.0)
         if j > 1:
-            outside += _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, g_origin, g_res, grid)
-            delta = max(delta, _H * g_res)
+            outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, g_origin, g_res, grid)
+            delta = max(delta, H * g_res)
     if outside:
         if not strict:
             return None
         raise ValueError(f"reachability box {box} is too small: {outside} reachable samples fall outside it")
     k = math.ceil(delta / res_out - 1e-9)
-    dil = _dilate(out, k)
+    dil = dilate(out, k)
     # the fixed base: cells that meet its capsules, time 0 (exact, no dilation needed)
-    _rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == 0, box_origin, res_out, dil)
+    rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == 0, box_origin, res_out, dil)
     return ReachabilityGrid(box, dil, float(horizon), float(delta))

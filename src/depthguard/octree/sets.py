@@ -25,137 +25,14 @@ import math
 import numba as nb
 import numpy as np
 
+from depthguard.octree.pyramids import any_le, mask_pyramid, max_pyramid, min_pyramid
+
 __all__ = [
     "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "scanner_sets",
     "bin_points", "bin_depth_points", "combine", "mark_overlaps",
 ]  # fmt: skip
 
 V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
-
-
-@nb.njit(cache=True, nogil=True)
-def min_pyramid(img):
-    """Min-pyramid of a (H, W) float32 image: (flat data, level offsets, level heights, level widths)."""
-    H, W = img.shape
-    hs = [H]
-    ws = [W]
-    while hs[-1] > 1 or ws[-1] > 1:
-        hs.append((hs[-1] + 1) // 2)
-        ws.append((ws[-1] + 1) // 2)
-    L = len(hs)
-    offs = np.zeros(L, np.int64)
-    tot = 0
-    for lv in range(L):
-        offs[lv] = tot
-        tot += hs[lv] * ws[lv]
-    data = np.empty(tot, np.float32)
-    for v in range(H):
-        for u in range(W):
-            data[v * W + u] = img[v, u]
-    for lv in range(1, L):
-        h0, w0, o0 = hs[lv - 1], ws[lv - 1], offs[lv - 1]
-        h1, w1, o1 = hs[lv], ws[lv], offs[lv]
-        full_u = w0 // 2  # blocks with two columns; an odd width leaves one block of one column
-        for v in range(h1):
-            r0 = o0 + 2 * v * w0
-            r1 = r0 + w0 if 2 * v + 1 < h0 else r0  # an odd height: the last block row has one row
-            out = o1 + v * w1
-            for u in range(full_u):
-                data[out + u] = min(
-                    min(data[r0 + 2 * u], data[r0 + 2 * u + 1]), min(data[r1 + 2 * u], data[r1 + 2 * u + 1])
-                )
-            if full_u < w1:
-                data[out + full_u] = min(data[r0 + 2 * full_u], data[r1 + 2 * full_u])
-    return data, offs, np.array(hs, np.int64), np.array(ws, np.int64)
-
-
-@nb.njit(cache=True, nogil=True)
-def _any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, stack):
-    """Whether some pixel of img[v0:v1+1, u0:u1+1] is <= thr: descends the min-pyramid only into blocks
-    whose minimum is <= thr, so a negative answer costs a few lookups, not a scan."""
-    span = max(u1 - u0 + 1, v1 - v0 + 1)
-    top = 0
-    while (4 << top) < span and top + 1 < offs.size:
-        top += 1
-    n = 0
-    for bv in range(v0 >> top, (v1 >> top) + 1):
-        for bu in range(u0 >> top, (u1 >> top) + 1):
-            stack[n, 0], stack[n, 1], stack[n, 2] = top, bv, bu
-            n += 1
-    while n > 0:
-        n -= 1
-        lv, bv, bu = stack[n, 0], stack[n, 1], stack[n, 2]
-        if data[offs[lv] + bv * ws[lv] + bu] > thr:
-            continue
-        pv0, pu0 = bv << lv, bu << lv
-        pv1, pu1 = ((bv + 1) << lv) - 1, ((bu + 1) << lv) - 1
-        if pv0 >= v0 and pv1 <= v1 and pu0 >= u0 and pu1 <= u1:
-            return True  # the block lies inside the rectangle and holds a pixel <= thr
-        if lv == 0:
-            continue  # a single pixel outside the rectangle
-        for c in range(4):
-            cv, cu = 2 * bv + (c >> 1), 2 * bu + (c & 1)
-            if cv < hs[lv - 1] and cu < ws[lv - 1] and (cv << (lv - 1)) <= v1 and ((cv + 1) << (lv - 1)) - 1 >= v0 \
-                    and (cu << (lv - 1)) <= u1 and ((cu + 1) << (lv - 1)) - 1 >= u0:  # fmt: skip
-                stack[n, 0], stack[n, 1], stack[n, 2] = lv - 1, cv, cu
-                n += 1
-    return False
-
-
-@nb.njit(cache=True, nogil=True)
-def max_pyramid(img):
-    """Max-pyramid of a (H, W) float32 image, same layout as :func:`min_pyramid`."""
-    data, offs, hs, ws = min_pyramid(-img)
-    return -data, offs, hs, ws
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _rect_bounds(mn, mx, offs, hs, ws, u0, v0, u1, v1):
-    """(<= true min, >= true max) of a pixel rectangle from covering pyramid blocks (at most ~4 per side)."""
-    span = max(u1 - u0 + 1, v1 - v0 + 1)
-    lv = 0
-    while (4 << lv) < span and lv + 1 < offs.size:
-        lv += 1
-    w = ws[lv]
-    o = offs[lv]
-    lo = np.inf
-    hi = -np.inf
-    for bv in range(v0 >> lv, (v1 >> lv) + 1):
-        for bu in range(u0 >> lv, (u1 >> lv) + 1):
-            lo = min(lo, mn[o + bv * w + bu])
-            hi = max(hi, mx[o + bv * w + bu])
-    return lo, hi
-
-
-@nb.njit(cache=True, nogil=True)
-def mask_pyramid(mask, levels):
-    """Any-True pyramid of a (nx, ny, nz) bool mask: flat uint8 data, offsets (levels+1,), shapes (levels+1, 3)."""
-    shp = np.empty((levels + 1, 3), np.int64)
-    shp[0, 0], shp[0, 1], shp[0, 2] = mask.shape
-    offs = np.zeros(levels + 1, np.int64)
-    tot = shp[0, 0] * shp[0, 1] * shp[0, 2]
-    for lv in range(1, levels + 1):
-        for d in range(3):
-            shp[lv, d] = (shp[lv - 1, d] + 1) // 2
-        offs[lv] = tot
-        tot += shp[lv, 0] * shp[lv, 1] * shp[lv, 2]
-    data = np.zeros(tot, np.uint8)
-    nx, ny, nz = mask.shape
-    for i in range(nx):
-        for j in range(ny):
-            for k in range(nz):
-                if mask[i, j, k]:
-                    data[(i * ny + j) * nz + k] = 1
-    for lv in range(1, levels + 1):
-        a0, a1, a2 = shp[lv - 1, 0], shp[lv - 1, 1], shp[lv - 1, 2]
-        b1, b2 = shp[lv, 1], shp[lv, 2]
-        o0, o1 = offs[lv - 1], offs[lv]
-        for i in range(a0):
-            for j in range(a1):
-                for k in range(a2):
-                    if data[o0 + (i * a1 + j) * a2 + k]:
-                        data[o1 + ((i // 2) * b1 + j // 2) * b2 + k // 2] = 1
-    return data, offs, shp
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -241,11 +118,11 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     no_r = (state & 4) != 0
                     if lv > 0:
                         if not (no_o or all_o):  # exact decisions through the pyramids
-                            no_o = not _any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                            no_o = not any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
                             if not no_o:  # every ray blocked before the block (no pixel beyond z_lo): occluded
-                                all_o = not _any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
+                                all_o = not any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
                         if not no_r:
-                            no_r = not _any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                            no_r = not any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)
                         if no_r and (all_o or (no_o and in_fov)):
                             val = 4 if all_o else 17  # O, or V|F
                             if in_fov and all_o:
@@ -270,9 +147,9 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                                 n += 1
                         continue
                     fl = 0
-                    if not no_o and (all_o or _any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
+                    if not no_o and (all_o or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
                         fl |= 4
-                    if not no_r and _any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work):
+                    if not no_r and any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work):
                         fl |= 8
                     if in_fov:
                         fl |= 1
