@@ -173,3 +173,74 @@ def test_evading_stop_never_brings_the_end_effector_nearer(points, dq, direction
     body_gap = float(np.min(np.linalg.norm(st0.centres[1:] - obstacle, axis=1) - st0.radii[1:]))
     if body_gap > 0.05:  # a body point at the obstacle too: its bounds may forbid any escape (e.g. wrist on it)
         assert ee_gap[-1] > ee_gap[0], "the end effector did not back away"
+
+
+def _run_split(ctrl, rep, mon, n, python_path=False):
+    """Closed loop with the repulsion's distances ``rep`` and the monitor's ``mon`` ((N,), (N, 3)) each cycle."""
+    if python_path:
+        ctrl.compiled = None  # the stage functions instead of the compiled plan (same numbers, tested elsewhere)
+    q, qd = Q0.copy(), np.zeros(7)
+    outs = []
+    for k in range(n):
+        t = k * 0.001
+        out = ctrl.step(CycleInput(t, q, qd, t, XDOT, *rep, t, *mon))
+        q, qd = out.q_cmd, out.qdot_cmd
+        outs.append(out)
+    return outs
+
+
+@pytest.mark.parametrize("python_path", [False, True])
+def test_monitor_distances_drive_the_monitor_only(points, python_path):
+    """``monitor_distances`` (the frames without the background): a fixture at 0.1 m that only the repulsion
+    sees does not stop the monitor, and a person that only the monitor's distances hold does; the repulsion
+    and the body bounds always use ``distances``."""
+    N = points.n_points
+    far = (np.full(N, np.inf), np.zeros((N, 3)))
+    up = np.tile([0.0, 0.0, 1.0], (N, 1))
+    fixture = (np.full(N, 0.1), up)
+    cfg = ControllerConfig(avoidance="both")
+    # a fixture within S_p: seen by the repulsion, not by the monitor -> the arm moves, repelled and bounded
+    split = _run_split(AvoidanceController(points, cfg), fixture, far, 300, python_path)
+    same = _run_split(AvoidanceController(points, cfg), fixture, fixture, 300, python_path)
+    assert all(o.ssm.state == MonitorState.MONITOR_OK for o in split)
+    assert all(o.status == CycleStatus.STOP_PROTECTIVE for o in same[5:])
+    plain = _run_split(AvoidanceController(points, ControllerConfig()), fixture, fixture, 300, python_path)
+    np.testing.assert_allclose([o.qdot_cmd for o in split], [o.qdot_cmd for o in plain], atol=1e-12)
+    # a person only in the monitor's distances: protective stop although the repulsion sees nothing
+    person = _run_split(AvoidanceController(points, cfg), far, (np.full(N, 0.05), up), 300, python_path)
+    assert all(o.status == CycleStatus.STOP_PROTECTIVE for o in person[5:])
+    assert np.abs(person[-1].qdot_cmd).max() < 1e-9
+
+
+@pytest.mark.parametrize(
+    "mon",
+    [
+        "nan",
+        "-inf",
+        "shape",
+        "direction",
+        "half",
+    ],
+)
+def test_bad_monitor_distances_stop_the_robot(points, mon):
+    """The monitor's distances are checked like the repulsion's: NaN, -inf, a wrong shape, a non-finite
+    direction with a finite distance, or one of the pair without the other: ``STOP_INVALID_INPUT``."""
+    N = points.n_points
+    d, u = np.full(N, 0.5), np.tile([0.0, 0.0, 1.0], (N, 1))
+    md, mu = d.copy(), u.copy()
+    if mon == "nan":
+        md[3] = np.nan
+    elif mon == "-inf":
+        md[0] = -np.inf
+    elif mon == "shape":
+        md = md[:-1]
+    elif mon == "direction":
+        mu[2, 1] = np.nan
+    else:
+        mu = None
+    ctrl = AvoidanceController(points, ControllerConfig(avoidance="both"))
+    q = Q0.copy()
+    out = ctrl.step(CycleInput(0.0, q, np.zeros(7), 0.0, XDOT, d, u, 0.0, md, mu))
+    assert out.status == CycleStatus.STOP_INVALID_INPUT
+    good = ctrl.step(CycleInput(0.001, q, np.zeros(7), 0.001, XDOT, d, u, 0.001, d.copy(), u.copy()))
+    assert good.status != CycleStatus.STOP_INVALID_INPUT

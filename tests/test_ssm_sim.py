@@ -101,3 +101,41 @@ def test_ssm_approach_collides_without_avoidance():
     r = run(quick=True, avoidance=False, options={"duration": 2.0})  # the sweep meets the hand at ~1.3 s
     assert r["collision_steps"] > 0, r
     assert r["ssm"] is False
+
+
+def test_fixtures_are_the_monitors_background_only():
+    """``icra-exp3 --ssm``: the shelf box is a fixture of the commissioned background. The repulsion's
+    distances still see it (within their tolerance of the true clearance), the monitor's do not, and with
+    the ``icra-ssm`` camera nothing the monitor sees at the start lies within the protective distance at rest
+    (0.2 m; the ``icra`` camera's lower image edge was 0.16 m from the end effector)."""
+    from depthguard.control.ssm import SsmConfig
+    from depthguard.sim.background import background_stages, fixture_names
+    from depthguard.sim.depthcam import KinectSim
+    from depthguard.sim.pipeline import DistanceStage, filter_margin, self_filter
+    from depthguard.sim.pointtruth import PointClearance
+    from depthguard.sim.scenario_setup import build_scenario_cell
+    from depthguard.sim.scenarios import load_scenario
+
+    sc = load_scenario("icra-exp3")
+    sc = {**sc, "cameras": sc["ssm_cameras"]}
+    cell, kin, _ = build_scenario_cell(sc, quick=True, cameras=None)
+    assert fixture_names(cell) == ("shelf_box",)
+    cams = [KinectSim(cell.model, c, i, seed=i) for i, c in enumerate(cell.cameras)]
+    rep = DistanceStage(cell.cameras, rho=0.3, mode="all")
+    stage = background_stages(rep, DistanceStage(cell.cameras, rho=0.3, mode="all", ssm_range=0.6), cell, cams)
+    cell.forward()
+    q = cell.q()
+    depth = cams[0].capture(cell.data)
+    m = filter_margin(cams[0].camera, q, kin, cams[0].noise_coeff)
+    stage.update([depth], [self_filter(cams[0].camera, depth, q, kin, margin=m)], q, kin.model, [m])
+    cp = kin.evaluate(q)
+    seen, monitored = stage.query(cp.centres, cp.radii), stage.query_monitor(cp.centres, cp.radii)
+    truth = PointClearance(cell).evaluate(cp.centres, cp.radii, PointClearance(cell).snapshot(cell.data))[0]
+    near_box = truth < 0.2
+    assert near_box.any(), "some control point starts within 0.2 m of the box"
+    tol = rep.tolerance(cp.centres, cams[0].noise_coeff)
+    assert np.all(seen.distance[near_box] <= truth[near_box] + tol[near_box])  # the repulsion sees the box
+    assert np.all(monitored.distance >= SsmConfig().constant_terms + 0.1)  # the monitor: nothing near
+    assert np.all(monitored.distance[near_box] > seen.distance[near_box] + 0.1)
+    for c in cams:
+        c.close()

@@ -14,7 +14,8 @@ Per cycle (:func:`control_cycle`), a sequence of small stages:
    ``q``; end effector (eqs. 7, 10): ``xdot_c = xdot_d + V_R(P_EE)``; body points (eqs. 12-14): the
    bounds tightened further; eq. 11 under those bounds by SNS (:mod:`depthguard.control.sns`), with
    damped least squares near singularities. With ``avoidance`` "ssm" or "both", speed and separation
-   monitoring (:mod:`depthguard.control.ssm`) scales the task velocity before SNS, and its protective stop
+   monitoring (:mod:`depthguard.control.ssm`) scales the task velocity before SNS (from the input's
+   ``monitor_distances`` when given, else from the same distances), and its protective stop
    (``STOP_PROTECTIVE``) brakes like any other stop (with "both" and ``stop_evades``, the task stops but
    the end effector's repulsion alone may still move the arm away, within the body bounds). For robots
    whose joints the compiled kinematics handles (:mod:`depthguard.robot.fk`), the stage runs as one or two
@@ -293,7 +294,10 @@ def plan_motion(
     ssm = None
     if ctrl.monitor is not None and otg is not None:  # speed and separation monitoring scales the task
         nominal = dls_apply(J, lam, xdot_c)
-        ssm = ctrl.monitor.update(cps.jacobians, otg.velocity, otg.acceleration, nominal, dist, dirs, data_age)
+        ssm = ctrl.monitor.update(
+            cps.jacobians, otg.velocity, otg.acceleration, nominal, chk.monitor_distances, chk.monitor_directions,
+            data_age,
+        )  # fmt: skip
         if ssm.scale <= 0.0 and _evades(cfg):  # protective stop: no task, the repulsion may still evade
             xdot_c = commanded_task_velocity(np.zeros_like(xdot_c), v_rep)
         else:
@@ -313,7 +317,8 @@ def _plan_compiled(
         target, scale, xdot_c = plan_repulsion(*args, b.lo, b.hi, b.lo_s, b.hi_s)
         return Plan(target, float(scale), xdot_c, None)
     jac, J, lam, xdot_c, v_rep, nominal = plan_prepare(*args, True, b.lo, b.hi, b.lo_s, b.hi_s)
-    ssm = ctrl.monitor.update(jac, otg.velocity, otg.acceleration, nominal, chk.distances, chk.directions, data_age)
+    mon = (chk.monitor_distances, chk.monitor_directions)  # (the repulsion's own, unless the input gave others)
+    ssm = ctrl.monitor.update(jac, otg.velocity, otg.acceleration, nominal, *mon, data_age)
     if ssm.scale <= 0.0 and _evades(cfg):  # protective stop: no task, the repulsion may still evade
         xdot_c = v_rep + 0.0  # (as commanded_task_velocity(0, v_rep))
     else:

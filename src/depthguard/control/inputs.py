@@ -6,7 +6,9 @@ malformed stops the robot.
 * ``STOP_INVALID_INPUT``: a time stamp that is not a finite number, ``t`` earlier than the previous
   cycle's ``t``, ``t_joints`` or ``t_distances`` more than one period ``dt`` after ``t``; ``q``, ``qdot``
   or ``xdot_d`` missing, of the wrong shape or not finite; ``distances``/``directions`` of the wrong shape,
-  a NaN or -inf distance, a non-finite direction paired with a finite distance.
+  a NaN or -inf distance, a non-finite direction paired with a finite distance; the same for the
+  optional ``monitor_distances``/``monitor_directions`` (speed and separation monitoring's own distances),
+  and one of those two given without the other.
 * ``STOP_STALE_JOINTS``: ``t - t_joints > joint_timeout``.
 * ``STOP_STALE_DISTANCES``: distances or directions missing (None), or ``t - t_distances >
   distance_timeout``.
@@ -38,6 +40,8 @@ class CheckedInput(NamedTuple):
         xdot_d: (m,) desired task velocity, or None.
         distances: (N,) float64 (finite or +inf), or None.
         directions: (N, 3) float64 C-contiguous, finite (0 where the distance is +inf), or None.
+        monitor_distances, monitor_directions: the same for the monitor's distances; ``distances`` and
+            ``directions`` themselves when the input gave none.
     """
 
     status: CycleStatus
@@ -47,6 +51,8 @@ class CheckedInput(NamedTuple):
     xdot_d: np.ndarray | None
     distances: np.ndarray | None
     directions: np.ndarray | None
+    monitor_distances: np.ndarray | None = None
+    monitor_directions: np.ndarray | None = None
 
 
 def _time(x: object) -> float:
@@ -145,9 +151,10 @@ def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_p
         n: joints; N: control points; m: task dimension; cfg: the controller configuration.
         t_prev: the previous cycle's time, s (-inf at start).
     """
-    if not isinstance(inp, tuple) or len(inp) != len(CycleInput._fields):
+    if not isinstance(inp, tuple) or len(inp) not in (8, len(CycleInput._fields)):
         return CheckedInput(CycleStatus.STOP_INVALID_INPUT, math.nan, None, None, None, None, None)
-    t_in, q_in, qd_in, tj_in, xd_in, d_in, dirs_in, td_in = inp
+    t_in, q_in, qd_in, tj_in, xd_in, d_in, dirs_in, td_in = inp[:8]
+    md_in, mdirs_in = inp[8:] if len(inp) > 8 else (None, None)
     t, tj, td = _time(t_in), _time(tj_in), _time(td_in)
     if _plain(q_in, n) and _plain(qd_in, n) and _plain(xd_in, m):  # the usual case: one compiled check
         ok = _finite3(q_in, qd_in, xd_in)
@@ -157,6 +164,12 @@ def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_p
         qdot = as_vector(qd_in, (n,))
         xdot_d = as_vector(xd_in, (m,))
     d_ok, dist, dirs = _check_distances(d_in, dirs_in, N)
+    if md_in is None and mdirs_in is None:
+        m_ok, mdist, mdirs = True, dist, dirs
+    elif md_in is None or mdirs_in is None:
+        m_ok, mdist, mdirs = False, None, None
+    else:
+        m_ok, mdist, mdirs = _check_distances(md_in, mdirs_in, N)
     status = CycleStatus.OK
     times_ok = not (math.isnan(t) or math.isnan(tj) or math.isnan(td))
     if (
@@ -168,10 +181,11 @@ def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_p
         or qdot is None
         or xdot_d is None
         or not d_ok
+        or not m_ok
     ):
         status = CycleStatus.STOP_INVALID_INPUT
     elif not t - tj <= cfg.joint_timeout:
         status = CycleStatus.STOP_STALE_JOINTS
     elif dist is None or not t - td <= cfg.distance_timeout:
         status = CycleStatus.STOP_STALE_DISTANCES
-    return CheckedInput(status, t, q, qdot, xdot_d, dist, dirs)
+    return CheckedInput(status, t, q, qdot, xdot_d, dist, dirs, mdist, mdirs)

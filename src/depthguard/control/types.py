@@ -114,6 +114,12 @@ class CycleInput(NamedTuple):
         directions: (N, 3) unit repulsive directions, from the obstacle towards the point; finite
             wherever the distance is finite.
         t_distances: time stamp of the distances, s.
+        monitor_distances: (N,) or None: the distances that speed and separation monitoring uses, when
+            they differ from ``distances`` (those of the repulsion and the body bounds): the same frames
+            with the cell's commissioned background (room, table, fixtures) removed, so that the monitor
+            sees people and unknown space only while the repulsion keeps avoiding everything. Same rules
+            and time stamp as ``distances``; None = the monitor uses ``distances``.
+        monitor_directions: (N, 3) or None, the directions of ``monitor_distances`` (both or neither).
     """
 
     t: float
@@ -124,6 +130,8 @@ class CycleInput(NamedTuple):
     distances: np.ndarray | None
     directions: np.ndarray | None
     t_distances: float
+    monitor_distances: np.ndarray | None = None
+    monitor_directions: np.ndarray | None = None
 
 
 class CycleOutput(NamedTuple):

@@ -30,6 +30,7 @@ __all__ = [
     "apply_background",
     "far_range",
     "BackgroundStage",
+    "MonitorBackgroundStage",
 ]
 
 #: Standard deviations of the depth noise within which a reading counts as the background.
@@ -92,9 +93,39 @@ class BackgroundStage:
     def __getattr__(self, name: str):
         return getattr(self.stage, name)
 
+    def applied(self, depths: list[np.ndarray], masks: list[np.ndarray]) -> list[np.ndarray]:
+        """The frame set with the background applied (new images; one per camera)."""
+        rules = zip(depths, masks, self.thresholds, self.far, strict=True)
+        return [apply_background(d, m, thr, far) for d, m, thr, far in rules]
+
     def update(self, depths: list[np.ndarray], masks: list[np.ndarray], *args, **kwargs) -> None:
-        out = [
-            apply_background(d, m, thr, far)
-            for d, m, thr, far in zip(depths, masks, self.thresholds, self.far, strict=True)
-        ]
-        self.stage.update(out, masks, *args, **kwargs)
+        self.stage.update(self.applied(depths, masks), masks, *args, **kwargs)
+
+
+class MonitorBackgroundStage(BackgroundStage):
+    """Two distance stages on the same frames (docs/ssm.md, "Two distance sets"): ``stage`` takes the images as
+    measured, so the repulsion and the body bounds keep avoiding everything (the table and the fixtures
+    included); ``monitor`` takes them with the background applied, so that speed and separation monitoring
+    sees people and unknown space only. ``update`` feeds both; ``query`` and every other attribute are
+    ``stage``'s; :meth:`query_monitor` answers from ``monitor`` (up to its ``ssm_range``). Costs a second
+    frame stage and a second query per cycle.
+
+    Args:
+        stage: the distance stage of the repulsion (no ``ssm_range`` needed).
+        monitor: a second distance stage, same cameras, for the monitor (with its ``ssm_range``).
+        thresholds, far: as :class:`BackgroundStage`.
+    """
+
+    def __init__(self, stage, monitor, thresholds: list[np.ndarray], far: list[float]) -> None:
+        super().__init__(stage, thresholds, far)
+        self.monitor = monitor
+
+    def update(self, depths: list[np.ndarray], masks: list[np.ndarray], *args, **kwargs) -> None:
+        self.stage.update(depths, masks, *args, **kwargs)
+        self.monitor.update(self.applied(depths, masks), masks, *args, **kwargs)
+
+    def query_monitor(self, centres: np.ndarray, radii: np.ndarray):
+        """The monitor's distances (a :class:`~depthguard.depthspace.PointDistances`) for spheres ``centres``
+        (N, 3), ``radii`` (N,) m: the monitor stage's query at ρ, and beyond ρ up to its ``ssm_range``."""
+        res = self.monitor.query(centres, radii)
+        return self.monitor.query_far(centres, radii, res) if getattr(self.monitor, "ssm_range", None) else res

@@ -105,12 +105,14 @@ def raycast_depth(
     geomgroup: np.ndarray | None = None,
     bodyexclude: int = -1,
     rays: np.ndarray | None = None,
-) -> np.ndarray:
+    return_geoms: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Exact depth ``z_C`` (H, W) float64 by ``mj_multiRay``, NaN where nothing is hit.
 
     Args:
         geomgroup: (6,) uint8, 1 for the geom groups to hit (None: all groups).
         rays: optional precomputed world ray directions (H*W*3,) with ``z_C = 1`` (see :meth:`KinectSim`).
+        return_geoms: also return the geom id (H, W) int32 hit by each pixel's ray (-1: none).
     """
     import mujoco
 
@@ -124,7 +126,8 @@ def raycast_depth(
         model, data, np.asarray(camera.position, float), rays, gg, True, bodyexclude, geomid, dist, None, n, 1e3
     )
     dist[geomid < 0] = np.nan
-    return dist.reshape(camera.height, camera.width)
+    shape = (camera.height, camera.width)
+    return (dist.reshape(shape), geomid.reshape(shape)) if return_geoms else dist.reshape(shape)
 
 
 _GL_OK: bool | None = None
@@ -270,6 +273,11 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
     """Camera placements of the papers.
 
     * ``"icra"``: one Kinect at 2 m horizontal distance and 1.2 m height from the robot base (ICRA'12 §VI-A).
+    * ``"icra-ssm"``: the same camera placed for speed and separation monitoring, which counts unseen space
+      as a person: moved back and up to (2.2, 0, 1.8) (the room's wall is at x = 2.3) and aimed at
+      (0, 0, 0.15), so that its image edges stay 0.40-0.50 m from the control points along the ICRA tasks
+      (the ``"icra"`` camera's lower edge passes 0.16 m from the end effector near the table and its upper
+      edge 0.3 m above the elbow, both within the protective distance ``S_p`` of 0.2-0.4 m; docs/ssm.md).
     * ``"ral"``: two Kinects about 4 m apart looking at the robot (RA-L'16 §VIII); the first is the principal.
       They aim at 0.45 m above the robot base, so that the principal camera sees the space within ρ of the
       arm's control points above the table (RA-L'16 §I, assumption 1; aimed at 0.35 m, the top of the
@@ -282,6 +290,8 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
     target = (0.0, 0.0, 0.35)
     if name == "icra":
         return [kinect_camera((2.0, 0.0, 1.2), target, width=width, height=height)]
+    if name == "icra-ssm":
+        return [kinect_camera((2.2, 0.0, 1.8), (0.0, 0.0, 0.15), width=width, height=height)]
     if name in ("ral", "ral3"):
         aim = (0.0, 0.0, 0.45)
         cams = [
@@ -291,4 +301,4 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
         if name == "ral3":  # a third camera high behind the arm (docs/phantom-zero.md)
             cams.append(kinect_camera((-0.9, -0.9, 2.0), aim, width=width, height=height))
         return cams
-    raise ValueError(f"unknown camera placement {name!r}; known: 'icra', 'ral', 'ral3'")
+    raise ValueError(f"unknown camera placement {name!r}; known: 'icra', 'icra-ssm', 'ral', 'ral3'")

@@ -180,7 +180,7 @@ def run_loop(
 
         pivot = PivotFilter(dv_max=cfg.dv_max, c=cfg.pivot_c)
     truth = TrueClearance(cell)
-    # the background that the stage removes on purpose (SSM's empty-cell model) is not held against it
+    # the background that a stage removes on purpose (an empty-cell model) is not held against it
     ptruth = PointClearance(cell, exclude_groups=tuple(getattr(stage, "background_groups", ())))
     snap = ptruth.snapshot(cell.data)
     noise = max((getattr(c, "noise_coeff", 0.0) for c in cams), default=0.0)
@@ -188,7 +188,9 @@ def run_loop(
     n_steps = int(round(cfg.duration / cfg.control_dt))
     frame_every = cfg.frame_period
     next_frame, next_dist = 0.0, 0.0
-    latest = None  # (t of their frames, distances to the controller, V_ee, directions, distances within ρ)
+    # (t of their frames, distances to the controller, V_ee, directions, distances within ρ, the monitor's
+    # distances and directions or None)
+    latest = None
     t_frames = 0.0
     frame_count = 0
     prog = _Progress(cfg.duration, cfg.label, cfg.progress)
@@ -215,10 +217,10 @@ def run_loop(
         if t >= next_dist - 1e-9 and stage.ready:
             next_dist += cfg.distance_period
             w0 = time.perf_counter()
-            cp, res, V, dists, dirs = _distance_call(stage, kin, q_meas, cfg, pivot)
+            cp, res, V, dists, dirs, mon = _distance_call(stage, kin, q_meas, cfg, pivot)
             log.wall_distance.append(time.perf_counter() - w0)
             log.t_distance.append(t)
-            latest = (t_frames, dists, V, dirs, np.asarray(res.distance, float))
+            latest = (t_frames, dists, V, dirs, np.asarray(res.distance, float), *mon)
             # metrics only: the synchronous truth for these spheres (depthguard.sim.accuracy)
             log.acc_t.append(t)
             log.acc_eval.extend(np.asarray(res.distance, float))
@@ -230,8 +232,9 @@ def run_loop(
         x = cp.centres[0]
         xdot = task.velocity(x)
         if latest is not None:
+            mon = {} if latest[5] is None else {"monitor_distances": latest[5], "monitor_directions": latest[6]}
             q_cmd, qd_cmd, status = ctrl.step(
-                t, q_meas, cell.qd(), xdot, cp, latest[1], latest[3], latest[0], cfg.avoid
+                t, q_meas, cell.qd(), xdot, cp, latest[1], latest[3], latest[0], cfg.avoid, **mon
             )
         else:
             q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, None, None, -1.0, cfg.avoid)
@@ -271,8 +274,10 @@ def _frame_stage(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: Dist
 
 def _distance_call(stage: DistanceStage, kin: Kinematics, q_meas, cfg: LoopConfig, pivot):
     """One distance-stage call at the measured joints: ``(control points, PointDistances within ρ, V_R of the
-    end effector (3,), distances (N,) and directions (N, 3) for the controller)``: ρ's answers, and beyond ρ
-    those of the monitor's longer range (if any); with the pivot, the end effector's direction turned."""
+    end effector (3,), distances (N,) and directions (N, 3) for the controller, (monitor distances (N,),
+    monitor directions (N, 3)))``: ρ's answers, and beyond ρ those of the monitor's longer range (if any);
+    with the pivot, the end effector's direction turned. The monitor's pair is ``(None, None)`` unless the stage
+    has distances of its own for the monitor (``query_monitor``: the frames without the empty cell)."""
     from depthguard.repulsion import repulsive_vectors
 
     cp = kin.evaluate(q_meas)
@@ -286,7 +291,11 @@ def _distance_call(stage: DistanceStage, kin: Kinematics, q_meas, cfg: LoopConfi
         nv = float(np.linalg.norm(V))
         if nv > 1e-12 and np.isfinite(res.distance[0]):
             dirs[0] = V / nv
-    return cp, res, V, dists, dirs
+    mon = (None, None)
+    if hasattr(stage, "query_monitor"):
+        m = stage.query_monitor(cp.centres, cp.radii)
+        mon = (np.asarray(m.distance, float), np.array(m.direction, dtype=float))
+    return cp, res, V, dists, dirs, mon
 
 
 def _log_sample(log: SimLog, t: float, q_meas, cp, xdot, elbow, latest, task: Task, avoid: bool, status: dict) -> None:

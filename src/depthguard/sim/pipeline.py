@@ -152,17 +152,26 @@ class Controller:
         directions: np.ndarray | None,
         t_distances: float,
         avoid: bool = True,
+        monitor_distances: np.ndarray | None = None,
+        monitor_directions: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, dict]:
         """One cycle. ``distances`` (N,) / ``directions`` (N, 3) from the distance stage (None = none yet);
         with ``avoid=False`` the robot ignores them (no repulsion, no body constraints, no stale stop).
+        ``monitor_distances`` / ``monitor_directions``: the speed and separation monitor's own distances
+        (the same frames without the commissioned background; None = the monitor uses ``distances``).
         Returns the joint position command (n,), velocity command (n,) and a status dict."""
         N = len(cp.radii)
         if not avoid:
             distances, directions, t_distances = np.full(N, np.inf), np.zeros((N, 3)), t
+            monitor_distances = monitor_directions = None
         if distances is None:
             distances, directions = np.full(N, np.nan), np.zeros((N, 3))
+            monitor_distances = monitor_directions = None
         directions = np.where(np.isfinite(directions), directions, 0.0)
-        out = self._c.step(CycleInput(t, q, qd, t, xdot, distances, directions, t_distances))
+        if monitor_directions is not None:
+            monitor_directions = np.where(np.isfinite(monitor_directions), monitor_directions, 0.0)
+        inp = CycleInput(t, q, qd, t, xdot, distances, directions, t_distances, monitor_distances, monitor_directions)
+        out = self._c.step(inp)
         self.last_output = out
         return out.q_cmd, out.qdot_cmd, {"status": out.status.name, "scale": out.scale, "xdot_c": out.xdot_c}
 

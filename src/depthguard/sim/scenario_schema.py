@@ -132,6 +132,7 @@ TOP_LEVEL: dict[str, Any] = {
     "cameras": (_choice("icra", "ral", "ral3", "platform"), True),
     "camera_count": (_int_range(1, 8), False),
     "ssm_camera_count": (_int_range(1, 8), False),
+    "ssm_cameras": (_choice("icra-ssm"), False),
     "resolution": (_size, False),
     "quick_resolution": (_size, False),
     "demo_resolution": (_size, False),

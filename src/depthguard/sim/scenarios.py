@@ -169,19 +169,25 @@ def _run_one(
 
     if ssm and cameras is None:  # SSM needs a cell without blind pockets near the robot (docs/ssm.md)
         cameras = sc.get("ssm_camera_count")
+    if ssm and "ssm_cameras" in sc:  # ... and cameras whose views hold the protective zone
+        sc = {**sc, "cameras": sc["ssm_cameras"]}
     cell, kin, ee0 = build_scenario_cell(sc, quick=quick, cameras=cameras, demo=demo)
     if setup is not None:  # e.g. reactive people (depthguard.sim.ssm_approach)
         setup(cell)
     av = sc.get("avoidance", {})
     cams = [KinectSim(cell.model, c, i, seed=seed + i, backend=camera_backend) for i, c in enumerate(cell.cameras)]
-    stage = DistanceStage(
-        cell.cameras,
-        rho=float(av.get("rho", 0.4)),
-        mode=sc.get("mode", "hybrid"),
-        alpha=float(av.get("alpha", 6.0)),
-        workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
-        ssm_range=_ssm_range(av) if ssm and avoidance else None,
-    ) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)  # fmt: skip
+
+    def depth_stage(ssm_range):
+        return DistanceStage(
+            cell.cameras,
+            rho=float(av.get("rho", 0.4)),
+            mode=sc.get("mode", "hybrid"),
+            alpha=float(av.get("alpha", 6.0)),
+            workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
+            ssm_range=ssm_range,
+        )
+
+    stage = depth_stage(None) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)
     ctrl = Controller(
         kin,
         cell.q(),
@@ -194,12 +200,13 @@ def _run_one(
         ssm_config=_ssm_config(av, backend) if ssm and avoidance else None,
         avoidance_mode=av.get("mode") if ssm and avoidance else None,
     )
-    if ssm and avoidance:  # background model of the empty cell; the monitor's record (metrics only)
-        from depthguard.sim.background import BackgroundFilter
+    if ssm and avoidance:  # the monitor's own distances without the empty cell; its record (metrics only)
+        from depthguard.sim.background import background_stages, fixture_names
         from depthguard.sim.ssm_metrics import SsmRecorder
 
-        stage = BackgroundFilter(stage, cell, cams)
-        ctrl = SsmRecorder(ctrl, cell)
+        monitor = depth_stage(_ssm_range(av)) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)
+        stage = background_stages(stage, monitor, cell, cams)
+        ctrl = SsmRecorder(ctrl, cell, exclude=("table", *fixture_names(cell)))
     task = scenario_task(sc, ee0)
     duration = float(sc.get("quick_duration", sc.get("duration", 10.0)) if quick else sc.get("duration", 10.0))
     if demo:

@@ -4,13 +4,16 @@ Metrics only: the pipeline never sees anything computed here. :class:`SsmRecorde
 controller (:class:`depthguard.sim.pipeline.Controller` with SSM on) and records, every control cycle, the
 monitor's output (:class:`depthguard.control.ssm.SsmOutput`) and the *true* separation ``S_true`` of every
 control point: the distance from its sphere (the controller's model at the true joint positions) to the
-nearest obstacle geom of the simulator (:func:`sphere_clearance`; the table, which carries the robot and
-lies outside the monitored workspace, is left out).
+nearest obstacle geom of the simulator (:func:`sphere_clearance`; left out: the table, which carries the
+robot and lies outside the monitored workspace, and the scenarios' fixed boxes, fixtures that the monitor's
+background model holds: SSM protects people).
 
 :func:`ssm_metrics` turns the record into the JSON keys of the ``--ssm`` scenarios:
 
 * ``min_separation_margin``: min of ``S_true - S_p`` over the points and over the cycles in which the
-  monitor allowed motion (``MONITOR_OK`` or ``REDUCED``), m; ``>= 0`` is the monitor's claim;
+  monitor allowed motion (``MONITOR_OK`` or ``REDUCED``), m; ``>= 0`` is the monitor's claim; null when the
+  monitor never allowed motion or when nobody it protects is in the scene (``S_true`` = inf, e.g.
+  ``icra-exp3``, whose only obstacle is a fixture of the background);
 * ``time_reduced_s`` / ``time_stopped_s``: time in ``REDUCED`` / ``PROTECTIVE_STOP``;
 * ``protective_stops``, ``resumed`` (a stop ended and the robot moved again), the binding point, the
   largest ``S_p`` seen, the true separation while the robot moved (``..._while_moving``: any motion, the
@@ -114,7 +117,8 @@ class SsmRecorder:
     Args:
         ctrl: the controller (built with ``ssm=True``).
         cell: the simulated cell (ground truth for the metrics only).
-        exclude: obstacle geoms left out of ``S_true`` (the table: the robot's mount).
+        exclude: obstacle geoms left out of ``S_true`` (the table: the robot's mount; the scenarios add the
+            fixed boxes, which the monitor's background holds).
     """
 
     def __init__(self, ctrl, cell, exclude: tuple[str, ...] = ("table",), frame_period: float = 1.0 / 30.0) -> None:
@@ -131,11 +135,12 @@ class SsmRecorder:
     def __getattr__(self, name: str):
         return getattr(self.ctrl, name)
 
-    def step(self, t, q, qd, xdot, cp, distances, directions, t_distances, avoid: bool = True):
-        """The wrapped controller's step; records the cycle (see the class docstring)."""
+    def step(self, t, q, qd, xdot, cp, distances, directions, t_distances, avoid: bool = True, **monitor):
+        """The wrapped controller's step (``monitor``: its ``monitor_distances`` / ``monitor_directions``);
+        records the cycle (see the class docstring)."""
         import mujoco
 
-        res = self.ctrl.step(t, q, qd, xdot, cp, distances, directions, t_distances, avoid)
+        res = self.ctrl.step(t, q, qd, xdot, cp, distances, directions, t_distances, avoid, **monitor)
         out = self.ctrl.last_output
         m = getattr(out, "ssm", None)
         mujoco.mj_kinematics(self.cell.model, self.cell.data)  # mocap poses of time t (set before the step)
@@ -209,12 +214,20 @@ def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmCon
         "resumed": bool(resumed),
         "min_scale": float(a["scale"][allowed].min()) if allowed.any() else 0.0,
         "max_s_p": float(np.nanmax(s_p)) if np.isfinite(s_p).any() else None,
-        "min_true_separation": float(sep.min()) if len(sep) else None,
-        "min_true_separation_while_moving": float(sep[moving].min()) if moving.any() else None,
+        "min_true_separation": _finite_min(sep),
+        "min_true_separation_while_moving": _finite_min(sep[moving]) if moving.any() else None,
         # moving with the task allowed (an evading stop also moves the arm, away from whoever came near)
-        "min_true_separation_while_allowed": float(sep[moving & allowed].min()) if (moving & allowed).any() else None,
+        "min_true_separation_while_allowed": _finite_min(sep[moving & allowed]) if (moving & allowed).any() else None,
         "ssm_parameters": ssm_parameters(cfg),
     }
+
+
+def _finite_min(x: np.ndarray) -> float | None:
+    """The minimum of ``x`` as a float, None when empty or not finite (nobody in the scene: inf; JSON has no inf)."""
+    if not len(x):
+        return None
+    v = float(np.min(x))
+    return v if np.isfinite(v) else None
 
 
 def plot_ssm(out_dir: str | Path, rec: SsmRecorder, names: tuple[str, ...], point: str | None, title: str) -> str:
