@@ -299,3 +299,19 @@ def test_an_unexpected_exception_inside_the_cycle_becomes_a_jerk_limited_stop(po
     assert outs[0].status == CycleStatus.STOP_INTERNAL_ERROR
     assert {o.status for o in outs} == {CycleStatus.STOP_INTERNAL_ERROR, CycleStatus.STOP_RESUME_WAIT}
     _check_jerk_limited_stop(outs)
+
+
+def test_plain_eight_field_tuple_equals_cycle_input(points) -> None:
+    """The 8-field input of the first release (a plain tuple) still works and gives the same command as a
+    :class:`CycleInput` without the optional monitor fields; a 9-tuple is malformed."""
+    d, u = _obstacle(points, Q0)
+    a = AvoidanceController(points, ControllerConfig(avoidance="both"))
+    b = AvoidanceController(points, ControllerConfig(avoidance="both"))
+    for k in range(50):
+        t = k * DT
+        oa = a.step((t, Q0, np.zeros(7), t, XD, d, u, t))
+        ob = b.step(CycleInput(t, Q0, np.zeros(7), t, XD, d, u, t))
+        assert oa.status == ob.status and oa.status != CycleStatus.STOP_INVALID_INPUT
+        np.testing.assert_array_equal(oa.qdot_cmd, ob.qdot_cmd)
+    bad = AvoidanceController(points, ControllerConfig()).step((0.0, Q0, np.zeros(7), 0.0, XD, d, u, 0.0, d))
+    assert bad.status == CycleStatus.STOP_INVALID_INPUT

@@ -190,7 +190,7 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
     if status.stopping:
         plan = Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
     else:
-        plan = plan_motion(ctrl, chk, b, otg, max(chk.t - float(inp.t_distances), 0.0))
+        plan = plan_motion(ctrl, chk, b, otg, max(chk.t - float(inp[7]), 0.0))  # (t_distances; a plain tuple too)
         if not both_finite(plan.target, plan.xdot_c):
             status, plan = CycleStatus.STOP_INVALID_INPUT, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
         elif plan.ssm is not None and plan.ssm.scale <= 0.0:
