@@ -143,6 +143,13 @@ def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.nd
     return True, d, dirs
 
 
+def _check_pair(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.ndarray | None, np.ndarray | None]:
+    """:func:`_check_distances` for a pair that must be given whole (the monitor's): one alone is invalid."""
+    if d_in is None or dirs_in is None:
+        return False, None, None
+    return _check_distances(d_in, dirs_in, N)
+
+
 def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_prev: float) -> CheckedInput:
     """Check one cycle's inputs (module docstring); never raises.
 
@@ -164,12 +171,7 @@ def check_inputs(inp: object, n: int, N: int, m: int, cfg: ControllerConfig, t_p
         qdot = as_vector(qd_in, (n,))
         xdot_d = as_vector(xd_in, (m,))
     d_ok, dist, dirs = _check_distances(d_in, dirs_in, N)
-    if md_in is None and mdirs_in is None:
-        m_ok, mdist, mdirs = True, dist, dirs
-    elif md_in is None or mdirs_in is None:
-        m_ok, mdist, mdirs = False, None, None
-    else:
-        m_ok, mdist, mdirs = _check_distances(md_in, mdirs_in, N)
+    m_ok, mdist, mdirs = (True, dist, dirs) if md_in is None and mdirs_in is None else _check_pair(md_in, mdirs_in, N)
     status = CycleStatus.OK
     times_ok = not (math.isnan(t) or math.isnan(tj) or math.isnan(td))
     if (

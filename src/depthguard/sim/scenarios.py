@@ -165,7 +165,7 @@ def _run_one(
 ):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
-    from depthguard.sim.pipeline import Controller, DistanceStage
+    from depthguard.sim.pipeline import Controller
 
     if ssm and cameras is None:  # SSM needs a cell without blind pockets near the robot (docs/ssm.md)
         cameras = sc.get("ssm_camera_count")
@@ -177,17 +177,7 @@ def _run_one(
     av = sc.get("avoidance", {})
     cams = [KinectSim(cell.model, c, i, seed=seed + i, backend=camera_backend) for i, c in enumerate(cell.cameras)]
 
-    def depth_stage(ssm_range):
-        return DistanceStage(
-            cell.cameras,
-            rho=float(av.get("rho", 0.4)),
-            mode=sc.get("mode", "hybrid"),
-            alpha=float(av.get("alpha", 6.0)),
-            workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
-            ssm_range=ssm_range,
-        )
-
-    stage = depth_stage(None) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)
+    stage = _distance_stage(sc, cell, kin, backend, octree_res)
     ctrl = Controller(
         kin,
         cell.q(),
@@ -204,7 +194,7 @@ def _run_one(
         from depthguard.sim.background import background_stages, fixture_names
         from depthguard.sim.ssm_metrics import SsmRecorder
 
-        monitor = depth_stage(_ssm_range(av)) if backend == "depthspace" else _octree_stage(sc, cell, kin, octree_res)
+        monitor = _distance_stage(sc, cell, kin, backend, octree_res, _ssm_range(av))
         stage = background_stages(stage, monitor, cell, cams)
         ctrl = SsmRecorder(ctrl, cell, exclude=("table", *fixture_names(cell)))
     task = scenario_task(sc, ee0)
@@ -229,6 +219,24 @@ def _run_one(
     for c in cams:
         c.close()
     return cell, log, task, cfg
+
+
+def _distance_stage(sc: dict, cell, kin, backend: str, octree_res: float, ssm_range: float | None = None):
+    """The scenario's distance stage: the depth space / depth grid (its monitor's distances up to ``ssm_range``
+    when given) or, with ``backend="octree"``, the octree (:func:`_octree_stage`; within ρ only)."""
+    if backend != "depthspace":
+        return _octree_stage(sc, cell, kin, octree_res)
+    from depthguard.sim.pipeline import DistanceStage
+
+    av = sc.get("avoidance", {})
+    return DistanceStage(
+        cell.cameras,
+        rho=float(av.get("rho", 0.4)),
+        mode=sc.get("mode", "hybrid"),
+        alpha=float(av.get("alpha", 6.0)),
+        workspace=tuple(sc.get("workspace", (-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))),
+        ssm_range=ssm_range,
+    )
 
 
 def _octree_stage(sc: dict, cell, kin, res: float):
