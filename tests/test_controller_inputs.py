@@ -289,7 +289,7 @@ def test_an_unexpected_exception_inside_the_cycle_becomes_a_jerk_limited_stop(po
         raise RuntimeError("injected fault in the solver")
 
     monkeypatch.setattr(cycle_module, "sns_velocity_unchecked", broken)
-    monkeypatch.setattr(cycle_module, "plan_repulsion", broken)  # (the compiled stage: control.plan_kernel)
+    monkeypatch.setattr(cycle_module, "plan_cycle", broken)  # (the compiled stage: control.plan_kernel)
     outs = []
     for _ in range(150):
         out = ctrl.step(CycleInput(t, q, qd, t, XD, *_free(points.n_points), t))

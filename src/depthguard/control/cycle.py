@@ -43,7 +43,7 @@ from depthguard.control.bounded import braking_step, enforce_bounds_kernel, enfo
 from depthguard.control.endeffector import commanded_task_velocity, dls_apply, dls_damping, repulsive_velocity
 from depthguard.control.inputs import CheckedInput, check_inputs
 from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
-from depthguard.control.plan_kernel import both_finite, plan_params, plan_prepare, plan_repulsion
+from depthguard.control.plan_kernel import both_finite, cycle_layout, plan_cycle, plan_params
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
 from depthguard.robot.control_points import ControlPointSet
@@ -123,7 +123,7 @@ class AvoidanceController:
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
-        self.compiled = _compiled_parts(self.points, cfg)  # (the kernels are written for the 3-D task, M_TASK)
+        self.compiled = _compiled_parts(self.points, cfg, self.plan_ahead)  # (3-D task: M_TASK)
         self.sensor_fault: str | None = None
         if cfg.avoidance not in ("repulsion", "ssm", "both"):
             raise ValueError(f"avoidance must be 'repulsion', 'ssm' or 'both', got {cfg.avoidance!r}")
@@ -150,9 +150,10 @@ class AvoidanceController:
         return out
 
 
-def _compiled_parts(points: ControlPointSet, cfg: ControllerConfig) -> tuple | None:
+def _compiled_parts(points: ControlPointSet, cfg: ControllerConfig, plan_ahead: float) -> tuple | None:
     """The arrays :mod:`depthguard.control.plan_kernel` needs: the chain (parent, idx_v, kind, axis,
-    placement), the control points (joints, offsets, support) and the parameter vector; None when the robot
+    placement), the control points (joints, offsets, support), the parameter vectors of the plan and of the
+    joint bounds (``latency, position_margin, plan_ahead``) and the ``out`` layout; None when the robot
     has joints that the compiled kinematics does not handle (then the stage functions run)."""
     chain = points.model._chain_kinematics
     if chain is None:
@@ -160,7 +161,9 @@ def _compiled_parts(points: ControlPointSet, cfg: ControllerConfig) -> tuple | N
     c = np.ascontiguousarray
     parts = (c(chain.parent), c(chain.idx_v), c(chain.kind), c(chain.axis), c(chain.placement))
     pts = (c(points.joints, dtype=np.int64), c(points.offsets, dtype=np.float64), c(points.support, dtype=np.bool_))
-    return parts, pts, plan_params(cfg)
+    layout = cycle_layout(points.model.n_dof, points.n_points, M_TASK)
+    jprm = np.array([2.0 * cfg.dt, cfg.position_margin, plan_ahead])
+    return parts, pts, plan_params(cfg), jprm, layout
 
 
 def control_cycle(
@@ -186,12 +189,18 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
     otg = _sync_state(st.otg, chk, ctrl.v_max)
     if otg is None:  # no joint state yet: nothing to command but rest
         return _rest_output(ctrl, status), st._replace(latched=True, valid_since=math.nan, valid_cycles=0)
-    b = joint_bounds(ctrl, otg)
     if status.stopping:
+        b = joint_bounds(ctrl, otg)
         plan = Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
     else:
-        plan = plan_motion(ctrl, chk, b, otg, max(chk.t - float(inp[7]), 0.0))  # (t_distances; a plain tuple too)
-        if not both_finite(plan.target, plan.xdot_c):
+        data_age = max(chk.t - float(inp[7]), 0.0)  # (t_distances; a plain tuple too)
+        if ctrl.compiled is not None:  # stages 3 and 4 in one compiled call (control.plan_kernel)
+            b, plan, finite = _plan_compiled(ctrl, chk, otg, data_age)
+        else:
+            b = joint_bounds(ctrl, otg)
+            plan = plan_motion(ctrl, chk, b, otg, data_age)
+            finite = both_finite(plan.target, plan.xdot_c)
+        if not finite:
             status, plan = CycleStatus.STOP_INVALID_INPUT, Plan(np.zeros(ctrl.n), 0.0, np.zeros(M_TASK))
         elif plan.ssm is not None and plan.ssm.scale <= 0.0:
             status = CycleStatus.STOP_PROTECTIVE
@@ -274,8 +283,6 @@ def plan_motion(
     ``otg`` is the current motion, ``data_age`` the age of the distances, s) and SNS within
     ``b.lo_s``/``b.hi_s``."""
     cfg = ctrl.config
-    if ctrl.compiled is not None:  # the same stage in one or two compiled calls (control.plan_kernel)
-        return _plan_compiled(ctrl, chk, b, otg, data_age)
     cps = ctrl.points.evaluate(chk.q)
     dist, dirs = chk.distances, chk.directions
     if cfg.avoidance == "ssm":
@@ -307,24 +314,36 @@ def plan_motion(
 
 
 def _plan_compiled(
-    ctrl: AvoidanceController, chk: CheckedInput, b: Bounds, otg: OtgState | None, data_age: float
-) -> Plan:
-    """:func:`plan_motion` through :mod:`depthguard.control.plan_kernel` (same numbers, fewer calls)."""
-    cfg, (chain, pts, prm) = ctrl.config, ctrl.compiled
-    repel = cfg.avoidance != "ssm"
-    args = (chk.q, *chain, *pts, chk.distances, chk.directions, ctrl.body_use, ctrl.v_max, chk.xdot_d, prm, repel)
-    if ctrl.monitor is None or otg is None:
-        target, scale, xdot_c = plan_repulsion(*args, b.lo, b.hi, b.lo_s, b.hi_s)
-        return Plan(target, float(scale), xdot_c, None)
-    jac, J, lam, xdot_c, v_rep, nominal = plan_prepare(*args, True, b.lo, b.hi, b.lo_s, b.hi_s)
-    mon = (chk.monitor_distances, chk.monitor_directions)  # (the repulsion's own, unless the input gave others)
-    ssm = ctrl.monitor.update(jac, otg.velocity, otg.acceleration, nominal, *mon, data_age)
-    if ssm.scale <= 0.0 and _evades(cfg):  # protective stop: no task, the repulsion may still evade
-        xdot_c = v_rep + 0.0  # (as commanded_task_velocity(0, v_rep))
+    ctrl: AvoidanceController, chk: CheckedInput, otg: OtgState, data_age: float
+) -> tuple[Bounds, Plan, bool]:
+    """:func:`joint_bounds` and :func:`plan_motion` through :func:`~depthguard.control.plan_kernel.plan_cycle`
+    (the same numbers in one call): the bounds (``lo_s``/``hi_s`` are the kernel's own, not returned:
+    their places hold ``lo``/``hi``), the plan and whether it is finite."""
+    cfg, (chain, pts, prm, jprm, layout) = ctrl.config, ctrl.compiled
+    mon, n = ctrl.monitor, ctrl.n
+    out = np.empty(layout["size"].stop)
+    if mon is None:
+        T_r, lengths, mprm, v_h, rng, hyst, stopped, age = 0.0, _NO_LENGTHS, prm, _NO_SPEED, 0.0, 0.0, False, 0.0
     else:
-        xdot_c = xdot_c * ssm.scale
-    target, scale = sns_velocity_unchecked(J, xdot_c, b.lo_s, b.hi_s, lam)
-    return Plan(target, float(scale), xdot_c, ssm)
+        age, T_r, mprm, v_h = mon.kernel_inputs(data_age)
+        lengths, rng, hyst, stopped = mon.lengths, float(mon.config.sensing_range), mon.config.hysteresis, mon.stopped
+    scale, s, stopped, ended, T_s, binding, finite = plan_cycle(
+        chk.q, otg.velocity, otg.acceleration, *chain, *pts, chk.distances, chk.directions, chk.monitor_distances,
+        chk.monitor_directions, ctrl.body_use, ctrl.q_min, ctrl.q_max, ctrl.v_max, ctrl.otg.a_max, ctrl.otg.j_max,
+        chk.xdot_d, prm, jprm, cfg.avoidance != "ssm", mon is not None, _evades(cfg), lengths, mprm, v_h, rng,
+        hyst, stopped, age, out,
+    )  # fmt: skip
+    lo, hi = out[0:n], out[n : 2 * n]
+    b = Bounds(lo, hi, lo, hi)
+    ssm = None
+    if mon is not None:
+        L = layout
+        ssm = mon.finish(s, stopped, ended, T_s, binding, out[L["separation"]], out[L["s_p"]], out[L["margin"]], T_r)
+    return b, Plan(out[2 * n : 3 * n], float(scale), out[layout["xdot_c"]], ssm), bool(finite)
+
+
+_NO_LENGTHS = np.zeros((1, 1))  # (placeholders for the monitor's arrays when there is no monitor)
+_NO_SPEED = np.zeros(1)
 
 
 def _evades(cfg: ControllerConfig) -> bool:

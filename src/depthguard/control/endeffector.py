@@ -17,6 +17,8 @@ import math
 import numpy as np
 from numba import njit
 
+from depthguard.control.sns import _jacobi_svd
+
 __all__ = [
     "repulsive_velocity", "repulsive_velocity_kernel", "commanded_task_velocity", "dls_damping", "dls_inverse",
     "dls_apply",
@@ -70,8 +72,10 @@ def commanded_task_velocity(xdot_d: np.ndarray, v_repulsive: np.ndarray) -> np.n
 def _dls_damping(J: np.ndarray, eps: float, lambda_max: float) -> float:
     if J.shape[0] > J.shape[1]:
         smin = 0.0
-    else:
-        smin = np.sqrt(max(np.linalg.eigvalsh(J @ J.T)[0], 0.0))
+    else:  # the smallest singular value (Jacobi: accurate, and no LAPACK call at these sizes)
+        smin = np.inf
+        for s in _jacobi_svd(J)[2]:
+            smin = min(smin, s)
     if smin >= eps:
         return 0.0
     return lambda_max * np.sqrt(1.0 - (smin / eps) ** 2)
@@ -92,11 +96,37 @@ def dls_inverse(J: np.ndarray, damping: float) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:
-    m = J.shape[0]
-    A = J @ J.T
+    """``J^T (J J^T + (damping^2 + 1e-12) I)^-1 x`` by a Cholesky factorisation written out (the matrix is
+    symmetric positive definite; m is 3 or 6, where LAPACK's call costs more than the arithmetic)."""
+    m, n = J.shape
+    L = np.zeros((m, m))
+    reg = damping * damping + 1e-12
     for i in range(m):
-        A[i, i] += damping * damping + 1e-12
-    return J.T @ np.linalg.solve(A, x)
+        for j in range(i + 1):
+            a = reg if i == j else 0.0
+            for k in range(n):
+                a += J[i, k] * J[j, k]
+            for k in range(j):
+                a -= L[i, k] * L[j, k]
+            L[i, j] = np.sqrt(max(a, 1e-300)) if i == j else a / L[j, j]
+    y = np.empty(m)
+    for i in range(m):  # L y = x
+        a = x[i]
+        for k in range(i):
+            a -= L[i, k] * y[k]
+        y[i] = a / L[i, i]
+    for i in range(m - 1, -1, -1):  # L^T z = y
+        a = y[i]
+        for k in range(i + 1, m):
+            a -= L[k, i] * y[k]
+        y[i] = a / L[i, i]
+    out = np.zeros(n)
+    for k in range(n):
+        a = 0.0
+        for i in range(m):
+            a += J[i, k] * y[i]
+        out[k] = a
+    return out
 
 
 def dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:

@@ -104,18 +104,25 @@ def _all_finite(a: np.ndarray) -> bool:
 
 
 @njit(cache=True, nogil=True)
-def _distances_valid(d: np.ndarray, dirs: np.ndarray) -> int:
-    """0: invalid (NaN or -inf distance, non-finite direction with a finite distance); 1: valid, all
-    directions usable; 2: valid, some distance is +inf (its direction is to be ignored)."""
-    code = 1
+def _distances_valid(d: np.ndarray, dirs: np.ndarray) -> tuple[bool, np.ndarray]:
+    """``(valid, directions)``. Invalid: a NaN or -inf distance, or a non-finite direction with a finite
+    distance. ``directions`` is ``dirs`` itself when every distance is finite, else a copy with the rows of
+    +inf distances set to 0 (their direction is ignored)."""
+    some_inf = False
     for k in range(d.shape[0]):
         if d[k] == np.inf:
-            code = 2
+            some_inf = True
         elif not np.isfinite(d[k]):
-            return 0
+            return False, dirs
         elif not (np.isfinite(dirs[k, 0]) and np.isfinite(dirs[k, 1]) and np.isfinite(dirs[k, 2])):
-            return 0
-    return code
+            return False, dirs
+    if not some_inf:
+        return True, dirs
+    out = dirs.copy()
+    for k in range(d.shape[0]):
+        if d[k] == np.inf:
+            out[k, 0], out[k, 1], out[k, 2] = 0.0, 0.0, 0.0
+    return True, out
 
 
 def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.ndarray | None, np.ndarray | None]:
@@ -135,11 +142,9 @@ def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.nd
         dirs = as_vector(dirs_in, (N, 3), finite=False)
     if d is None or dirs is None:
         return False, None, None
-    code = _distances_valid(d, dirs)
-    if code == 0:
+    valid, dirs = _distances_valid(d, dirs)
+    if not valid:
         return False, None, None
-    if code == 2:
-        dirs = np.where((d == np.inf)[:, None], 0.0, dirs)
     return True, d, dirs
 
 

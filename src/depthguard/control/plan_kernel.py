@@ -24,10 +24,12 @@ from numba import njit
 
 from depthguard.control.body import body_bounds_inplace
 from depthguard.control.endeffector import _dls_apply, _dls_damping, repulsive_velocity_kernel
+from depthguard.control.otg import joint_velocity_bounds
 from depthguard.control.sns import sns_velocity_unchecked
+from depthguard.control.ssm import _update
 from depthguard.robot.fk import _chain_fk, fixed_points
 
-__all__ = ["plan_prepare", "plan_repulsion", "plan_params", "both_finite"]
+__all__ = ["plan_prepare", "plan_repulsion", "plan_cycle", "plan_params", "both_finite", "cycle_layout"]
 
 _INFLUENCE_EPS = 1e-6  # as plan_motion: joints that cannot move a point along its direction are not bound
 
@@ -91,6 +93,67 @@ def plan_repulsion(
     )  # fmt: skip
     target, scale = sns_velocity_unchecked(J, xdot_c, lo_s, hi_s, lam)
     return target, scale, xdot_c
+
+
+def cycle_layout(n: int, N: int, m: int = 3) -> dict[str, slice]:
+    """Where :func:`plan_cycle` writes its arrays in its ``out`` buffer (float64); ``"size"``: all of it,
+    ``3 n + m + 3 N``."""
+    sizes = (("lo", n), ("hi", n), ("target", n), ("xdot_c", m), ("separation", N), ("s_p", N), ("margin", N))
+    layout, at = {}, 0
+    for name, size in sizes:
+        layout[name] = slice(at, at + size)
+        at += size
+    layout["size"] = slice(0, at)
+    return layout
+
+
+@njit(cache=True, nogil=True)
+def plan_cycle(
+    q, v, acc, parent, idx_v, kind, axis, placement, joints, offsets, support,
+    dist, dirs, mdist, mdirs, body_use, q_min, q_max, v_max, a_max, j_max, xdot_d, prm, jprm, repel,
+    monitor, evades, lengths, mprm, v_h, sensing_range, hysteresis, stopped, age, out,
+):  # fmt: skip
+    """Stages 3 and 4 of the control cycle in one call, for valid inputs: the joint bounds
+    (:func:`~depthguard.control.otg.joint_velocity_bounds` at ``q`` with the motion ``v``; ``jprm`` =
+    ``(latency, position_margin, plan_ahead)``), :func:`plan_prepare`, when ``monitor`` the separation
+    monitor (:func:`depthguard.control.ssm._update` on ``mdist``/``mdirs`` with the current ``v``, ``acc``;
+    its parameters ``lengths, mprm, v_h, sensing_range, hysteresis, stopped, age`` from
+    :meth:`~depthguard.control.ssm.SsmMonitor.kernel_inputs`), the task scaled by it (or, in a protective
+    stop with ``evades``, the end effector's repulsion alone), and SNS.
+
+    Writes ``out`` (:func:`cycle_layout`): the cycle's bounds ``lo``/``hi`` (body bounds included), the SNS
+    target, the commanded task velocity and, with a monitor, its separation, ``S_p`` and margin. Returns
+    ``(scale, ssm_s, stopped, stop_ended, T_s, binding, finite)``: the SNS scale; the monitor's scale
+    (-1: protective stop), latched stop, stop ended, stopping time and binding point (unused without a
+    monitor); ``finite``: target and task velocity are finite.
+    """
+    n, N, m = q.shape[0], dist.shape[0], xdot_d.shape[0]
+    lo, hi, lo_s, hi_s = joint_velocity_bounds(q, v, q_min, q_max, v_max, a_max, j_max, jprm[0], jprm[1], jprm[2])
+    jac, J, lam, xdot_c, v_rep, nominal = plan_prepare(
+        q, parent, idx_v, kind, axis, placement, joints, offsets, support,
+        dist, dirs, body_use, v_max, xdot_d, prm, repel, monitor, lo, hi, lo_s, hi_s,
+    )  # fmt: skip
+    s, ended, T_s, binding = 1.0, False, 0.0, -1
+    o_sep, o_sp = 3 * n + m, 3 * n + m + N
+    if monitor:
+        s, stopped, ended, T_s, binding = _update(
+            jac, v, acc, nominal, mdist, mdirs, sensing_range, lengths, a_max, j_max, v_h, mprm, stopped,
+            hysteresis, out[o_sep : o_sep + N], out[o_sp : o_sp + N], age,
+        )  # fmt: skip
+        for k in range(N):
+            out[o_sp + N + k] = out[o_sep + k] - out[o_sp + k]
+        if max(s, 0.0) <= 0.0 and evades:  # protective stop: no task, the repulsion may still evade
+            for i in range(m):
+                xdot_c[i] = v_rep[i] + 0.0
+        else:
+            for i in range(m):
+                xdot_c[i] *= max(s, 0.0)
+    target, scale = sns_velocity_unchecked(J, xdot_c, lo_s, hi_s, lam)
+    for i in range(n):
+        out[i], out[n + i], out[2 * n + i] = lo[i], hi[i], target[i]
+    for i in range(m):
+        out[3 * n + i] = xdot_c[i]
+    return scale, s, stopped, ended, T_s, binding, both_finite(target, xdot_c)
 
 
 @njit(cache=True, nogil=True)

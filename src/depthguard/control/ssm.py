@@ -347,30 +347,45 @@ class SsmMonitor:
                 capture; the outputs are shifted to now by it, module docstring).
             obstacle_speed: (N,) measured speed of each point's nearest obstacle, m/s, or None (ISO 13855).
         """
-        cfg = self.config
+        age, T_r, prm, v_h = self.kernel_inputs(data_age, obstacle_speed)
+        c = _as_f64
         N = self.lengths.shape[0]
+        dist, sp = np.empty(N), np.empty(N)
+        cfg = self.config
+        s, stopped, stop_ended, T_s, binding = _update(
+            c(jacobians), c(qdot), c(qddot), c(qdot_nominal), c(distances), c(directions), float(cfg.sensing_range),
+            self.lengths, self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp, age,
+        )  # fmt: skip
+        return self.finish(s, stopped, stop_ended, T_s, binding, dist, sp, dist - sp, T_r)
+
+    def kernel_inputs(self, data_age: float, obstacle_speed: np.ndarray | None = None) -> tuple:
+        """What :func:`_update` needs besides the state: ``(age, T_r, prm, v_h)``: the data's age (s;
+        negative -> 0, non-finite -> 1000 s), the reaction time (s), the parameter vector and the measured
+        obstacle speeds (-1 = not measured). For compiled callers (:mod:`depthguard.control.plan_kernel`)."""
+        cfg = self.config
         age = float(data_age)
         age = max(age, 0.0) if math.isfinite(age) else 1e3
         T_r = reaction_time(cfg, age)
         if self._prm_of is not cfg:  # the configuration's constant part of the kernel's parameters, once
             self._prm = np.array([0.0, cfg.constant_terms, cfg.v_h_near, cfg.v_h_far, cfg.near_limit, cfg.v_h_floor])
-            self._prm_of, self._no_speed = cfg, -np.ones(N)
+            self._prm_of, self._no_speed = cfg, -np.ones(self.lengths.shape[0])
         prm = self._prm.copy()
         prm[0] = T_r
         v_h = self._no_speed if obstacle_speed is None else np.nan_to_num(np.asarray(obstacle_speed, float), nan=1e3)
-        c = _as_f64
-        dist, sp = np.empty(N), np.empty(N)
-        s, stopped, stop_ended, T_s, binding = _update(
-            c(jacobians), c(qdot), c(qddot), c(qdot_nominal), c(distances), c(directions), float(cfg.sensing_range),
-            self.lengths, self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp, age,
-        )  # fmt: skip
-        self.stopped = stopped
+        return age, T_r, prm, v_h
+
+    def finish(
+        self, s: float, stopped: bool, stop_ended: bool, T_s: float, binding: int, dist: np.ndarray,
+        sp: np.ndarray, margin: np.ndarray, T_r: float,
+    ) -> SsmOutput:  # fmt: skip
+        """The output of :func:`_update`'s results (``s`` = -1: stopped), keeping the latched stop."""
+        self.stopped = bool(stopped)
         scale = max(s, 0.0)
         if stopped:
             state = MonitorState.PROTECTIVE_STOP
         else:
             state = MonitorState.MONITOR_OK if scale >= 1.0 else MonitorState.REDUCED
-        return SsmOutput(scale, state, binding, dist, sp, dist - sp, T_s, T_r, stop_ended)
+        return SsmOutput(scale, state, int(binding), dist, sp, margin, T_s, T_r, bool(stop_ended))
 
     def reset(self) -> None:
         """Forget a latched protective stop."""
