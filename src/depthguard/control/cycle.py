@@ -18,8 +18,8 @@ Per cycle (:func:`control_cycle`), a sequence of small stages:
    ``monitor_distances`` when given, else from the same distances), and its protective stop
    (``STOP_PROTECTIVE``) brakes like any other stop (with "both" and ``stop_evades``, the task stops but
    the end effector's repulsion alone may still move the arm away, within the body bounds). For robots
-   whose joints the compiled kinematics handles (:mod:`depthguard.robot.fk`), the stage runs as one or two
-   compiled calls (:mod:`depthguard.control.plan_kernel`: the same numbers, tested to 1e-12);
+   whose joints the compiled kinematics handles (:mod:`depthguard.robot.fk`), stages 3 and 4 run as one
+   compiled call (:mod:`depthguard.control.plan_kernel`: the same numbers, tested to 1e-12);
 5. :func:`generate`: Ruckig (velocity mode) towards the target, the fallback braking step if Ruckig
    fails (``ERROR_OTG``), and :func:`~depthguard.control.bounded.enforce_velocity_bounds`: the command
    of every cycle lies within that cycle's bounds; when a bound shrinks faster than the jerk limit can

@@ -1,17 +1,21 @@
-"""Stage 4 of the control cycle (:func:`depthguard.control.cycle.plan_motion`) in one or two compiled calls.
+"""Stages 3 and 4 of the control cycle (:func:`depthguard.control.cycle.joint_bounds` and
+:func:`~depthguard.control.cycle.plan_motion`) in one compiled call, :func:`plan_cycle`.
 
 The numbers are those of the stage functions it replaces, in the same order and with the same
-floating-point operations: the chain kinematics (:mod:`depthguard.robot.fk`), the control points
+floating-point operations: the joint bounds (:func:`~depthguard.control.otg.joint_velocity_bounds`), the
+chain kinematics (:mod:`depthguard.robot.fk`), the control points
 (:func:`~depthguard.robot.fk.fixed_points`), the end effector's repulsive velocity (ICRA'12 eq. 7, as
 :func:`~depthguard.control.endeffector.repulsive_velocity`), the commanded task velocity (eq. 10), the body
 bounds (eqs. 12-14, :func:`~depthguard.control.body.body_bounds_inplace`, on both pairs of bounds), the
-damped-least-squares damping and, for speed and separation monitoring, the task's nominal joint velocity
-(:func:`~depthguard.control.endeffector.dls_apply`). Without a monitor :func:`plan_repulsion` also runs SNS
+damped-least-squares damping, for speed and separation monitoring the task's nominal joint velocity
+(:func:`~depthguard.control.endeffector.dls_apply`) and the monitor's update
+(:func:`depthguard.control.ssm.SsmMonitor.update`), and SNS
 (:func:`~depthguard.control.sns.sns_velocity_unchecked`). ``tests/test_plan_kernel.py`` checks every
 output against the stage functions.
 
 Why: each stage alone is a small kernel or a few numpy calls of 1-3 µs of call overhead; at 1 kHz that
-glue was about a third of the cycle (BENCHMARKS.md, "The control cycle in fewer calls").
+glue was about a third of the cycle (BENCHMARKS.md, "The control cycle in fewer calls"); returning
+new arrays costs about 1 µs each, so :func:`plan_cycle` writes its arrays into one buffer.
 
 Parameter vector ``prm`` (float64, 8): ``v_rep_max, rho_ee, alpha_ee, rho_body, alpha_body,
 contact_distance, dls_eps, dls_lambda_max``.
@@ -29,7 +33,7 @@ from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.control.ssm import _update
 from depthguard.robot.fk import _chain_fk, fixed_points
 
-__all__ = ["plan_prepare", "plan_repulsion", "plan_cycle", "plan_params", "both_finite", "cycle_layout"]
+__all__ = ["plan_prepare", "plan_cycle", "plan_params", "both_finite", "cycle_layout"]
 
 _INFLUENCE_EPS = 1e-6  # as plan_motion: joints that cannot move a point along its direction are not bound
 
@@ -79,20 +83,6 @@ def plan_prepare(
     lam = _dls_damping(J, prm[6], prm[7])
     qn = _dls_apply(J, lam, xdot_c) if nominal else np.zeros(q.shape[0])
     return jac, J, lam, xdot_c, v_rep, qn
-
-
-@njit(cache=True, nogil=True)
-def plan_repulsion(
-    q, parent, idx_v, kind, axis, placement, joints, offsets, support,
-    dist, dirs, body_use, v_max, xdot_d, prm, repel, lo, hi, lo_s, hi_s,
-):  # fmt: skip
-    """:func:`plan_prepare` then SNS within ``lo_s``/``hi_s``: ``(target (n,), scale, xdot_c (3,))``."""
-    _, J, lam, xdot_c, _, _ = plan_prepare(
-        q, parent, idx_v, kind, axis, placement, joints, offsets, support,
-        dist, dirs, body_use, v_max, xdot_d, prm, repel, False, lo, hi, lo_s, hi_s,
-    )  # fmt: skip
-    target, scale = sns_velocity_unchecked(J, xdot_c, lo_s, hi_s, lam)
-    return target, scale, xdot_c
 
 
 def cycle_layout(n: int, N: int, m: int = 3) -> dict[str, slice]:
