@@ -146,6 +146,32 @@ def _violates(qdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, tol: float) 
 
 
 @njit(cache=True, nogil=True)
+def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``A @ x`` for a small A (r, c) by plain loops (numba's ``@`` calls BLAS, whose call costs more than
+    the arithmetic at these sizes)."""
+    r, c = A.shape
+    out = np.zeros(r)
+    for i in range(r):
+        acc = 0.0
+        for j in range(c):
+            acc += A[i, j] * x[j]
+        out[i] = acc
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _masked(J: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``J`` (m, n) with the columns of the joints that are not ``free`` set to 0."""
+    m, n = J.shape
+    JW = np.zeros((m, n))
+    for i in range(m):
+        for j in range(n):
+            if free[j]:
+                JW[i, j] = J[i, j]
+    return JW
+
+
+@njit(cache=True, nogil=True)
 def _sns_greedy(
     J: np.ndarray, xdot: np.ndarray, qmin: np.ndarray, qmax: np.ndarray, damping: float
 ) -> tuple[np.ndarray, float]:
@@ -157,16 +183,16 @@ def _sns_greedy(
     best_s, best_free, best_qN = -1.0, free.copy(), qN.copy()
     rank0 = -1
     for _ in range(n + 1):
-        JW = J * free.astype(np.float64)[None, :]
+        JW = _masked(J, free)
         P, rank = _damped_pinv(JW, damping, 1e-10)
         if rank0 < 0:
             rank0 = rank
         elif rank < rank0:
             break  # the free joints cannot realise the task any more: use the best scaled solution
-        qdot = qN + P @ (xdot - J @ qN)
+        qdot = qN + _mv(P, xdot - _mv(J, qN))
         if not _violates(qdot, qmin, qmax, tol):
             return qdot, 1.0
-        a = P @ xdot
+        a = _mv(P, xdot)
         b = qdot - a
         s, j = _task_scale(a, b, qmin, qmax, free)
         if s > best_s:
@@ -191,27 +217,29 @@ def _sns_greedy(
             break
     if best_s < 0.0:
         return np.zeros(n), 0.0
-    JW = J * best_free.astype(np.float64)[None, :]
+    JW = _masked(J, best_free)
     P, _ = _damped_pinv(JW, damping, 1e-10)
-    qdot = best_qN + P @ (best_s * xdot - J @ best_qN)
+    qdot = best_qN + _mv(P, best_s * xdot - _mv(J, best_qN))
     return qdot, best_s
 
 
 @njit(cache=True, nogil=True)
-def _facet_normal(J: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """Unit normal of the span of the m-1 columns ``cols`` of J (m, n); zeros if they are dependent."""
+def _facet_normal_into(J: np.ndarray, cols: np.ndarray, nrm: np.ndarray) -> None:
+    """Unit normal of the span of the m-1 columns ``cols`` of J (m, n) into ``nrm`` (m,); zeros if they are
+    dependent. Scalar loops, no temporaries (it runs for every (m-1)-subset of columns)."""
     m = J.shape[0]
-    nrm = np.zeros(m)
+    for i in range(m):
+        nrm[i] = 0.0
     if m == 1:
         nrm[0] = 1.0
-        return nrm
+        return
     if m == 2:
         nrm[0], nrm[1] = -J[1, cols[0]], J[0, cols[0]]
     elif m == 3:
-        u, v = J[:, cols[0]], J[:, cols[1]]
-        nrm[0] = u[1] * v[2] - u[2] * v[1]
-        nrm[1] = u[2] * v[0] - u[0] * v[2]
-        nrm[2] = u[0] * v[1] - u[1] * v[0]
+        a, b = cols[0], cols[1]
+        nrm[0] = J[1, a] * J[2, b] - J[2, a] * J[1, b]
+        nrm[1] = J[2, a] * J[0, b] - J[0, a] * J[2, b]
+        nrm[2] = J[0, a] * J[1, b] - J[1, a] * J[0, b]
     else:  # generalised cross product by cofactors
         A = np.empty((m - 1, m))
         for r in range(m - 1):
@@ -224,13 +252,22 @@ def _facet_normal(J: np.ndarray, cols: np.ndarray) -> np.ndarray:
                     minor[:, c] = A[:, k]
                     c += 1
             nrm[i] = (-1.0) ** i * np.linalg.det(minor)
-    norm = np.sqrt(np.sum(nrm * nrm))
+    norm2 = 0.0
+    for i in range(m):
+        norm2 += nrm[i] * nrm[i]
+    norm = np.sqrt(norm2)
     scale = 1.0
     for k in range(cols.shape[0]):
-        scale = max(scale, np.sqrt(np.sum(J[:, cols[k]] ** 2)))
+        c2 = 0.0
+        for i in range(m):
+            c2 += J[i, cols[k]] * J[i, cols[k]]
+        scale = max(scale, np.sqrt(c2))
     if norm <= 1e-9 * scale ** (m - 1):
-        return np.zeros(m)
-    return nrm / norm
+        for i in range(m):
+            nrm[i] = 0.0
+        return
+    for i in range(m):
+        nrm[i] /= norm
 
 
 @njit(cache=True, nogil=True)
@@ -248,8 +285,9 @@ def _ray_exit(
     best, best_n = np.inf, np.zeros(m)
     k = m - 1
     cols = np.arange(k).astype(np.int64)
+    nrm = np.zeros(m)
     while True:
-        nrm = _facet_normal(J, cols)
+        _facet_normal_into(J, cols, nrm)
         nonzero = False
         nd = 0.0
         for i in range(m):
@@ -271,7 +309,9 @@ def _ray_exit(
                 no += nrm[i] * origin[i]
             t = (h - sign * no) / nd
             if t < best:
-                best, best_n = max(t, 0.0), sign * nrm
+                best = max(t, 0.0)
+                for i in range(m):
+                    best_n[i] = sign * nrm[i]
         i = k - 1  # next combination of k out of n
         while i >= 0 and cols[i] == n - k + i:
             i -= 1
@@ -306,10 +346,10 @@ def _facet_solution(
             par[j] = True
         else:
             qdot[j] = qmax[j] if g > 0 else qmin[j]
-    rest = target - J @ qdot
-    Jp = J * par.astype(np.float64)[None, :]
+    rest = target - _mv(J, qdot)
+    Jp = _masked(J, par)
     P, _ = _damped_pinv(Jp, 0.0, 1e-10)
-    qp = P @ rest
+    qp = _mv(P, rest)
     lo = np.where(par, qmin, 0.0)
     hi = np.where(par, qmax, 0.0)
     if _violates(qp, lo, hi, 1e-9):
@@ -326,7 +366,7 @@ def _zonotope_point(J: np.ndarray, target: np.ndarray, qmin: np.ndarray, qmax: n
     combination ``(1 - 1/t) qc + (1/t) q_facet`` of two points of the box.
     """
     qc = 0.5 * (qmin + qmax)
-    c = J @ qc
+    c = _mv(J, qc)
     d = target - c
     if np.sqrt(np.sum(d * d)) <= 1e-15:
         return qc
@@ -370,7 +410,7 @@ def sns_velocity_raw(
     lo = np.maximum(qmin, -1e9)
     hi = np.minimum(qmax, 1e9)
     q3 = _zonotope_point(J, target, lo, hi)
-    err = np.sqrt(np.sum((J @ q3 - target) ** 2))
+    err = np.sqrt(np.sum((_mv(J, q3) - target) ** 2))
     if _violates(q3, qmin, qmax, 1e-9) or err > 1e-8 * (1.0 + np.sqrt(np.sum(xdot * xdot))):
         return qdot, s
     return q3, s_opt
