@@ -170,9 +170,11 @@ def test_ssm_run_moves_with_the_background_and_never_without(commissioned, tmp_p
 
 def test_a_box_above_the_table_is_still_seen(commissioned, tmp_path):
     """One frame set of the people-free cell with a box 5 cm above the table (not in the background): with
-    the background applied, every control point's distance is at most its true clearance to the box (the
-    geometry of a sphere and a box) + the stage's declared tolerance, and the box is seen (the nearest point's
-    distance within 5 cm of the truth); a box 1 cm flat on the table is the documented limit: hidden."""
+    the background applied (the monitor's distances), every control point's distance is at most its true
+    clearance to the box (the geometry of a sphere and a box) + the stage's declared tolerance, and the box is
+    seen (the nearest point's distance within 5 cm of the truth); a box 1 cm flat on the table is the
+    documented limit: hidden from the monitor. The repulsion's distances (the images as measured: two
+    distance sets) still see that plate, and the table."""
     from depthguard.io.cellfile import read_cell
     from depthguard.runner.chain import Chain, load_cell_robot
     from depthguard.runner.sources import SimSource
@@ -191,25 +193,30 @@ def test_a_box_above_the_table_is_still_seen(commissioned, tmp_path):
             chain = Chain(cell, src.cameras, model)
             chain.on_frames(depths, q, 0.0)
             res = chain.query(0.0, q)
+            mon = chain.latest_monitor
             cps = chain.points.evaluate(q)
-            tol = chain.stage.tolerance(cps.centres, 1.4e-3)
+            tol = chain.stage.monitor.tolerance(cps.centres, 1.4e-3)
+            # the control input carries both sets: the repulsion's and the monitor's own
+            inp_d = chain.control(0.0, q, np.zeros_like(q), 0.0, np.zeros(3))
+            assert inp_d.ssm is not None
         finally:
             src.close()
         lo, hi = np.asarray(center) - half, np.asarray(center) + half
         true = np.linalg.norm(cps.centres - np.clip(cps.centres, lo, hi), axis=1) - cps.radii
-        return np.asarray(res.distance, float), np.maximum(true, 0.0), tol
+        return np.asarray(mon.distance, float), np.maximum(true, 0.0), tol, np.asarray(res.distance, float)
 
     # on the table's front corner (the table: 0.6 x 0.6 m, top at z = 0), 5 cm above it, 10 cm high
-    d, true, tol = frame((0.22, -0.22, 0.10), (0.05, 0.05, 0.05))
+    d, true, tol, _ = frame((0.22, -0.22, 0.10), (0.05, 0.05, 0.05))
     near = true < 0.6  # within the monitor's range (ssm_range)
     assert near.any()
     assert np.all(np.minimum(d, 0.6)[near] <= true[near] + tol[near]), (d, true, tol)
     k = int(np.argmin(true))
     assert d[k] <= true[k] + 0.05
     # a plate 1 cm thick flat on the table: within the background's tolerance, hidden (the limit)
-    d2, true2, _ = frame((0.22, -0.22, 0.005), (0.05, 0.05, 0.005))
+    d2, true2, _, rep2 = frame((0.22, -0.22, 0.005), (0.05, 0.05, 0.005))
     k2 = int(np.argmin(true2))
     assert d2[k2] > true2[k2] + 0.05
+    assert rep2[k2] <= true2[k2] + 0.05  # the repulsion sees it (and the table under it)
 
 
 # ------------------------------------------------------------------------------------------- bad inputs

@@ -303,3 +303,36 @@ def test_monitor_node_reports_status_rates_and_nodes(tmp_path, capsys):
     # 20 Hz published for 5 s: the best full second shows it (a loaded machine delays single seconds)
     assert max(x["hz"]["status"] for x in seen) >= 10, lines
     assert any("controller" in x["nodes"] and "monitor" in x["nodes"] for x in lines), lines
+
+
+def test_controller_node_pairs_the_monitors_distances_by_stamp():
+    """The controller node gives the monitor its own distances (``monitor_distances``, with a background) only
+    when they come from the same frame set as the distances (equal stamps); otherwise the monitor takes the
+    distances themselves (which include the table: the safe side)."""
+    from types import SimpleNamespace
+
+    from depthguard.io import ros2
+    from depthguard.nodes.controller import _Inputs
+
+    N, names = 2, ["a", "b"]
+    inp = _Inputs(7, N)
+    c, r = np.zeros((N, 3)), np.full(N, 0.1)
+
+    def msg(t, d):
+        return ros2.distances_msg(t, names, c, r, np.asarray(d, float), np.tile([0.0, 0.0, 1.0], (N, 1)))
+
+    att = SimpleNamespace(stamp_ns=0)
+    inp.on_dist(msg(1.0, [0.1, np.inf]), att, 0)
+    inp.on_monitor(msg(1.0, [0.5, 0.7]), att, 0)
+    got = inp.cycle_input(dict(inp.st), 1.01)
+    np.testing.assert_array_equal(got.distances, [0.1, np.inf])
+    np.testing.assert_array_equal(got.monitor_distances, [0.5, 0.7])
+    np.testing.assert_array_equal(got.directions[1], 0.0)  # (+inf: its direction ignored)
+    inp.on_dist(msg(1.1, [0.2, 0.3]), att, 0)  # a newer frame set whose monitor distances have not come yet
+    got = inp.cycle_input(dict(inp.st), 1.11)
+    assert got.monitor_distances is None and got.monitor_directions is None
+    inp.on_monitor(msg(1.1, [0.4, 0.6]), att, 0)
+    np.testing.assert_array_equal(inp.cycle_input(dict(inp.st), 1.12).monitor_distances, [0.4, 0.6])
+    three = ros2.distances_msg(1.1, [*names, "c"], np.zeros((3, 3)), np.full(3, 0.1), np.full(3, 0.1), np.zeros((3, 3)))
+    inp.on_monitor(three, att, 0)  # a wrong number of points: ignored
+    np.testing.assert_array_equal(inp.cycle_input(dict(inp.st), 1.12).monitor_distances, [0.4, 0.6])

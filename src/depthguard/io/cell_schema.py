@@ -107,6 +107,7 @@ _SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "command": (str, "/depthguard/joint_trajectory"),
         "command_array": (str, "/depthguard/joint_velocity_command"),
         "distances": (str, "/depthguard/distances"),
+        "monitor_distances": (str, "/depthguard/monitor_distances"),
         "status": (str, "/depthguard/status"),
         "markers": (str, "/depthguard/markers"),
     },

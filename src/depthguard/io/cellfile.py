@@ -43,7 +43,8 @@ cell file are relative to the file's folder. Sections:
   repulsion must still see the table; docs/ssm.md);
 * ``calibration = "FILE"`` (top level): extrinsics from ``depthguard calibrate`` override the cameras' own;
 * ``[topics]``: ``joint_states``, ``tf``, ``tf_static``, ``command`` (JointTrajectory), ``command_array``
-  (Float64MultiArray), ``distances``, ``status``, ``markers``;
+  (Float64MultiArray), ``distances``, ``monitor_distances`` (SSM's own distances, published with a
+  ``[controller] background``: the same frames without the empty cell), ``status``, ``markers``;
 * ``[network]`` (nodes on Zenoh, see ``docs/nodes.md``): ``domain`` (ROS domain id), ``host`` (the address the
   nodes listen on: ``127.0.0.1`` by default), ``base_port`` (node *k* listens on ``base_port + k``),
   ``connect`` (extra endpoints, default the ROS 2 router ``tcp/127.0.0.1:7447``), ``publishers`` (node names

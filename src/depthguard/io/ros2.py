@@ -230,6 +230,15 @@ def _vec(v) -> Any:
     return _t("geometry_msgs/msg/Vector3")(x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
 
+def query_msg(t: float, names, centres: np.ndarray, radii: np.ndarray, res, rho: float = float("nan")):
+    """:func:`distances_msg` of a distance query's result ``res`` (a
+    :class:`~depthguard.depthspace.PointDistances`: ``distance`` (N,), ``direction`` (N, 3) and, if it has
+    one, ``nearest`` (N, 3))."""
+    d = np.asarray(res.distance, float)
+    near = np.asarray(getattr(res, "nearest", np.full((len(d), 3), np.nan)), float)
+    return distances_msg(t, names, centres, radii, d, np.asarray(res.direction, float), near, rho=rho)
+
+
 def distances_msg(
     t: float,
     names: list[str] | tuple[str, ...],

@@ -92,6 +92,7 @@ class Topics:
     command_trajectory: str
     command_array: str
     distances: str
+    monitor_distances: str
     status: str
     raw: dict[str, str]
     depth: dict[str, str]
@@ -107,6 +108,7 @@ class Topics:
             command_trajectory=t["command"],
             command_array=t["command_array"],
             distances=t["distances"],
+            monitor_distances=t["monitor_distances"],
             status=t["status"],
             raw={c.name: c.topic or f"/{c.name}/depth/image_raw" for c in cell.cameras},
             depth={c.name: f"/depthguard/{c.name}/depth" for c in cell.cameras},

@@ -1,7 +1,9 @@
 """The controller node: the avoidance controller at the cell's control rate on Zenoh.
 
 Subscribes the joint states, the task velocity and the distances (these only from the nodes named in the
-cell file's ``network.publishers``); every period it runs one cycle of
+cell file's ``network.publishers``; with a background, also the monitor's own ``monitor_distances``, used
+only together with the distances of the same stamp, else the monitor takes the distances themselves, the
+safe side); every period it runs one cycle of
 :class:`~depthguard.control.AvoidanceController` on the wall clock and publishes the joint command
 (``sensor_msgs/JointState`` on ``/depthguard/joint_command``, every cycle), the ros2_control forms
 (``std_msgs/Float64MultiArray`` velocities and ``trajectory_msgs/JointTrajectory``, every 10th cycle) and the
@@ -35,7 +37,7 @@ class _Inputs:
         self.n, self.N = n, N
         self.lock = threading.Lock()
         self.st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None}
-        self.st.update(td=-np.inf, dpub=None)
+        self.st.update(td=-np.inf, dpub=None, md=None, mdirs=None, tm=np.nan)
 
     def on_js(self, msg, att, recv_ns) -> None:
         q, qd = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
@@ -47,21 +49,39 @@ class _Inputs:
         with self.lock:
             self.st["xd"] = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
 
-    def on_dist(self, msg, att, recv_ns) -> None:
+    def _pair(self, msg) -> tuple[np.ndarray, np.ndarray] | None:
         if len(msg.points) != self.N:
-            return
+            return None
         d = np.array([p.distance for p in msg.points], float)
         dirs = np.array([[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], float)
-        dirs = np.where(np.isfinite(d)[:, None], dirs, 0.0)
-        with self.lock:
-            self.st.update(d=d, dirs=dirs, td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
+        return d, np.where(np.isfinite(d)[:, None], dirs, 0.0)
+
+    def on_dist(self, msg, att, recv_ns) -> None:
+        pair = self._pair(msg)
+        if pair is not None:
+            with self.lock:
+                self.st.update(d=pair[0], dirs=pair[1], td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
+
+    def on_monitor(self, msg, att, recv_ns) -> None:
+        pair = self._pair(msg)
+        if pair is not None:
+            with self.lock:
+                self.st.update(md=pair[0], mdirs=pair[1], tm=ros2.to_seconds(msg.header.stamp))
+
+    def cycle_input(self, s: dict, t: float):
+        """The :class:`~depthguard.control.cycle.CycleInput` of a snapshot ``s`` of :attr:`st` at ``t``: the
+        monitor's distances only when they come from the same frame set (stamp) as the distances."""
+        from depthguard.control.cycle import CycleInput
+
+        mon = (s["md"], s["mdirs"]) if s["md"] is not None and s["tm"] == s["td"] else (None, None)
+        return CycleInput(t, s["q"], s["qd"], s["tj"], s["xd"], s["d"], s["dirs"], s["td"], *mon)
 
 
 def run_controller_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the controller node until ``duration`` s or SIGTERM; returns counters and cycle times."""
-    from depthguard.control.cycle import AvoidanceController, CycleInput
+    from depthguard.control.cycle import AvoidanceController
     from depthguard.runner.chain import _controller_config, cell_control_points, load_cell_robot
 
     stop = stop if stop is not None else StopFlag()
@@ -80,6 +100,7 @@ def run_controller_node(
     node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
     node.subscribe(top.task, "geometry_msgs/msg/Vector3Stamped", on_task)
     sub_d = node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist, allowed=allowed)
+    node.subscribe(top.monitor_distances, "depthguard_msgs/msg/ControlPointDistances", inp.on_monitor, allowed=allowed)
     pub_cmd = node.publisher(top.command, "sensor_msgs/msg/JointState")
     pub_arr = node.publisher(top.command_array, "std_msgs/msg/Float64MultiArray")
     pub_traj = node.publisher(top.command_trajectory, "trajectory_msgs/msg/JointTrajectory")
@@ -97,7 +118,7 @@ def run_controller_node(
             t = now_s()
             with lock:
                 s = dict(st)
-            out = ctrl.step(CycleInput(t, s["q"], s["qd"], s["tj"], s["xd"], s["d"], s["dirs"], s["td"]))
+            out = ctrl.step(inp.cycle_input(s, t))
             p = pub_cmd.publish(ros2.joint_state_msg(t, names, out.q_cmd, out.qdot_cmd)) * 1e-9
             name = out.status.name
             statuses[name] = statuses.get(name, 0) + 1

@@ -4,7 +4,9 @@ Subscribes every camera node's prepared depth and robot mask (paired by stamp) a
 every camera has delivered a frame since the last query, it updates the distance stage (depth space for one
 camera, depth grid for several) and queries the control spheres at the newest joint positions; the result
 goes out as ``depthguard_msgs/ControlPointDistances`` on the cell's ``distances`` topic, **stamped with the
-oldest frame's stamp** (the age of the data, which the controller's stale-data timeout checks).
+oldest frame's stamp** (the age of the data, which the controller's stale-data timeout checks). With SSM and a
+``[controller] background`` the monitor's own distances (the same frames without the empty cell, docs/ssm.md)
+follow on ``monitor_distances`` with the same stamp.
 """
 
 from __future__ import annotations
@@ -145,6 +147,7 @@ def run_distance_node(
         subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n)))
         subs.append(node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n)))
     pub = node.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
+    pub_mon = node.publisher(top.monitor_distances, "depthguard_msgs/msg/ControlPointDistances")
     stage, stage_sizes = None, []
     queries = 0
     t_start = time.time()
@@ -177,17 +180,18 @@ def run_distance_node(
                 cps = points.evaluate(q)
                 res = stage.query(cps.centres, cps.radii)
                 res = stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
+                monitor = getattr(stage, "query_monitor", None)  # (with a background: SSM's own distances)
+                mres = monitor(cps.centres, cps.radii) if monitor is not None else None
             except ValueError as exc:  # a malformed frame set (a mask of another size...): no distances from it
                 jl.write(ev="skipped", reason=str(exc))
                 stage = None
                 continue
             w1 = time.perf_counter()
             t_data = min(s[0] for s in sets)
-            dist = np.asarray(res.distance, float)
-            dirs = np.asarray(res.direction, float)
-            near = np.asarray(getattr(res, "nearest", np.full((len(dist), 3), np.nan)), float)
-            msg = ros2.distances_msg(t_data, points.names, cps.centres, cps.radii, dist, dirs, near, rho=rho)
-            p = pub.publish(msg) * 1e-9
+            p = pub.publish(ros2.query_msg(t_data, points.names, cps.centres, cps.radii, res, rho=rho)) * 1e-9
+            if mres is not None:
+                rng = getattr(stage.monitor, "ssm_range", None) or rho  # (the monitor's range)
+                pub_mon.publish(ros2.query_msg(t_data, points.names, cps.centres, cps.radii, mres, rho=rng))
             queries += 1
             jl.write(ev="distances", stamp=t_data, frame_pub=max(s[3] for s in sets), pub=p, compute=w1 - w0)
     finally:

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
@@ -38,6 +36,7 @@ class ZenohRunPublisher:
         }
         self.p_js = n.publisher(self.top.joint_states, "sensor_msgs/msg/JointState")
         self.p_dist = n.publisher(self.top.distances, "depthguard_msgs/msg/ControlPointDistances")
+        self.p_mon = n.publisher(self.top.monitor_distances, "depthguard_msgs/msg/ControlPointDistances")
         self.p_cmd = n.publisher(self.top.command, "sensor_msgs/msg/JointState")
         self.p_arr = n.publisher(self.top.command_array, "std_msgs/msg/Float64MultiArray")
         self.p_traj = n.publisher(self.top.command_trajectory, "trajectory_msgs/msg/JointTrajectory")
@@ -68,19 +67,13 @@ class ZenohRunPublisher:
             self._put("masks", self.p_mask[c.name], mask_msg(self.t0 + t, c.frame_id or c.name, m))
 
     def query(self, t: float, res, cps) -> None:
-        d = np.asarray(res.distance, float)
-        near = np.asarray(getattr(res, "nearest", np.full((len(d), 3), np.nan)), float)
-        msg = ros2.distances_msg(
-            self.t0 + t,
-            cps.names,
-            cps.centres,
-            cps.radii,
-            d,
-            np.asarray(res.direction, float),
-            near,
-            rho=self.chain.rho,
-        )
+        msg = ros2.query_msg(self.t0 + t, cps.names, cps.centres, cps.radii, res, rho=self.chain.rho)
         self._put("distances", self.p_dist, msg)
+        mon = self.chain.latest_monitor  # (with a background: SSM's own distances, same frames)
+        if mon is not None:
+            rng = getattr(self.chain.stage.monitor, "ssm_range", None) or self.chain.rho  # (the monitor's range)
+            mmsg = ros2.query_msg(self.t0 + t, cps.names, cps.centres, cps.radii, mon, rho=rng)
+            self._put("monitor_distances", self.p_mon, mmsg)
 
     def command(self, t: float, out) -> None:
         names, ts = self.chain.joint_names, self.t0 + t

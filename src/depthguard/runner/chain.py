@@ -34,6 +34,7 @@ __all__ = [
     "background_applied",
     "self_filter_margins",
     "check_chain_support",
+    "controller_pair",
 ]
 
 
@@ -173,17 +174,21 @@ def self_filter_margins(cell: CellFile, cameras: list[Camera], q: np.ndarray, mo
 def cell_distance_stage(cell: CellFile, cameras: list[Camera]):
     """The distance stage (:class:`depthguard.sim.pipeline.DistanceStage`) with every ``[distance]`` setting
     of the cell file: rho, mode, missing-depth policy, hole filling, depth-grid step, workspace and the
-    direction lattice; with ``ssm = true`` and a ``[controller] background``, wrapped so that it applies the
-    background (:class:`depthguard.robot.background.BackgroundStage`: what the empty cell explains reads as
-    free space) before every update."""
-    from depthguard.robot.background import BackgroundStage
+    direction lattice; with ``ssm = true`` and a ``[controller] background``, two distance sets on the same
+    frames (:class:`depthguard.robot.background.MonitorBackgroundStage`, docs/ssm.md): its ``query`` answers
+    on the images as measured (the repulsion and the body bounds keep avoiding the table and the fixtures)
+    and its ``query_monitor`` on the images with the background applied (what the empty cell explains reads
+    as free space: speed and separation monitoring sees people and unknown space only)."""
+    from depthguard.robot.background import MonitorBackgroundStage
 
     stage = _distance_stage(cell, cameras)
     bg = cell_background(cell, cameras)
-    return stage if bg is None else BackgroundStage(stage, *bg)
+    if bg is None:
+        return stage
+    return MonitorBackgroundStage(_distance_stage(cell, cameras, with_ssm_range=False), stage, *bg)
 
 
-def _distance_stage(cell: CellFile, cameras: list[Camera]):
+def _distance_stage(cell: CellFile, cameras: list[Camera], with_ssm_range: bool = True):
     from depthguard.sim.pipeline import DistanceStage
 
     d = cell.distance
@@ -192,7 +197,7 @@ def _distance_stage(cell: CellFile, cameras: list[Camera]):
             list(cameras), rho=float(d["rho"]), mode=d["mode"], alpha=float(cell.controller["alpha"]),
             workspace=tuple(d["workspace"]), dd=float(d["grid_dd"]), invalid=d["invalid"],
             fill_radius=int(d["fill_radius"]), direction_stride=d["direction_stride"],
-            ssm_range=ssm_range(cell),
+            ssm_range=ssm_range(cell) if with_ssm_range else None,
         )  # fmt: skip
     except ValueError as exc:
         raise CellError(f"{cell.path}: distance: {exc}") from None
@@ -294,6 +299,7 @@ class Chain:
         self.config = _controller_config(cell)
         self.controller = AvoidanceController(points, self.config)
         self.latest: tuple[float, PointDistances] | None = None
+        self.latest_monitor: PointDistances | None = None  # (the monitor's own, with a background)
         self.masks: list[np.ndarray] | None = None
         self.t_frames: float | None = None
         self.health = [CameraHealth(c, cc.name, model) for c, cc in zip(self.cameras, cell.cameras, strict=True)]
@@ -355,6 +361,9 @@ class Chain:
         cps = self.points.evaluate(q)
         res = self.stage.query(cps.centres, cps.radii)
         res = self.stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
+        # with a background: the monitor's distances from the same frames without the empty cell
+        monitor = getattr(self.stage, "query_monitor", None)
+        self.latest_monitor = monitor(cps.centres, cps.radii) if monitor is not None else None
         # the distances are as old as the frames they come from: a camera that stops sending makes them
         # stale (STOP_STALE_DISTANCES after distance_timeout), however often they are recomputed
         self.latest = (t if self.t_frames is None else min(t, self.t_frames), res)
@@ -365,11 +374,21 @@ class Chain:
     ) -> CycleOutput:
         """Control stage: one cycle of the avoidance controller with the latest distances."""
         N = self.points.n_points
+        md = mdirs = None  # (the monitor's own distances, with a background; else it takes the repulsion's)
         if self.latest is None:
             d, dirs, td = None, None, t  # no distances yet: STOP_STALE_DISTANCES (a finite stamp)
         else:
             td, res = self.latest
-            d = np.asarray(res.distance, dtype=float)
-            dirs = np.asarray(res.direction, dtype=float)
-            dirs = np.where(np.isfinite(d)[:, None], dirs, 0.0) if dirs.shape == (N, 3) else dirs
-        return self.controller.step(CycleInput(t, q, qdot, t_joints, xdot_d, d, dirs, td))
+            d, dirs = controller_pair(res, N)
+            if self.latest_monitor is not None:
+                md, mdirs = controller_pair(self.latest_monitor, N)
+        return self.controller.step(CycleInput(t, q, qdot, t_joints, xdot_d, d, dirs, td, md, mdirs))
+
+
+def controller_pair(res: PointDistances, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(distances (N,), directions (N, 3))`` of a query result for :class:`CycleInput`, the direction of
+    every non-finite distance set to 0 (ignored there); a wrongly shaped result is passed on as it is (the
+    controller's input check stops on it)."""
+    d = np.asarray(res.distance, dtype=float)
+    dirs = np.asarray(res.direction, dtype=float)
+    return d, (np.where(np.isfinite(d)[:, None], dirs, 0.0) if dirs.shape == (N, 3) else dirs)

@@ -98,12 +98,15 @@ class _Recorder:
 
     def query(self, t: float, res, cps, markers: bool) -> None:
         topics = self.cell.topics
-        d = np.asarray(res.distance, float)
-        dirs = np.asarray(res.direction, float)
-        near = np.asarray(getattr(res, "nearest", np.full((len(d), 3), np.nan)), float)
-        msg = ros2.distances_msg(t, cps.names, cps.centres, cps.radii, d, dirs, near, rho=self.chain.rho)
+        msg = ros2.query_msg(t, cps.names, cps.centres, cps.radii, res, rho=self.chain.rho)
         self.w.write(topics["distances"], "depthguard_msgs/msg/ControlPointDistances", msg, t)
+        mon = self.chain.latest_monitor  # (with a background: SSM's own distances, same frames)
+        if mon is not None:
+            rng = getattr(self.chain.stage.monitor, "ssm_range", None) or self.chain.rho  # (the monitor's range)
+            mmsg = ros2.query_msg(t, cps.names, cps.centres, cps.radii, mon, rho=rng)
+            self.w.write(topics["monitor_distances"], "depthguard_msgs/msg/ControlPointDistances", mmsg, t)
         if markers:
+            d, dirs = np.asarray(res.distance, float), np.asarray(res.direction, float)
             mk = ros2.markers_msg(t, cps.centres, cps.radii, d, dirs, self.chain.rho)
             self.w.write(topics["markers"], "visualization_msgs/msg/MarkerArray", mk, t)
 
