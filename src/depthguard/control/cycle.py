@@ -320,7 +320,7 @@ def _plan_compiled(
     (the same numbers in one call): the bounds (``lo_s``/``hi_s`` are the kernel's own, not returned:
     their places hold ``lo``/``hi``), the plan and whether it is finite."""
     cfg, (chain, pts, prm, jprm, layout) = ctrl.config, ctrl.compiled
-    mon, n = ctrl.monitor, ctrl.n
+    mon = ctrl.monitor
     out = np.empty(layout["size"].stop)
     if mon is None:
         T_r, lengths, mprm, v_h, rng, hyst, stopped, age = 0.0, _NO_LENGTHS, prm, _NO_SPEED, 0.0, 0.0, False, 0.0
@@ -333,13 +333,12 @@ def _plan_compiled(
         chk.xdot_d, prm, jprm, cfg.avoidance != "ssm", mon is not None, _evades(cfg), lengths, mprm, v_h, rng,
         hyst, stopped, age, out,
     )  # fmt: skip
-    lo, hi = out[0:n], out[n : 2 * n]
-    b = Bounds(lo, hi, lo, hi)
+    L = layout
+    lo, hi = out[L["lo"]], out[L["hi"]]
     ssm = None
     if mon is not None:
-        L = layout
         ssm = mon.finish(s, stopped, ended, T_s, binding, out[L["separation"]], out[L["s_p"]], out[L["margin"]], T_r)
-    return b, Plan(out[2 * n : 3 * n], float(scale), out[layout["xdot_c"]], ssm), bool(finite)
+    return Bounds(lo, hi, lo, hi), Plan(out[L["target"]], float(scale), out[L["xdot_c"]], ssm), bool(finite)
 
 
 _NO_LENGTHS = np.zeros((1, 1))  # (placeholders for the monitor's arrays when there is no monitor)
