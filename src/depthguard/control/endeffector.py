@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from depthguard.control.sns import _jacobi_svd
+from depthguard.control.sns import _jacobi_svd, _mtv
 
 __all__ = [
     "repulsive_velocity", "repulsive_velocity_kernel", "commanded_task_velocity", "dls_damping", "dls_inverse",
@@ -120,13 +120,7 @@ def _dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:
         for k in range(i + 1, m):
             a -= L[k, i] * y[k]
         y[i] = a / L[i, i]
-    out = np.zeros(n)
-    for k in range(n):
-        a = 0.0
-        for i in range(m):
-            a += J[i, k] * y[i]
-        out[k] = a
-    return out
+    return _mtv(J, y)
 
 
 def dls_apply(J: np.ndarray, damping: float, x: np.ndarray) -> np.ndarray:

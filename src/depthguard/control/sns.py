@@ -160,6 +160,17 @@ def _mv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _mtv(A: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``A.T @ x`` for a small A (r, c) by plain loops (as :func:`_mv`)."""
+    r, c = A.shape
+    out = np.zeros(c)
+    for i in range(r):
+        for j in range(c):
+            out[j] += A[i, j] * x[i]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def _masked(J: np.ndarray, free: np.ndarray) -> np.ndarray:
     """``J`` (m, n) with the columns of the joints that are not ``free`` set to 0."""
     m, n = J.shape
