@@ -179,7 +179,7 @@ def test_damped_pinv_equals_numpys_svd_formula(m, n, seed, log_scale, kind, damp
     """The Jacobi SVD behind SNS's pseudo-inverse against numpy's LAPACK SVD: the same numerical rank and
     ``V diag(s / (s^2 + d^2)) U^T`` to 1e-10 relative, for full-rank, zero-column (saturated joints) and
     rank-deficient matrices over five decades of scale."""
-    from depthguard.control.sns import _damped_pinv
+    from depthguard.control.linalg import _damped_pinv
 
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(m, n)) * 10.0**log_scale

@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numba import njit
 
-from depthguard.control.sns import _jacobi_svd, _mtv
+from depthguard.control.linalg import _jacobi_svd, _mtv
 
 __all__ = [
     "repulsive_velocity", "repulsive_velocity_kernel", "commanded_task_velocity", "dls_damping", "dls_inverse",

@@ -52,9 +52,10 @@ class _Inputs:
     def _pair(self, msg) -> tuple[np.ndarray, np.ndarray] | None:
         if len(msg.points) != self.N:
             return None
-        d = np.array([p.distance for p in msg.points], float)
-        dirs = np.array([[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], float)
-        return d, np.where(np.isfinite(d)[:, None], dirs, 0.0)
+        from depthguard.runner.chain import controller_arrays
+
+        d = [p.distance for p in msg.points]
+        return controller_arrays(d, [[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], self.N)
 
     def on_dist(self, msg, att, recv_ns) -> None:
         pair = self._pair(msg)

@@ -106,6 +106,21 @@ def frame_set_cameras(cams0: list, depths: list, model, carried: list, q_cams: d
     return cams
 
 
+def _frame_set_distances(stage, cell: CellFile, cams, points, depths, masks, q_frames, q):
+    """Update ``stage`` with one frame set (robot-interior corrections at the frames' joint state
+    ``q_frames``, none without one) and query the control spheres at the newest joint positions ``q``:
+    ``(control points, distances up to the monitor's range, the monitor's own distances or None)``."""
+    from depthguard.runner.chain import self_filter_margins
+
+    margins = None if q_frames is None else self_filter_margins(cell, cams, q_frames, points.model)
+    stage.update(depths, masks, q_frames, points.model, *([margins] if margins is not None else []))
+    cps = points.evaluate(q)
+    res = stage.query(cps.centres, cps.radii)
+    res = stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
+    monitor = getattr(stage, "query_monitor", None)  # (with a background: SSM's own distances)
+    return cps, res, (monitor(cps.centres, cps.radii) if monitor is not None else None)
+
+
 def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
@@ -116,7 +131,6 @@ def run_distance_node(
         check_camera_parents,
         check_chain_support,
         load_cell_robot,
-        self_filter_margins,
     )
 
     check_chain_support(cell)
@@ -174,14 +188,7 @@ def run_distance_node(
                 stage, stage_sizes = cell_distance_stage(cell, cams), sizes
             w0 = time.perf_counter()
             try:
-                # robot-interior corrections (runner.chain) at the frames' joint state; none without one
-                margins = None if q_frames is None else self_filter_margins(cell, cams, q_frames, points.model)
-                stage.update(depths, masks, q_frames, points.model, *([margins] if margins is not None else []))
-                cps = points.evaluate(q)
-                res = stage.query(cps.centres, cps.radii)
-                res = stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
-                monitor = getattr(stage, "query_monitor", None)  # (with a background: SSM's own distances)
-                mres = monitor(cps.centres, cps.radii) if monitor is not None else None
+                cps, res, mres = _frame_set_distances(stage, cell, cams, points, depths, masks, q_frames, q)
             except ValueError as exc:  # a malformed frame set (a mask of another size...): no distances from it
                 jl.write(ev="skipped", reason=str(exc))
                 stage = None

@@ -34,7 +34,7 @@ __all__ = [
     "background_applied",
     "self_filter_margins",
     "check_chain_support",
-    "controller_pair",
+    "controller_arrays",
 ]
 
 
@@ -379,16 +379,16 @@ class Chain:
             d, dirs, td = None, None, t  # no distances yet: STOP_STALE_DISTANCES (a finite stamp)
         else:
             td, res = self.latest
-            d, dirs = controller_pair(res, N)
+            d, dirs = controller_arrays(res.distance, res.direction, N)
             if self.latest_monitor is not None:
-                md, mdirs = controller_pair(self.latest_monitor, N)
+                md, mdirs = controller_arrays(self.latest_monitor.distance, self.latest_monitor.direction, N)
         return self.controller.step(CycleInput(t, q, qdot, t_joints, xdot_d, d, dirs, td, md, mdirs))
 
 
-def controller_pair(res: PointDistances, N: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(distances (N,), directions (N, 3))`` of a query result for :class:`CycleInput`, the direction of
-    every non-finite distance set to 0 (ignored there); a wrongly shaped result is passed on as it is (the
-    controller's input check stops on it)."""
-    d = np.asarray(res.distance, dtype=float)
-    dirs = np.asarray(res.direction, dtype=float)
+def controller_arrays(distance, direction, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(distances (N,), directions (N, 3))`` for :class:`CycleInput` from a query's (or a message's)
+    distances and directions, the direction of every non-finite distance set to 0 (ignored there); wrongly
+    shaped ones are passed on as they are (the controller's input check stops on them)."""
+    d = np.asarray(distance, dtype=float)
+    dirs = np.asarray(direction, dtype=float)
     return d, (np.where(np.isfinite(d)[:, None], dirs, 0.0) if dirs.shape == (N, 3) else dirs)

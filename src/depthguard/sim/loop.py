@@ -180,8 +180,9 @@ def run_loop(
 
         pivot = PivotFilter(dv_max=cfg.dv_max, c=cfg.pivot_c)
     truth = TrueClearance(cell)
-    # the background that a stage removes on purpose (an empty-cell model) is not held against it
-    ptruth = PointClearance(cell, exclude_groups=tuple(getattr(stage, "background_groups", ())))
+    # (the accuracy truth is the full cell: the repulsion's distances see the images as measured, even where
+    # a monitor's background model removes the empty cell from its own distances)
+    ptruth = PointClearance(cell)
     snap = ptruth.snapshot(cell.data)
     noise = max((getattr(c, "noise_coeff", 0.0) for c in cams), default=0.0)
     log = SimLog(links=truth.links, point_names=tuple(kin.names), acc_excluded_groups=ptruth.excluded_groups)
