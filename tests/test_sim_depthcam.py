@@ -184,3 +184,62 @@ def test_projector_shadow_band_width():
     assert not s[:10].any() and not s[30:].any() and not s[:, 300:].any()
     cols = np.nonzero(s[20])[0]
     assert cols.max() == 299 and 28 <= cols.size <= 29
+
+
+_SPLIT_XML = """
+<mujoco>
+  <worldbody>
+    <geom type="plane" size="5 5 0.1" pos="0 0 -0.5" group="0"/>
+    <geom type="box" size="0.3 0.2 0.4" pos="0.8 0.3 0" group="0"/>
+    <geom type="cylinder" size="0.1 0.5" pos="-0.6 0.5 0" group="0"/>
+    <body name="a" mocap="true"><geom type="capsule" size="0.05 0.2" group="1"/></body>
+    <body name="b" mocap="true"><geom type="box" size="0.1 0.05 0.15" group="2"/></body>
+    <body name="c" mocap="true"><geom type="sphere" size="0.08" group="3"/>
+      <geom type="ellipsoid" size="0.1 0.04 0.06" pos="0.1 0 0" group="3"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_split_raycast_equals_one_full_cast():
+    """The room cast once plus the moving geoms' rays (sim.raysplit) give the full cast's image to the
+    bit: geoms anywhere (in view, at the image edge, touching or behind the camera), every camera geom
+    group selection, and after a still geom was moved in the model."""
+    import mujoco
+
+    from depthguard.camera import Camera, look_at
+
+    model = mujoco.MjModel.from_xml_string(_SPLIT_XML)
+    data = mujoco.MjData(model)
+    R, t = look_at(np.array([2.0, -1.5, 1.0]), np.array([0.0, 0.0, 0.0]))
+    cam = Camera(width=96, height=72, fx=80.0, fy=80.0, cx=48.0, cy=36.0, R=R, t=t)
+    rng = np.random.default_rng(3)
+    groups = [None, np.array([1, 1, 0, 1, 0, 0], np.uint8), np.array([0, 1, 1, 1, 0, 0], np.uint8)]
+    split_used = 0
+    for gg in groups:
+        k = KinectSim(model, cam, 0, geomgroup=gg)
+        split_used += k._split is not None
+        for trial in range(60):
+            # near the view centre, around the camera itself, or far off to a side
+            centre = rng.choice([np.zeros(3), cam.position, np.array([0.0, -3.0, 0.0])])
+            data.mocap_pos[:] = centre + rng.normal(scale=0.6, size=(3, 3))
+            if trial % 4 == 0:  # a bounding sphere across the camera plane, in front of the lens
+                data.mocap_pos[2] = cam.position + cam.R[2] * rng.uniform(-0.05, 0.08) + rng.normal(scale=0.02, size=3)
+            q = rng.normal(size=(3, 4))
+            data.mocap_quat[:] = q / np.linalg.norm(q, axis=1, keepdims=True)
+            if trial == 30:
+                model.geom_pos[1] += np.array([0.0, 0.2, 0.1])  # a still geom moved: cast again
+            mujoco.mj_forward(model, data)
+            full = raycast_depth(model, data, cam, gg, rays=k._rays)
+            np.testing.assert_array_equal(k.exact_depth(data), full)
+        model.geom_pos[1] -= np.array([0.0, 0.2, 0.1])
+    assert split_used == 2  # (the third selection hides group 0: no still group, a plain cast)
+
+
+def test_split_raycast_casts_fewer_rays_in_the_cell():
+    """In the simulated cell the moving geoms' boxes cover a minority of the image."""
+    cell = _cell()
+    for i, c in enumerate(cell.cameras):
+        k = KinectSim(cell.model, c, i)
+        assert k._split is not None
+        assert 0.0 < k._split.moving_pixels(cell.data).mean() < 0.6

@@ -13,24 +13,24 @@ from numba import njit
 @njit(cache=True, nogil=True)
 def _capsule_consts(a: np.ndarray, b: np.ndarray, r: float) -> np.ndarray:
     """Per-capsule constants for :func:`_line_capsule` (camera at the origin)."""
+    # written out element by element: slice assignments would compile numba's shape-mismatch error
+    # message (seconds of every cold start)
     c = np.empty(17)
-    c[0:3] = a
-    c[3:6] = b
-    w = b - a
-    L = np.sqrt(np.sum(w * w))
+    ax, ay, az, bx, by, bz = a[0], a[1], a[2], b[0], b[1], b[2]
+    wx, wy, wz = bx - ax, by - ay, bz - az
+    L = np.sqrt(wx * wx + wy * wy + wz * wz)
     if L > 1e-12:
-        w = w / L
+        wx, wy, wz = wx / L, wy / L, wz / L
     else:
-        w = np.array([0.0, 0.0, 1.0])
-        L = 0.0
-    c[6:9] = w
-    c[9] = L
-    ow = -np.sum(a * w)  # (origin - a) . w
-    q = -a - ow * w  # (origin - a) without its axial part
-    c[10:13] = q
-    c[13] = np.sum(q * q) - r * r
-    c[14] = np.sum(a * a) - r * r
-    c[15] = np.sum(b * b) - r * r
+        wx, wy, wz, L = 0.0, 0.0, 1.0, 0.0
+    ow = -(ax * wx + ay * wy + az * wz)  # (origin - a) . w
+    qx, qy, qz = -ax - ow * wx, -ay - ow * wy, -az - ow * wz  # (origin - a) without its axial part
+    vals = (ax, ay, az, bx, by, bz, wx, wy, wz, L, qx, qy, qz)
+    for k in range(13):
+        c[k] = vals[k]
+    c[13] = qx * qx + qy * qy + qz * qz - r * r
+    c[14] = ax * ax + ay * ay + az * az - r * r
+    c[15] = bx * bx + by * by + bz * bz - r * r
     c[16] = ow
     return c
 

@@ -205,8 +205,8 @@ def _principal_kernel(depth, mask, A, B, R, margin, fill_radius, fx, fy, cx, cy,
     box = _capsule_boxes(A, B, R + margin, fx, fy, cx, cy, W, H)  # (the inflated capsules hold the others)
     c_in = _capsule_consts(A, B, R, margin)  # the inflated capsules
     c_0 = _capsule_consts(A, B, R, 0.0)  # the capsules themselves
-    out_depth[:, :] = depth
-    out_mask[:, :] = mask
+    # (out_depth, out_mask arrive as copies of depth, mask: a slice copy here would compile numba's
+    # shape-mismatch error message, about 5 s of every cold start)
     for v in range(H):
         for u in range(W):
             if not mask[v, u]:
@@ -290,8 +290,7 @@ def principal_robot_pixels(
     R = np.ascontiguousarray(np.asarray(radius, float))
     if A.shape != B.shape or A.ndim != 2 or A.shape[1] != 3 or R.shape != (A.shape[0],):
         raise ValueError(f"capsules: a and b must be (L, 3) and radius (L,), got {A.shape}, {B.shape}, {R.shape}")
-    out_d = np.empty(camera.shape, dtype=np.float32)
-    out_m = np.empty(camera.shape, dtype=np.bool_)
+    out_d, out_m = d.copy(), m.copy()
     _principal_kernel(
         d, m, A, B, R, float(margin), int(fill_radius), camera.fx, camera.fy, camera.cx, camera.cy, out_d, out_m
     )

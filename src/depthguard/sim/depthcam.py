@@ -9,6 +9,8 @@ Two ways to get the exact depth:
 
 * ``"raycast"``: ``mujoco.mj_multiRay`` from the optical centre through every pixel centre. The ray
   direction is scaled to ``z_C = 1``, so the returned ray parameter *is* the depth. Works everywhere.
+  The room (the world body's geoms) is cast once; each frame casts only the rays that can meet a moving
+  geom (:mod:`depthguard.sim.raysplit`; the same image, 3-5x faster).
 * ``"render"``: ``mujoco.Renderer`` depth buffer (needs an OpenGL context, e.g. ``MUJOCO_GL=egl``). It
   needs the principal point at the image centre (``cx = W/2, cy = H/2``), as :func:`kinect_camera` makes.
 
@@ -210,6 +212,12 @@ class KinectSim:
         self.rng = np.random.default_rng(seed)
         self.geomgroup = geomgroup
         self._rays = np.ascontiguousarray((camera.pixel_ray_directions().reshape(-1, 3) @ camera.R).ravel())
+        self._split = None
+        if backend == "raycast":
+            from depthguard.sim.raysplit import SplitRaycaster
+
+            split = SplitRaycaster(model, camera, self._rays, geomgroup)
+            self._split = split if split.usable() else None  # the still room cast once (same image)
         self._renderer = None
         if backend == "render":
             import mujoco
@@ -223,6 +231,8 @@ class KinectSim:
     def exact_depth(self, data) -> np.ndarray:
         """Noise-free depth ``z_C`` (H, W) float64 in metres, NaN where nothing is hit."""
         if self.backend == "raycast":
+            if self._split is not None:
+                return self._split.depth(data)
             return raycast_depth(self.model, data, self.camera, self.geomgroup, rays=self._rays)
         import mujoco
 

@@ -80,6 +80,18 @@ def _warm_depthspace() -> None:
         query_distances(frame, centres, radii, rho=0.4, mode=mode, alpha=6.0)
 
 
+def _warm_frame_corrections(cam, depth, mask, model, q) -> None:
+    """The per-frame kernels of the simulated pipeline outside the fusion: the robot-interior corrections
+    (:mod:`depthguard.robot.interior`) and the simulated Kinect's projector shadow."""
+    from depthguard.robot.interior import interior_capsules, principal_robot_pixels, robot_windows
+    from depthguard.sim.depthcam import projector_shadow
+
+    a, b, r = interior_capsules(model, q)
+    principal_robot_pixels(cam, depth, mask, a, b, r, margin=0.03)
+    robot_windows(cam, a, b, r, margin=0.03)
+    projector_shadow(np.where(np.isfinite(depth), depth, np.inf).astype(np.float64), float(cam.fx), 0.075)
+
+
 def _warm_robot() -> None:
     from depthguard.control import AvoidanceController, ControllerConfig, CycleInput
     from depthguard.robot.control_points import ControlPointSet
@@ -89,7 +101,9 @@ def _warm_robot() -> None:
     model = load_lwr4()
     q = np.array([0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0])
     cam = _cameras(1)[0]
-    self_filter(cam, _frame_inputs([cam])[0][0], q, model)
+    depth, mask = (x[0] for x in _frame_inputs([cam]))
+    self_filter(cam, depth, q, model)
+    _warm_frame_corrections(cam, depth, mask, model, q)
     for preset in ("ral-9", "icra-exp3"):
         points = ControlPointSet.build(model, preset)
         cps = points.evaluate(q)
@@ -107,7 +121,7 @@ def _warm_robot() -> None:
 SOURCES: dict[str, tuple[str, ...]] = {
     "fusion": ("depthgrid", "depthspace.py", "kernels/pixels.py"),
     "depthspace": ("depthspace.py", "kernels/pixels.py"),
-    "robot": ("robot", "control"),
+    "robot": ("robot", "control", "sim/depthcam.py"),
 }
 
 #: Kernel groups, compiled in parallel processes.
