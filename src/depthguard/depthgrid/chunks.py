@@ -44,7 +44,7 @@ def tile_max_start(start, kind, tile):
     return out
 
 
-@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False)  # called, not inlined: see module docstring
 def _blocks_cleared(rect, tb0, tb1, grid, mp, vt, stack):
     """:func:`tile_block_cleared` for the tile blocks ``tb0..tb1`` of tile ``rect`` as one piece."""
     ua, va, ub, vb = rect

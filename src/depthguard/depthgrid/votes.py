@@ -13,6 +13,14 @@ cleared tells nothing (its cells are then tested one by one).
 
 Records: ``mp`` :class:`~depthguard.depthgrid.records.MapArrays`, ``vt``
 :class:`~depthguard.depthgrid.records.Votes`, ``grid`` :class:`~depthguard.depthgrid.records.Grid`.
+
+Compile time: the three vote entry points (:func:`cell_occupied`, :func:`block_cleared`,
+:func:`tile_block_cleared`, and ``chunks._blocks_cleared``) are compiled as functions of their own and
+called, while their small helpers are inlined into them. numba's IR inliner deep-copies a callee block by
+block with its whole variable scope (``InlineWorker.inline_ir``, numba 0.68: blocks x variables), so
+inlining these into the column search and the tile loop made the fused query take about 120 s to
+compile; as calls, about 30 s, and each call does a vote's work, so the queries lose 0-3 % (BENCHMARKS.md,
+"Cold start").
 """
 
 from __future__ import annotations
@@ -159,7 +167,7 @@ def centre_sees_past(k, u, v, d1, d2, mp, votes):
     return votes[k, int(pv), int(pu)] > Z or votes[k, 2 * hm + int(pv), int(pu)] > Z
 
 
-@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False)  # called, not inlined: see module docstring
 def cell_occupied(u, v, g, grid, mp, votes, need_vote):
     """RA-L'16 §VI: a cell is occupied unless some involved secondary camera sees past it entirely.
 
@@ -186,7 +194,7 @@ def cell_occupied(u, v, g, grid, mp, votes, need_vote):
     return involved or not need_vote
 
 
-@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False)  # called, not inlined: see module docstring
 def block_cleared(u, v, g0, g1, grid, mp, vt, stack):
     """True when one secondary camera clears every cell ``g0 <= g < g1`` of pixel (u, v) at once.
 
@@ -204,7 +212,7 @@ def block_cleared(u, v, g0, g1, grid, mp, vt, stack):
     return False
 
 
-@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+@nb.njit(cache=True, nogil=True, _nrt=False)  # called, not inlined: see module docstring
 def tile_block_cleared(ua, va, ub, vb, g0, g1, grid, mp, vt, stack):
     """True when one secondary camera clears the cells ``g0 <= g < g1`` of every pixel of a tile at once.
 
