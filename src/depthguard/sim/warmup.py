@@ -59,6 +59,7 @@ def _points() -> tuple[np.ndarray, np.ndarray]:
 
 def _warm_fusion() -> None:
     from depthguard.depthgrid import DepthGridFusion
+    from depthguard.robot.model import load_lwr4
 
     cams = _cameras(2)
     fusion = DepthGridFusion(cams, dd=0.01, workspace=(-1.2, 1.2, -1.2, 1.2, -0.3, 1.5))
@@ -67,6 +68,8 @@ def _warm_fusion() -> None:
     centres, radii = _points()
     for mode in ("min", "all", "hybrid"):
         fusion.query(centres, radii, rho=0.4, mode=mode, alpha=6.0)
+    model = load_lwr4()
+    _warm_frame_corrections(cams[0], depths[0], masks[0], model, np.array([0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0]))
 
 
 def _warm_depthspace() -> None:
@@ -101,9 +104,7 @@ def _warm_robot() -> None:
     model = load_lwr4()
     q = np.array([0.0, -0.3, 0.0, 1.6, 0.0, -0.8, 0.0])
     cam = _cameras(1)[0]
-    depth, mask = (x[0] for x in _frame_inputs([cam]))
-    self_filter(cam, depth, q, model)
-    _warm_frame_corrections(cam, depth, mask, model, q)
+    self_filter(cam, _frame_inputs([cam])[0][0], q, model)
     for preset in ("ral-9", "icra-exp3"):
         points = ControlPointSet.build(model, preset)
         cps = points.evaluate(q)
@@ -119,9 +120,9 @@ def _warm_robot() -> None:
 
 #: Where each group's kernels live (package folders or modules under ``depthguard/``), for :func:`is_cached`.
 SOURCES: dict[str, tuple[str, ...]] = {
-    "fusion": ("depthgrid", "depthspace.py", "kernels/pixels.py"),
+    "fusion": ("depthgrid", "depthspace.py", "kernels", "robot/interior.py", "sim/depthcam.py"),
     "depthspace": ("depthspace.py", "kernels/pixels.py"),
-    "robot": ("robot", "control", "sim/depthcam.py"),
+    "robot": ("robot", "control"),
 }
 
 #: Kernel groups, compiled in parallel processes.
