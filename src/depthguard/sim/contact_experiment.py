@@ -35,7 +35,7 @@ from depthguard.robot.contact_point import RobotSurface, contact_from_hand, fore
 from depthguard.robot.residual import ContactDetector, MomentumObserver, RigidBodyDynamics
 from depthguard.robot.selffilter import self_filter
 from depthguard.sim.contact_cell import ContactCell, HandScript
-from depthguard.sim.depthcam import KinectSim, kinect_camera
+from depthguard.sim.depthcam import KinectSim, cast_rays, kinect_camera
 
 __all__ = ["ExperimentSetup", "ContactLog", "make_setup", "run_experiment", "match_contacts", "Q0"]
 
@@ -149,8 +149,6 @@ class _Camera:
     def capture(self, spheres: np.ndarray, radii: np.ndarray) -> np.ndarray:
         """One depth frame (H, W) float32: ray cast and sensor model inside the robot's box grown by 0.3 m,
         a fixed noisy background frame outside it."""
-        import mujoco
-
         from depthguard.robot.contact_point import image_box
 
         cam = self.cam
@@ -158,24 +156,7 @@ class _Camera:
         u0, u1, v0, v1 = image_box(cam, spheres, radii + 0.3) or (0, 0, 0, 0)
         if u1 > u0 and v1 > v0:
             idx = (np.arange(v0, v1)[:, None] * cam.width + np.arange(u0, u1)[None, :]).ravel()
-            n = len(idx)
-            geomid = np.empty(n, np.int32)
-            dist = np.empty(n)
-            mujoco.mj_multiRay(
-                self.cell.model,
-                self.cell.data,
-                np.asarray(cam.position, float),
-                np.ascontiguousarray(self.rays[idx]).ravel(),
-                None,
-                1,
-                -1,
-                geomid,
-                dist,
-                None,
-                n,
-                1e3,
-            )
-            dist[geomid < 0] = np.nan
+            dist = cast_rays(self.cell.model, self.cell.data, cam.position, self.rays[idx])[0]
             with np.errstate(invalid="ignore"):  # inf - inf at missing pixels in the edge test
                 out[v0:v1, u0:u1] = self.sim.sensor_effects(dist.reshape(v1 - v0, u1 - u0))
         return out

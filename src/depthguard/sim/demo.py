@@ -12,8 +12,8 @@ The first run on a new machine compiles the numba kernels first, in parallel pro
 To keep it short on a 2-core machine the demo renders the depth images at the scenario's
 ``demo_resolution``, 320x240 (the Kinect's field of view at half its resolution; a 640x480 frame costs
 about 15-20 ms per camera here with the room cast once, :mod:`depthguard.sim.raysplit`, and the fusion's
-frame stage and queries grow with the pixels too), for ``demo_duration`` seconds of simulated time. Everything else (rates,
-noise model, controller, fusion) is as in the full scenario.
+frame stage and queries grow with the pixels too), for ``demo_duration`` seconds of simulated time.
+Everything else (rates, noise model, controller, fusion) is as in the full scenario.
 """
 
 from __future__ import annotations

@@ -36,7 +36,7 @@ import numpy as np
 
 from depthguard.camera import Camera, look_at
 
-__all__ = ["kinect_camera", "KinectSim", "egl_available", "raycast_depth", "projector_shadow"]
+__all__ = ["kinect_camera", "KinectSim", "cast_rays", "egl_available", "raycast_depth", "projector_shadow"]
 
 KINECT_BASELINE = 0.075  # m, IR projector to IR camera (Kinect v1)
 
@@ -100,6 +100,26 @@ def kinect_camera(
     )
 
 
+def cast_rays(
+    model, data, origin: np.ndarray, rays: np.ndarray, geomgroup: np.ndarray | None = None, bodyexclude: int = -1
+) -> tuple[np.ndarray, np.ndarray]:
+    """``mj_multiRay`` from ``origin`` (3,) along ``rays`` ((N, 3) or (3N,), world): ``(ray parameter (N,),
+    NaN where nothing is hit; geom id (N,) int32, -1 there)``. Static geoms included; ``geomgroup``: (6,)
+    1 for the groups to hit (None: all)."""
+    import mujoco
+
+    r = np.ascontiguousarray(rays, dtype=np.float64).ravel()
+    n = r.shape[0] // 3
+    geomid = np.empty(n, np.int32)
+    dist = np.empty(n, np.float64)
+    if n:
+        gg = None if geomgroup is None else np.asarray(geomgroup, np.uint8)
+        o = np.asarray(origin, float)
+        mujoco.mj_multiRay(model, data, o, r, gg, True, bodyexclude, geomid, dist, None, n, 1e3)
+    dist[geomid < 0] = np.nan
+    return dist, geomid
+
+
 def raycast_depth(
     model,
     data,
@@ -116,18 +136,9 @@ def raycast_depth(
         rays: optional precomputed world ray directions (H*W*3,) with ``z_C = 1`` (see :meth:`KinectSim`).
         return_geoms: also return the geom id (H, W) int32 hit by each pixel's ray (-1: none).
     """
-    import mujoco
-
-    n = camera.width * camera.height
     if rays is None:
         rays = np.ascontiguousarray((camera.pixel_ray_directions().reshape(-1, 3) @ camera.R).ravel())
-    geomid = np.empty(n, np.int32)
-    dist = np.empty(n, np.float64)
-    gg = None if geomgroup is None else np.asarray(geomgroup, np.uint8)
-    mujoco.mj_multiRay(
-        model, data, np.asarray(camera.position, float), rays, gg, True, bodyexclude, geomid, dist, None, n, 1e3
-    )
-    dist[geomid < 0] = np.nan
+    dist, geomid = cast_rays(model, data, camera.position, rays, geomgroup, bodyexclude)
     shape = (camera.height, camera.width)
     return (dist.reshape(shape), geomid.reshape(shape)) if return_geoms else dist.reshape(shape)
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.sim.depthcam import cast_rays
 
 __all__ = ["SplitRaycaster"]
 
@@ -61,28 +62,7 @@ class SplitRaycaster:
         return self._ok
 
     def _cast(self, data, rays: np.ndarray, groups: np.ndarray) -> np.ndarray:
-        import mujoco
-
-        n = rays.shape[0]
-        geomid = np.empty(n, np.int32)
-        dist = np.empty(n, np.float64)
-        if n:
-            mujoco.mj_multiRay(
-                self.model,
-                data,
-                np.asarray(self.camera.position, float),
-                np.ascontiguousarray(rays).ravel(),
-                groups,
-                True,
-                -1,
-                geomid,
-                dist,
-                None,
-                n,
-                1e3,
-            )
-        dist[geomid < 0] = np.nan
-        return dist
+        return cast_rays(self.model, data, self.camera.position, rays, groups)[0]
 
     def _still(self, data) -> np.ndarray:
         m, g = self.model, self._still_geoms
