@@ -3,6 +3,7 @@
 * :mod:`depthguard.sim.cell`: the arm (from the robot's URDF), table, room, boxes, capsule people, cameras;
 * :mod:`depthguard.sim.people`: scripted capsule people (keyframes from scenario files);
 * :mod:`depthguard.sim.depthcam`: simulated Kinect v1 (``mj_multiRay`` or OpenGL, noise, range, edges);
+  :mod:`depthguard.sim.raysplit`: its ray casting with the room cast once;
 * :mod:`depthguard.sim.truth`: true clearances (``mj_geomDistance``), for metrics only;
 * :mod:`depthguard.sim.pipeline`: adapters to the pipeline (robot model, self-filter, distances, fusion,
   controller);
