@@ -142,15 +142,18 @@ def _facet_normal_into(J: np.ndarray, cols: np.ndarray, nrm: np.ndarray) -> None
         nrm[1] = J[2, a] * J[0, b] - J[0, a] * J[2, b]
         nrm[2] = J[0, a] * J[1, b] - J[1, a] * J[0, b]
     else:  # generalised cross product by cofactors
+        # (element by element: slice copies compile numba's shape-mismatch message, seconds of a cold start)
         A = np.empty((m - 1, m))
         for r in range(m - 1):
-            A[r] = J[:, cols[r]]
+            for k in range(m):
+                A[r, k] = J[k, cols[r]]
         for i in range(m):
             minor = np.empty((m - 1, m - 1))
             c = 0
             for k in range(m):
                 if k != i:
-                    minor[:, c] = A[:, k]
+                    for r in range(m - 1):
+                        minor[r, c] = A[r, k]
                     c += 1
             nrm[i] = (-1.0) ** i * np.linalg.det(minor)
     norm2 = 0.0
@@ -251,8 +254,11 @@ def _facet_solution(
     Jp = _masked(J, par)
     P, _ = _damped_pinv(Jp, 0.0, 1e-10)
     qp = _mv(P, rest)
-    lo = np.where(par, qmin, 0.0)
-    hi = np.where(par, qmax, 0.0)
+    lo = np.zeros(n)  # the parallel joints' box, 0 elsewhere (a loop: np.where costs seconds of compiling)
+    hi = np.zeros(n)
+    for j in range(n):
+        if par[j]:
+            lo[j], hi[j] = qmin[j], qmax[j]
     if _violates(qp, lo, hi, 1e-9):
         qp, _ = _sns_greedy(Jp, rest, lo, hi, 0.0)
     return qdot + qp

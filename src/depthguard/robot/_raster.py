@@ -87,12 +87,13 @@ def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows, depth,
     for i in range(3):
         a, b = pts[i], pts[(i + 1) % 3]
         ina, inb = a[2] >= znear, b[2] >= znear
+        # (element by element: a row assignment compiles numba's shape-mismatch message, seconds of a cold start)
         if ina:
-            out[n] = a
+            out[n, 0], out[n, 1], out[n, 2] = a[0], a[1], a[2]
             n += 1
         if ina != inb:
             t = (znear - a[2]) / (b[2] - a[2])
-            out[n] = a + t * (b - a)
+            out[n, 0], out[n, 1] = a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])
             out[n, 2] = znear
             n += 1
     for i in range(n):  # project
