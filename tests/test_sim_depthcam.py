@@ -243,3 +243,5 @@ def test_split_raycast_casts_fewer_rays_in_the_cell():
         k = KinectSim(cell.model, c, i)
         assert k._split is not None
         assert 0.0 < k._split.moving_pixels(cell.data).mean() < 0.6
+    cell.data.geom_xpos[k._split._moving_geoms[0]] = np.nan  # a broken pose: every ray is cast
+    assert k._split.moving_pixels(cell.data).all()

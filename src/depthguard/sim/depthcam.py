@@ -10,7 +10,7 @@ Two ways to get the exact depth:
 * ``"raycast"``: ``mujoco.mj_multiRay`` from the optical centre through every pixel centre. The ray
   direction is scaled to ``z_C = 1``, so the returned ray parameter *is* the depth. Works everywhere.
   The room (the world body's geoms) is cast once; each frame casts only the rays that can meet a moving
-  geom (:mod:`depthguard.sim.raysplit`; the same image, 3-5x faster).
+  geom (:mod:`depthguard.sim.raysplit`; the same image, 3-8x faster).
 * ``"render"``: ``mujoco.Renderer`` depth buffer (needs an OpenGL context, e.g. ``MUJOCO_GL=egl``). It
   needs the principal point at the image centre (``cx = W/2, cy = H/2``), as :func:`kinect_camera` makes.
 

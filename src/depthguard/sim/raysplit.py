@@ -7,7 +7,7 @@ one about 110 ms. The geoms of the world body never move. For a camera that does
 depth image is cast once; each frame then casts only the pixels whose rays can meet a moving geom: those
 inside the image box of some moving geom's bounding sphere (``geom_rbound`` about ``geom_xpos``), and
 takes the nearer of the two hits. A ray's hit on a geom does not depend on the other geoms, so the result
-equals the full cast to the bit (``tests/test_depthcam.py``).
+equals the full cast to the bit (``tests/test_sim_depthcam.py``).
 
 The split is by geom group, since ``mj_multiRay`` selects geoms by group: a group is *still* when every
 one of its geoms belongs to the world body (in the simulated cell: group 0, the room and the table). The
@@ -78,12 +78,15 @@ class SplitRaycaster:
         cam, m = self.camera, self.model
         H, W = cam.height, cam.width
         mask = np.zeros((H, W), bool)
-        for gid in self._moving_geoms:
+        g = self._moving_geoms
+        if not len(g):
+            return mask.ravel()
+        centres = cam.world_to_camera(np.asarray(data.geom_xpos, float)[g])  # (G, 3), camera frame
+        for gid, (x, y, z) in zip(g, centres, strict=True):
             r = float(m.geom_rbound[gid])
-            if int(m.geom_type[gid]) == _PLANE or r <= 0.0:
-                mask[:] = True
+            if int(m.geom_type[gid]) == _PLANE or r <= 0.0 or not np.isfinite((x, y, z)).all():
+                mask[:] = True  # unbounded, or a pose that is not a number: cast every ray
                 break
-            x, y, z = cam.world_to_camera(np.asarray(data.geom_xpos[gid], float)[None, :])[0]
             if z + r <= 0.0:
                 continue  # wholly behind the camera
             if z - r <= 1e-6:
