@@ -128,7 +128,7 @@ def test_fixed_joints_reach_only_their_own_cells():
     q0 = np.zeros(7)
     grid = robot_reachability(model, q0, res=0.05, v_max=np.full(7, 1e-6))
     a, b, r = model.link_capsules(q0)
-    assert grid.delta < 0.05
+    assert grid.delta < 2 * np.sqrt(3) / 2 * 0.05  # at most two changes of lattice, half a diagonal each
     vol_capsules = float(np.sum(np.pi * r**2 * np.linalg.norm(b - a, axis=1) + 4 / 3 * np.pi * r**3))
     assert grid.reachable.sum() * 0.05**3 < 4 * vol_capsules + 0.2
 
@@ -172,6 +172,12 @@ def small_chains(draw):
     kind = (rng.random(n) < draw(st.floats(0.0, 0.5))).astype(np.int64)
     axis = rng.normal(size=(n, 3))
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    # sometimes the first joints are prismatic along a lattice axis (an omnidirectional base), which the
+    # grid slides exactly instead of sampling
+    for j in range(min(n, draw(st.sampled_from([0, 0, 1, 2])))):
+        if j < n - 1 or draw(st.booleans()):
+            kind[j] = 1
+            axis[j] = np.eye(3)[rng.integers(3)] * rng.choice([-1.0, 1.0])
     point = rng.uniform(-0.3, 0.3, (n, 3))
     vmax = rng.uniform(0.2, 2.5, n)
     lo = -rng.uniform(0.0, 1.5, n) * (rng.random(n) < 0.8)  # some joints at a limit
@@ -211,7 +217,11 @@ def test_small_chains_hold_every_densely_sampled_point_no_earlier(chain):
     lattice = pts.reshape((per,) * n + pts.shape[1:])
     spacing = max(float(np.linalg.norm(np.diff(lattice, axis=j), axis=-1).max(initial=0.0)) for j in range(n))
     k = np.ceil(grid.delta / res)
-    assert gap.max() <= grid.delta + np.sqrt(3) * (k + 0.5) * res + spacing + 1e-9
+    # each exact slide of the base's lattice-aligned prismatic joints may add the cell its cubes touch
+    slides = 0
+    while slides < n and kind[slides] == 1 and np.max(np.abs(axis[slides])) == 1.0:
+        slides += 1
+    assert gap.max() <= grid.delta + np.sqrt(3) * (k + 0.5) * res + slides * res + spacing + 1e-9
 
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -254,3 +264,28 @@ def test_small_chains_every_true_point_is_within_delta_of_a_kept_cell_no_later(c
     gap = np.linalg.norm(np.maximum(np.abs(pts[:, None] - centres[safe]) - res / 2, 0.0), axis=-1)
     ok = np.any(valid & (gap <= grid.delta + 1e-9) & (times[safe] <= t[:, None] + 1e-6), axis=1)
     assert ok.all(), f"{(~ok).sum()} of {len(ok)} true points over δ = {grid.delta:.4f} m from a kept cell no later"
+
+
+def test_lattice_aligned_base_joints_add_no_error():
+    """An omnidirectional base's x and y slide the output cells exactly: the error bound of the chain with
+    them is that of the chain without them, and the grid holds every base offset of the arm's set."""
+    rng = np.random.default_rng(3)
+    axis = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]])
+    point = np.array([[0, 0, 0], [0, 0, 0], [0.1, 0.0, 0.0]])
+    # travels that are not whole cells, so the cells that the moved cubes only partly enter matter
+    lo, hi, vmax = np.array([-0.3, -0.17, -0.8]), np.array([0.23, 0.0, 0.8]), np.array([0.5, 0.7, 1.5])
+    a, b = np.array([[0.3, 0.0, 0.2]]), np.array([[0.6, 0.1, 0.4]])
+    full = ChainSweep(np.array([1, 1, 0]), axis, point, lo, hi, vmax, a, b, np.array([0.05]), np.array([3]))
+    r = np.array([0.05])
+    arm = ChainSweep(np.array([0]), axis[2:], point[2:], lo[2:], hi[2:], vmax[2:], a, b, r, np.array([1]))
+    g_full = reachability_grid(full, res=0.05)
+    g_arm = reachability_grid(arm, box=g_full.box)
+    assert abs(g_full.delta - g_arm.delta) < 1e-8
+    # every arm cell, moved by every base offset (up to the horizon), is reached no later
+    cells = np.argwhere(np.isfinite(g_arm.time))
+    for _ in range(200):
+        s = rng.uniform(np.maximum(lo[:2], -vmax[:2] * 0.5), np.minimum(hi[:2], vmax[:2] * 0.5))
+        pts = g_arm.box.centres(cells) + rng.uniform(-0.025, 0.025, (len(cells), 3))
+        t = np.maximum(g_arm.lookup(pts), np.max(np.abs(s) / vmax[:2]))
+        moved = pts + s[0] * axis[0] + s[1] * axis[1]
+        assert np.all(g_full.lookup(moved) <= t + 1e-6)

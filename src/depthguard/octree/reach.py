@@ -12,16 +12,22 @@ Method (the joint-by-joint sweep of SAPHARI ref. [1], made provably conservative
   is swept by joint ``n``, link ``n-1`` is added, both are swept by joint ``n-1``, and so on.
 * Joints move at the same time, so reaching offsets ``δ`` takes ``max_j |δ_j| / v_j``: a swept sample gets
   ``t' = max(t, |δ_j| / v_j)``. The offset range of joint ``j`` is ``[-v_j T, v_j T] ∩ [q_min - q, q_max - q]``.
-* The set is carried as cell centres on an internal grid (one sample per cell, the minimum time), so its
-  size stays bounded (the "collapse" of [1]). The internal grid adapts to the set: ``cells`` cells along its
-  longest side, between ``res / 8`` and ``res``, so the small distal sets collapse finely. Each step has a
-  bounded position error: ``h = √3/2 res_i`` per collapse and ``eps = res_i / 2`` per sweep (samples every
-  ``eps / r⊥`` rad, the sample on the side of zero, so that its time is never later; a rotation is an
-  isometry, so the error a sample already carries is kept, not grown).
-  Every true point lies within ``δ = Σ errors`` of a
-  kept sample whose time is no later, so the final grid, min-pooled to ``res`` and dilated by
-  ``ceil(δ / res)`` cells (L∞ box), is an **over-approximation** in space and an under-estimate in time.
-  ``tests/test_octree_reach.py`` checks this against random joint trajectories with ``|q̇| ≤ q̇_max``.
+* The set is carried as cells on an internal grid (one time per cell, the minimum), so its size stays
+  bounded (the "collapse" of [1]). The internal grid adapts to the set: ``cells`` cells along its longest
+  side, between ``res / 8`` and ``res``, so the small distal sets collapse finely.
+* Error bound ``δ``, the invariant: every true point at time ``t`` lies within ``δ`` of the closed cube of a
+  kept cell whose time is ``<= t``. Rasterising a capsule adds nothing (its points lie in the cubes of the
+  cells it marks). A sampled sweep moves each cell's centre, every ``eps / r⊥`` rad (every ``eps`` m along a
+  prismatic axis; ``eps`` half the target cell, the sample on the side of zero so that its time is never
+  later), and adds half the input cell's diagonal (the cube about its centre; a rotation is an isometry, so
+  the error a point already carries is kept, not grown) plus the sampling error. A joint too slow to move
+  any sample keeps the lattice and adds only its motion.
+* The base's prismatic joints along a lattice axis (an omnidirectional base's x and y) *slide* the output
+  cells instead: a cube moved by ``s`` lies in the cells up to ``floor(|s| / res) + 1`` away, reached no
+  earlier than ``(m - 1) res / v``, exactly, so they add no error.
+* The final grid is dilated by ``ceil(δ / res)`` cells (an L∞ box), which makes it an **over-approximation**
+  in space and an under-estimate in time. ``tests/test_octree_reach.py`` checks this against random joint
+  trajectories with ``|q̇| <= q̇_max`` and, on small chains, the invariant itself.
 
 An omnidirectional base is the same chain with two prismatic joints (x, y) and one revolute joint (yaw) in
 front of the arm (SAPHARI §3.2); see :mod:`depthguard.robot.reach` for building the inputs from a URDF.
@@ -42,6 +48,7 @@ from depthguard.octree.reach_kernels import (
     collect,
     dilate,
     rasterize,
+    slide,
     sweep,
     sweep_two,
     swept_bounds,
@@ -198,13 +205,23 @@ def reachability_grid(
     raise ValueError("reachability: the reachable set does not fit in a box 4x the robot's size")
 
 
-def _grid_for(lo: np.ndarray, hi: np.ndarray, cells: int, res_floor: float, res_cap: float):
+def _grid_for(lo: np.ndarray, hi: np.ndarray, cells: int, res_floor: float, res_cap: float, res: float = 0.0):
     """A dense internal grid (origin, res, float32 array of inf) over [lo, hi]: ``cells`` cells along its
-    longest side, cells between ``res_floor`` and ``res_cap``, two cells of padding."""
-    res = min(max(res_floor, float(np.max(hi - lo)) / cells), res_cap)
+    longest side, cells between ``res_floor`` and ``res_cap`` (or exactly ``res`` when given), two cells of
+    padding, the origin on a multiple of the cell size (so grids of one cell size share their lattice)."""
+    if res <= 0.0:
+        res = min(max(res_floor, float(np.max(hi - lo)) / cells), res_cap)
     origin = np.floor(lo / res) * res - 2 * res
     shape = tuple(int(x) for x in np.ceil((hi - origin) / res) + 3)
     return np.ascontiguousarray(origin), res, np.full(shape, np.inf, dtype=np.float32)
+
+
+def _same_lattice(origin_a: np.ndarray, res_a: float, origin_b: np.ndarray, res_b: float) -> bool:
+    """Whether two grids have the same cells (equal size, origins a whole number of cells apart)."""
+    if abs(res_a - res_b) > 1e-12 * res_a:
+        return False
+    f = (np.asarray(origin_a) - np.asarray(origin_b)) / res_a
+    return bool(np.all(np.abs(f - np.round(f)) < 1e-9))
 
 
 def _caps_bbox(ch: ChainSweep, sel: np.ndarray, pad: float):
@@ -223,50 +240,92 @@ def _union(a, b):
     return np.minimum(a[0], b[0]), np.maximum(a[1], b[1])
 
 
+def _leading_slides(ch: ChainSweep) -> list[tuple[int, float, float]]:
+    """The joints at the chain's base (joint 1 upwards) that are prismatic along a lattice axis, as
+    ``(axis index, sign, deviation)``: swept exactly by :func:`slide` on the output lattice. ``deviation``
+    (m per m of travel) is how far the axis is off the lattice axis (below 1e-9), added to the error bound."""
+    out = []
+    for j in range(len(ch.kind)):
+        if ch.kind[j] != PRISMATIC:
+            break
+        d = int(np.argmax(np.abs(ch.axis[j])))
+        c = float(ch.axis[j, d])
+        if abs(c) < 1.0 - 1e-9:
+            break
+        out.append((d, math.copysign(1.0, c), math.sqrt(max(0.0, 1.0 - c * c))))
+    return out
+
+
 def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool) -> ReachabilityGrid | None:
     """The sweep with adaptive internal grids: ``cells`` cells along the set's longest side, between
     ``res / 8`` and ``res``, so the small distal sets collapse finely (small error) and the large proximal ones
-    coarsely (bounded size)."""
+    coarsely (bounded size). The base's lattice-aligned prismatic joints slide exactly on the output cells.
+
+    Invariant (the error bound ``delta``): every true point at time ``t`` lies within ``delta`` of the closed
+    cube of a kept cell whose time is ``<= t``. A capsule rasterised with :func:`rasterize` adds nothing (its
+    points lie in the cubes of the marked cells); a sampled sweep adds half the input cells' diagonal (the
+    cube about its swept centre) and the sampling error; a slide adds nothing."""
     res_out = float(box.res)
     res_floor = res_out / 8.0
     n = len(ch.kind)
+    slides = _leading_slides(ch)
+    m = len(slides)
     lo = np.maximum(ch.lo, -ch.vmax * horizon)
     hi = np.minimum(ch.hi, ch.vmax * horizon)
     out = np.full(box.shape, np.inf, dtype=np.float32)
     box_origin = np.ascontiguousarray(box.origin, dtype=float)
     outside = 0
-    bb = _caps_bbox(ch, ch.cap_joint == n, 0.0)
-    if bb is None:  # no geometry on the last link: start from an empty set at the last joint
-        bb = (ch.point[n - 1] - res_out, ch.point[n - 1] + res_out)
-    g_origin, g_res, grid = _grid_for(bb[0], bb[1], cells, res_floor, res_out)
+    if m == n:  # only slides: the last link's geometry goes straight onto the output cells
+        g_origin, g_res, grid = box_origin, res_out, out
+    else:
+        bb = _caps_bbox(ch, ch.cap_joint == n, 0.0)
+        if bb is None:  # no geometry on the last link: start from an empty set at the last joint
+            bb = (ch.point[n - 1] - res_out, ch.point[n - 1] + res_out)
+        g_origin, g_res, grid = _grid_for(bb[0], bb[1], cells, res_floor, res_out)
     outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == n, g_origin, g_res, grid)
-    delta = H * g_res
-    for j in range(n, 0, -1):
+    delta = 0.0
+    for j in range(n, m, -1):  # sampled sweeps, tip first
         idx, tt = collect(grid)
         jj = j - 1
         in_spec = (g_origin, g_res, np.array(grid.shape, np.int64))
-        if j > 1:
-            swept = (
-                swept_bounds(idx, *in_spec, int(ch.kind[jj]), ch.axis[jj], ch.point[jj], max(-lo[jj], hi[jj]), 1e-6)
-                if idx.size
-                else None
-            )
+        in_origin, in_res = g_origin, g_res
+        rng = max(-lo[jj], hi[jj])
+        revolute = ch.kind[jj] == REVOLUTE
+        if j > m + 1:
+            swept, r_perp = None, 0.0
+            if idx.size:
+                s_lo, s_hi, r_perp = swept_bounds(idx, *in_spec, int(ch.kind[jj]), ch.axis[jj], ch.point[jj], rng, 1e-6)
+                swept = (s_lo, s_hi)
+            # a joint too slow to move any sample keeps the input lattice, so the cells carry over exactly
             bb_next = _union(swept, _caps_bbox(ch, ch.cap_joint == j - 1, 0.0))
-            g_origin, g_res, grid = _grid_for(bb_next[0], bb_next[1], cells, res_floor, res_out)
-            target, t_origin, t_res, eps = grid, g_origin, g_res, 0.5 * g_res
-        else:
-            target, t_origin, t_res, eps = out, box_origin, res_out, 0.5 * res_out
+            still = (r_perp if revolute else 1.0) * rng < 0.5 * in_res
+            still = still and float(np.max(bb_next[1] - bb_next[0])) <= 2 * cells * in_res  # size stays bounded
+            g_origin, g_res, grid = _grid_for(
+                bb_next[0], bb_next[1], cells, res_floor, res_out, res=in_res if still else 0.0
+            )
+        else:  # the last sampled sweep writes onto the output cells
+            g_origin, g_res, grid = box_origin, res_out, out
         n_out, err, moved = (sweep_two if idx.size >= _PARALLEL_FROM and threads_ok() else sweep)(
-            idx, tt, *in_spec, t_origin, t_res, target, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
-            np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), eps,
+            idx, tt, *in_spec, g_origin, g_res, grid, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
+            np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), 0.5 * g_res,
         )  # fmt: skip
         outside += n_out
-        # the sampling error, plus the collapse of moved samples to cell centres (the last sweep writes into
-        # the output cells, whose containment the final dilation covers)
-        delta += err + _ROUNDING + (H * g_res if moved and j > 1 else 0.0)
-        if j > 1:
+        if not moved and _same_lattice(in_origin, in_res, g_origin, g_res):
+            # every sample stayed on its own cell: a point of its cube moved by at most rng times its distance
+            # from the axis (<= the centre's err + half a diagonal), a translation by err
+            delta += err + (rng * H * in_res if revolute else 0.0) + _ROUNDING
+        else:
+            delta += H * in_res + err + _ROUNDING
+        if j - 1 > 0:
             outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, g_origin, g_res, grid)
-            delta = max(delta, H * g_res)
+    for j in range(m, 0, -1):  # exact slides on the output cells
+        jj = j - 1
+        d, sign, deviation = slides[jj]
+        a, b = (float(lo[jj]), float(hi[jj])) if sign > 0 else (-float(hi[jj]), -float(lo[jj]))
+        outside += slide(out, d, a, b, float(ch.vmax[jj]), res_out)
+        delta += deviation * max(-a, b)  # cell indices: no rounding
+        if j - 1 > 0:
+            outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, box_origin, res_out, out)
     if outside:
         if not strict:
             return None

@@ -11,7 +11,7 @@ import numba as nb
 import numpy as np
 
 __all__ = [
-    "REVOLUTE", "PRISMATIC", "H", "rasterize", "collect", "sweep", "sweep_two", "threads_ok", "dilate",
+    "REVOLUTE", "PRISMATIC", "H", "rasterize", "collect", "sweep", "sweep_two", "slide", "threads_ok", "dilate",
     "swept_bounds",
 ]  # fmt: skip
 
@@ -158,6 +158,55 @@ def sweep(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, p
     return out, err, moved
 
 
+@nb.njit(cache=True, nogil=True, fastmath={"nnan"})  # times are never NaN: lets min/max vectorise
+def _slide_mid(x, lo_i, hi_i, m_lo, m_hi, dt):
+    """:func:`slide` along axis 1 of a (P, n, Q) view whose finite cells lie in rows ``lo_i:hi_i``, in place."""
+    P, n, Q = x.shape
+    out = 0
+    for p in range(P):
+        for i in range(lo_i, hi_i):
+            if i - m_lo < 0 or i + m_hi >= n:
+                for q in range(Q):
+                    if x[p, i, q] < np.inf:
+                        out += 1
+    src = np.ascontiguousarray(x[:, lo_i:hi_i, :])
+    a, b = max(lo_i - m_lo, 0), min(hi_i + m_hi, n)
+    dst = np.full((P, b - a, Q), np.inf, np.float32)
+    for p in range(P):
+        for i in range(a, b):
+            row = dst[p, i - a]
+            for s in range(-m_lo, m_hi + 1):
+                i_src = i - s
+                if i_src < lo_i or i_src >= hi_i:
+                    continue
+                c = np.float32(max(abs(s) - 1, 0) * dt)
+                srow = src[p, i_src - lo_i]
+                for q in range(Q):
+                    row[q] = min(row[q], max(srow[q], c))
+    x[:, a:b, :] = dst
+    return out
+
+
+def slide(grid: np.ndarray, d: int, lo: float, hi: float, vmax: float, res: float) -> int:
+    """Sweep every finite cell of ``grid`` (C-contiguous float32 times) along grid axis ``d`` by every offset
+    in ``[lo, hi]`` (m, ``lo <= 0 <= hi``), in place (min time), exactly for the cells' cubes: a point of a
+    cell's cube moved by ``s`` lies in the closed cube of the cell ``m`` steps away for some
+    ``|m| <= floor(|s| / res) + 1`` (in the direction of ``s``), and ``|s| >= (|m| - 1) res``, so that cell
+    gets the time ``max(t, (|m| - 1)+ res / vmax)``. No position error is added (a prismatic joint along a
+    lattice axis, such as an omnidirectional base's x and y). Returns the number of finite cells that would
+    slide out of ``grid`` (0 when it holds everything)."""
+    m_hi = int(math.floor(hi / res)) + 1 if hi > 0.0 else 0
+    m_lo = int(math.floor(-lo / res)) + 1 if lo < 0.0 else 0
+    b_lo, b_hi = finite_bounds(grid)
+    if b_hi[0] == 0 or m_lo + m_hi == 0:
+        return 0
+    crop = [slice(int(a), int(b)) for a, b in zip(b_lo, b_hi, strict=True)]
+    crop[d] = slice(None)
+    view = grid[tuple(crop)]
+    order = {0: (1, 0, 2), 1: (0, 1, 2), 2: (0, 2, 1)}[d]
+    return int(_slide_mid(view.transpose(order), int(b_lo[d]), int(b_hi[d]), m_lo, m_hi, res / vmax))
+
+
 @nb.njit(cache=True, nogil=True, parallel=True)
 def sweep_two(idx, tt, in_origin, in_res, in_shape, origin, res, grid, kind, axis, point, lo, hi, vmax, eps):
     """:func:`sweep` on two threads: each half of the samples into its own grid, then the minimum."""
@@ -221,13 +270,51 @@ def threads_ok() -> bool:
         return False
 
 
+@nb.njit(cache=True, nogil=True)
+def finite_bounds(grid):
+    """(3,) first and (3,) one-past-last index of the finite cells of a 3-D grid along each axis (lo = hi =
+    0 when there are none)."""
+    nx, ny, nz = grid.shape
+    lo = np.array([nx, ny, nz], np.int64)
+    hi = np.zeros(3, np.int64)
+    for i in range(nx):
+        for j in range(ny):
+            row = grid[i, j]
+            first = -1
+            last = -1
+            for k in range(nz):
+                if row[k] < np.inf:
+                    if first < 0:
+                        first = k
+                    last = k
+            if first >= 0:
+                lo[0] = min(lo[0], i)
+                hi[0] = max(hi[0], i + 1)
+                lo[1] = min(lo[1], j)
+                hi[1] = max(hi[1], j + 1)
+                lo[2] = min(lo[2], first)
+                hi[2] = max(hi[2], last + 1)
+    if hi[0] == 0:
+        lo[:] = 0
+    return lo, hi
+
+
 def dilate(grid: np.ndarray, k: int) -> np.ndarray:
     """``grid`` min-filtered with a (2k+1)^3 box (``scipy.ndimage.minimum_filter`` with an inf border):
     one running minimum per axis (:func:`min_filter_mid`), the vector axis the contiguous one where it can
-    be."""
-    out = np.ascontiguousarray(grid)
+    be, over the finite cells' bounding box grown by ``k`` (every other cell stays inf)."""
+    grid = np.ascontiguousarray(grid)
     if k == 0:
-        return out.copy()
+        return grid.copy()
+    lo, hi = finite_bounds(grid)
+    region = tuple(slice(max(int(a) - k, 0), min(int(b) + k, n)) for a, b, n in zip(lo, hi, grid.shape, strict=True))
+    result = np.full(grid.shape, np.inf, dtype=grid.dtype)
+    if hi[0] > 0:
+        result[region] = _dilate_dense(np.ascontiguousarray(grid[region]), k)
+    return result
+
+
+def _dilate_dense(out: np.ndarray, k: int) -> np.ndarray:
     nx, ny, nz = out.shape
     along_x, along_y = np.empty_like(out), np.empty_like(out)
     min_filter_mid(out.reshape(1, nx, ny * nz), k, along_x.reshape(1, nx, ny * nz))
@@ -241,7 +328,7 @@ def swept_bounds(idx, in_origin, in_res, in_shape, kind, axis, point, rng, pad):
     """A box (lo, hi) holding the cell centres ``idx`` of the input grid swept by a joint over offsets up
     to ``rng`` (plus ``pad``): the centres' box grown by their largest displacement (a chord: at most
     ``r⊥ min(rng, 2)`` for a rotation, ``rng`` for a translation), a rotation's cut to the ball about the
-    joint point that it keeps them in."""
+    joint point that it keeps them in. Also returns the centres' largest distance from a revolute axis."""
     iny, inz = in_shape[1], in_shape[2]
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
@@ -269,4 +356,4 @@ def swept_bounds(idx, in_origin, in_res, in_shape, kind, axis, point, rng, pad):
         if kind != PRISMATIC:
             lo[d] = max(lo[d], point[d] - rad)
             hi[d] = min(hi[d], point[d] + rad)
-    return lo, hi
+    return lo, hi, math.sqrt(max(perp2, 0.0))
