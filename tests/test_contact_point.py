@@ -13,6 +13,7 @@ from depthguard.robot.contact_point import (
     RobotSurface,
     contact_from_hand,
     foreground_mask,
+    image_box,
     locate_hands,
     nearest_vertex,
     nearest_vertex_loop,
@@ -166,3 +167,43 @@ def test_no_hand_no_contact(robot, surface):
     fg = foreground_mask(depth, depth, np.zeros(cam.shape, bool), 0.05)
     V, S = surface.pose(Q0)
     assert locate_hands(cam, depth, fg, S, surface.axis_radii, 2) == []
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_image_box_holds_the_whole_image_of_every_sphere(seed):
+    """Points on the spheres' surfaces, far off the optical axis included (where ``px -+ f r / (z - r)`` was
+    too small: 1.43 against 1.56 in x/z at 45 deg, 1 m, r = 0.3 m), project inside the box."""
+    from depthguard.camera import Camera
+
+    rng = np.random.default_rng(seed)
+    # a wide lens (about +-58 deg by +-50 deg), where the off-axis error is large
+    cam = Camera(width=640, height=480, fx=200.0, fy=200.0, cx=319.5, cy=239.5, R=np.eye(3), t=np.zeros(3))
+    n = int(rng.integers(1, 4))
+    z = rng.uniform(0.6, 3.0, n)
+    ang = rng.uniform(-0.9, 0.9, (n, 2))
+    centres = np.column_stack([np.tan(ang[:, 0]) * z, np.tan(ang[:, 1]) * z, z])
+    reach = rng.uniform(0.0, 0.9, n) * (z - 0.01)
+    box = image_box(cam, centres, reach)
+    d = rng.normal(size=(n, 4000, 3))
+    pts = centres[:, None] + d / np.linalg.norm(d, axis=-1, keepdims=True) * reach[:, None, None]
+    pts = pts.reshape(-1, 3)
+    u = cam.fx * pts[:, 0] / pts[:, 2] + cam.cx
+    v = cam.fy * pts[:, 1] / pts[:, 2] + cam.cy
+    seen = (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    if not seen.any():
+        return
+    assert box is not None
+    u0, u1, v0, v1 = box
+    assert np.all((np.floor(u[seen]) >= u0) & (np.floor(u[seen]) < u1))
+    assert np.all((np.floor(v[seen]) >= v0) & (np.floor(v[seen]) < v1))
+
+
+def test_image_box_of_the_reported_off_axis_sphere():
+    from depthguard.camera import Camera
+
+    cam = Camera(width=4000, height=4000, fx=1000.0, fy=1000.0, cx=2000.0, cy=2000.0, R=np.eye(3), t=np.zeros(3))
+    c = np.array([[np.sin(np.pi / 4), 0.0, np.cos(np.pi / 4)]])  # 45 deg off axis, 1 m away
+    u0, u1, _, _ = image_box(cam, c, 0.3)
+    # the tangent through the optical centre: angle 45 deg + asin(0.3), x/z = tan of it
+    assert u1 >= 1000.0 * np.tan(np.pi / 4 + np.arcsin(0.3)) + 2000.0

@@ -83,20 +83,30 @@ def _foreground_kernel(d, bg, robot, margin, scalar, erode, out):  # pragma: no 
 
 @njit(cache=True, nogil=True)
 def _box_kernel(pc, reach, fx, fy, cx, cy):  # pragma: no cover - compiled
-    """:func:`image_box`'s bounds before clipping: (behind, floor(min(px - wx)) - 1, ceil(max(px + wx)) + 2,
-    floor(min(py - wy)) - 1, ceil(max(py + wy)) + 2), NaN propagated like numpy's min and max."""
+    """:func:`image_box`'s bounds before clipping: (behind, floor(min u_lo) - 1, ceil(max u_hi) + 2,
+    floor(min v_lo) - 1, ceil(max v_hi) + 2) over the spheres' exact image spans (:func:`sphere_span`), NaN
+    propagated like numpy's min and max."""
     n = pc.shape[0]
     for k in range(n):
         if pc[k, 2] - reach[k] <= 1e-3:
             return True, 0.0, 0.0, 0.0, 0.0
     a0, a1, b0, b1 = np.inf, -np.inf, np.inf, -np.inf
     for k in range(n):
-        z = pc[k, 2] - reach[k]
-        px = fx * pc[k, 0] / pc[k, 2] + cx
-        py = fy * pc[k, 1] / pc[k, 2] + cy
-        wx, wy = fx * reach[k] / z, fy * reach[k] / z
-        a0, a1, b0, b1 = _nanmin(a0, px - wx), _nanmax(a1, px + wx), _nanmin(b0, py - wy), _nanmax(b1, py + wy)
+        xl, xh = sphere_span(pc[k, 0], pc[k, 2], reach[k])
+        yl, yh = sphere_span(pc[k, 1], pc[k, 2], reach[k])
+        a0, a1 = _nanmin(a0, fx * xl + cx), _nanmax(a1, fx * xh + cx)
+        b0, b1 = _nanmin(b0, fy * yl + cy), _nanmax(b1, fy * yh + cy)
     return False, np.floor(a0) - 1, np.ceil(a1) + 2, np.floor(b0) - 1, np.ceil(b1) + 2
+
+
+@njit(cache=True, nogil=True)
+def sphere_span(x, z, r):  # pragma: no cover - compiled
+    """(lo, hi) of x/z over a ball of radius ``r`` about (x, z) with ``z > r`` (one image axis of a sphere
+    fully in front of the camera): the slopes of the two tangent lines through the optical centre,
+    ``(x z -+ r sqrt(x^2 + z^2 - r^2)) / (z^2 - r^2)``. Off the axis this is wider than ``x/z -+ r/(z - r)``."""
+    root = np.sqrt(max(x * x + z * z - r * r, 0.0))
+    den = (z - r) * (z + r)
+    return (x * z - r * root) / den, (x * z + r * root) / den
 
 
 @njit(cache=True, nogil=True)

@@ -267,8 +267,8 @@ def _backproject(camera: Camera, depth: np.ndarray, us: np.ndarray, vs: np.ndarr
 
 
 def image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray | float) -> tuple[int, int, int, int] | None:
-    """Pixel box (u0, u1, v0, v1) covering every sphere (S, 3) grown by ``reach`` (m); the whole image if one
-    reaches behind the camera; None if the box is empty."""
+    """Pixel box (u0, u1, v0, v1) covering the image of every sphere (S, 3) grown by ``reach`` (m), from the
+    exact tangent bounds; the whole image if one reaches behind the camera; None if the box is empty."""
     pc = camera.world_to_camera(centres)
     reach = np.broadcast_to(np.asarray(reach, float), (len(pc),))
     if pc.ndim == 2 and pc.shape[1] == 3 and len(pc):  # one compiled pass, the same box
@@ -281,13 +281,16 @@ def image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray | float) ->
     z = pc[:, 2] - reach
     if np.any(z <= 1e-3):
         return 0, camera.width, 0, camera.height
-    px = camera.fx * pc[:, 0] / pc[:, 2] + camera.cx
-    py = camera.fy * pc[:, 1] / pc[:, 2] + camera.cy
-    wx, wy = camera.fx * reach / z, camera.fy * reach / z
-    u0 = int(np.clip(np.floor((px - wx).min()) - 1, 0, camera.width))
-    u1 = int(np.clip(np.ceil((px + wx).max()) + 2, 0, camera.width))
-    v0 = int(np.clip(np.floor((py - wy).min()) - 1, 0, camera.height))
-    v1 = int(np.clip(np.ceil((py + wy).max()) + 2, 0, camera.height))
+    den = z * (pc[:, 2] + reach)
+    spans = []
+    for f, c, x in ((camera.fx, camera.cx, pc[:, 0]), (camera.fy, camera.cy, pc[:, 1])):
+        root = np.sqrt(np.maximum(x * x + pc[:, 2] ** 2 - reach**2, 0.0))  # exact tangent bound (sphere_span)
+        spans.append((f * (x * pc[:, 2] - reach * root) / den + c, f * (x * pc[:, 2] + reach * root) / den + c))
+    (xl, xh), (yl, yh) = spans
+    u0 = int(np.clip(np.floor(xl.min()) - 1, 0, camera.width))
+    u1 = int(np.clip(np.ceil(xh.max()) + 2, 0, camera.width))
+    v0 = int(np.clip(np.floor(yl.min()) - 1, 0, camera.height))
+    v1 = int(np.clip(np.ceil(yh.max()) + 2, 0, camera.height))
     return (u0, u1, v0, v1) if u1 > u0 and v1 > v0 else None
 
 
