@@ -289,3 +289,53 @@ def test_lattice_aligned_base_joints_add_no_error():
         t = np.maximum(g_arm.lookup(pts), np.max(np.abs(s) / vmax[:2]))
         moved = pts + s[0] * axis[0] + s[1] * axis[1]
         assert np.all(g_full.lookup(moved) <= t + 1e-6)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    st.integers(0, 1),
+    st.floats(0.05, 0.3),
+    st.floats(0.0, 1.2),
+    st.floats(0.0, 1.2),
+    st.floats(0.3, 3.0),
+    st.floats(0.0, 0.4),
+)
+def test_one_sweep_keeps_every_offset_within_its_error_no_later(kind, r, lo_mag, hi, vmax, t0):
+    """The sweep kernel alone, written into cells far finer than its step (so a cell centre stands for the
+    sample in it): every offset θ of the range moves the sample to within the reported error (plus a fine
+    cell's half diagonal) of a written cell whose time is <= max(t0, |θ| / v). A coarser step or a missing
+    end sample shows here, where the final dilation's slack would hide it."""
+    from depthguard.octree.reach_kernels import sweep
+
+    eps, fine = 0.02, 0.001
+    lo = -lo_mag
+    axis = np.array([0.0, 0.0, 1.0]) if kind == 0 else np.array([1.0, 0.0, 0.0])
+    point = np.zeros(3)
+    centre = np.array([r, 0.0, 0.0])
+    span = (r if kind == 0 else max(hi, lo_mag)) + 0.05
+    if kind == 0:
+        origin = np.array([-span, -span, -fine / 2])
+        shape = (int(2 * span / fine) + 1, int(2 * span / fine) + 1, 1)
+    else:
+        origin = np.array([r - span, -fine / 2, -fine / 2])
+        shape = (int(2 * span / fine) + 1, 1, 1)
+    grid = np.full(shape, np.inf, np.float32)
+    in_res = 0.01
+    in_origin = centre - in_res / 2
+    out, err, _ = sweep(
+        np.array([0]), np.array([t0], np.float32), in_origin, in_res, np.array([1, 1, 1]), origin, fine, grid,
+        kind, axis, point, lo, hi, vmax, eps,
+    )  # fmt: skip
+    assert out == 0 and err <= eps + 1e-12
+    theta = np.linspace(lo, hi, 4001)
+    if kind == 0:
+        pts = np.column_stack([r * np.cos(theta), r * np.sin(theta), np.zeros_like(theta)])
+    else:
+        pts = centre + theta[:, None] * axis
+    t_true = np.maximum(t0, np.abs(theta) / vmax)
+    cells = np.argwhere(np.isfinite(grid))
+    centres = origin + (cells + 0.5) * fine
+    times = grid[tuple(cells.T)]
+    d = np.linalg.norm(pts[:, None, :] - centres[None], axis=-1)
+    ok = (d <= err + np.sqrt(3) / 2 * fine + 1e-9) & (times[None] <= t_true[:, None] + 1e-6)
+    assert ok.any(axis=1).all(), f"{(~ok.any(axis=1)).sum()} offsets too far from an early enough sample"

@@ -17,9 +17,10 @@ Method (the joint-by-joint sweep of SAPHARI ref. [1], made provably conservative
   side, between ``res / 8`` and ``res``, so the small distal sets collapse finely.
 * Error bound ``δ``, the invariant: every true point at time ``t`` lies within ``δ`` of the closed cube of a
   kept cell whose time is ``<= t``. Rasterising a capsule adds nothing (its points lie in the cubes of the
-  cells it marks). A sampled sweep moves each cell's centre, every ``eps / r⊥`` rad (every ``eps`` m along a
-  prismatic axis; ``eps`` half the target cell, the sample on the side of zero so that its time is never
-  later), and adds half the input cell's diagonal (the cube about its centre; a rotation is an isometry, so
+  cells it marks). A sampled sweep moves each cell's centre, every ``2 eps / r⊥`` rad (every ``2 eps`` m
+  along a prismatic axis; ``eps`` half the target cell; each sample timed at the midpoint before it, so the
+  nearer sample on the side of zero is never later; see :func:`~depthguard.octree.reach_kernels.sweep`),
+  and adds half the input cell's diagonal (the cube about its centre; a rotation is an isometry, so
   the error a point already carries is kept, not grown) plus the sampling error. A joint too slow to move
   any sample keeps the lattice and adds only its motion.
 * The base's prismatic joints along a lattice axis (an omnidirectional base's x and y) *slide* the output
