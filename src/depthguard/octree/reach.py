@@ -257,6 +257,21 @@ def _leading_slides(ch: ChainSweep) -> list[tuple[int, float, float]]:
     return out
 
 
+def _slide_base(ch: ChainSweep, slides: list, lo: np.ndarray, hi: np.ndarray, out: np.ndarray, origin, res: float):
+    """The exact slides of the base's lattice-aligned prismatic joints (:func:`_leading_slides`) on the output
+    cells ``out``, tip-most first, adding the links that they carry; returns (#cells outside, error added)."""
+    outside, delta = 0, 0.0
+    for j in range(len(slides), 0, -1):
+        jj = j - 1
+        d, sign, deviation = slides[jj]
+        a, b = (float(lo[jj]), float(hi[jj])) if sign > 0 else (-float(hi[jj]), -float(lo[jj]))
+        outside += slide(out, d, a, b, float(ch.vmax[jj]), res)
+        delta += deviation * max(-a, b)  # cell indices: no rounding
+        if j - 1 > 0:
+            outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, origin, res, out)
+    return outside, delta
+
+
 def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool) -> ReachabilityGrid | None:
     """The sweep with adaptive internal grids: ``cells`` cells along the set's longest side, between
     ``res / 8`` and ``res``, so the small distal sets collapse finely (small error) and the large proximal ones
@@ -319,14 +334,9 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
             delta += H * in_res + err + _ROUNDING
         if j - 1 > 0:
             outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, g_origin, g_res, grid)
-    for j in range(m, 0, -1):  # exact slides on the output cells
-        jj = j - 1
-        d, sign, deviation = slides[jj]
-        a, b = (float(lo[jj]), float(hi[jj])) if sign > 0 else (-float(hi[jj]), -float(lo[jj]))
-        outside += slide(out, d, a, b, float(ch.vmax[jj]), res_out)
-        delta += deviation * max(-a, b)  # cell indices: no rounding
-        if j - 1 > 0:
-            outside += rasterize(ch.cap_a, ch.cap_b, ch.cap_r, ch.cap_joint == j - 1, box_origin, res_out, out)
+    n_out, d_slides = _slide_base(ch, slides, lo, hi, out, box_origin, res_out)
+    outside += n_out
+    delta += d_slides
     if outside:
         if not strict:
             return None
