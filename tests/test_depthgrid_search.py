@@ -318,3 +318,38 @@ def test_chunked_query_equals_block_search(seed, robot_occludes):
             assert np.all(fusion.last_cells <= ref_cells)
             saved += int((ref_cells - fusion.last_cells).sum())
     assert saved > 0  # the chunk tests did skip column searches
+
+
+def _free_run_by_bits(words, g, going_up, lowest, n_cells):
+    """Bit-by-bit reference of :func:`depthguard.depthgrid.column._free_run`."""
+    def free(k):
+        return bool((int(words[0, 0, 1 + (k >> 6)]) >> (k & 63)) & 1)
+
+    step, stop = (1, n_cells) if going_up else (-1, lowest - 1)
+    g += step
+    while g != stop and free(g):
+        g += step
+    return g
+
+
+@pytest.mark.parametrize("n_cells", [1, 63, 64, 65, 200])
+def test_free_run_equals_the_bit_by_bit_scan(n_cells):
+    """The word-at-a-time scan of cached free cells (trailing/leading zero counts) ends where a scan of
+    one bit at a time ends, up and down, from every start, on sparse, dense and full bit sets (the bits
+    beyond ``n_cells`` set too, as a stale record may leave them)."""
+    from depthguard.depthgrid.column import _free_run
+
+    rng = np.random.default_rng(n_cells)
+    nw = (n_cells + 63) // 64
+    for density in (0.0, 0.3, 0.9, 0.99, 1.0):
+        words = np.zeros((1, 1, 1 + 2 * nw), np.uint64)
+        bits = rng.random(64 * nw) < density
+        for k in np.flatnonzero(bits):
+            words[0, 0, 1 + (k >> 6)] |= np.uint64(1) << np.uint64(k & 63)
+        for lowest in (0, n_cells // 3):
+            for g in range(lowest - 1, n_cells + 1):
+                for up in (True, False):
+                    if (up and g >= n_cells) or (not up and g < lowest):
+                        continue
+                    want = _free_run_by_bits(words, g, up, lowest, n_cells)
+                    assert _free_run(words, 0, 0, g, up, lowest, n_cells) == want, (density, lowest, g, up)

@@ -29,6 +29,8 @@ import math
 
 import numba as nb
 import numpy as np
+from numba.cpython.unsafe.numbers import leading_zeros, trailing_zeros
+from numba.extending import overload
 
 from depthguard.depthgrid.records import BLOCK, TILE_BLOCK
 from depthguard.depthgrid.votes import block_cleared, cell_occupied, tile_block_cleared
@@ -84,28 +86,49 @@ def _refresh(cc, v, u):
         cc.words[v, u, 0] = gen
 
 
+def _lowest_set_bit(x):
+    """Index of the lowest set bit of the non-zero uint64 ``x`` (pure Python, for ``NUMBA_DISABLE_JIT``)."""
+    x = int(x)
+    return (x & -x).bit_length() - 1
+
+
+def _highest_set_bit(x):
+    """Index of the highest set bit of the non-zero uint64 ``x`` (pure Python, for ``NUMBA_DISABLE_JIT``)."""
+    return int(x).bit_length() - 1
+
+
+@overload(_lowest_set_bit, inline="always")
+def _lowest_set_bit_jit(x):
+    return lambda x: int(trailing_zeros(x))
+
+
+@overload(_highest_set_bit, inline="always")
+def _highest_set_bit_jit(x):
+    return lambda x: 63 - int(leading_zeros(x))
+
+
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _free_run(words, v, u, g, going_up, lowest, n_cells):
     """Next segment index after the run of cached free cells (bit set at word 1) from cell ``g`` (up: at
-    most ``n_cells``, the space beyond the grid; down: at least ``lowest - 1``)."""
+    most ``n_cells``, the space beyond the grid; down: at least ``lowest - 1``), a 64-bit word at a time
+    (the first unset bit: count of trailing / leading zeros of the word's complement)."""
     if going_up:
         g += 1
         while g < n_cells:
-            if (g & 63) == 0 and words[v, u, 1 + (g >> 6)] == _ALL:
-                g += 64
-                continue
-            if not _has(words, v, u, 1, g):
-                return g
-            g += 1
+            w = g >> 6
+            x = ~words[v, u, 1 + w] & (_ALL << np.uint64(g & 63))  # unset bits at or above g
+            if x != np.uint64(0):
+                return min((w << 6) + _lowest_set_bit(x), n_cells)
+            g = (w + 1) << 6
         return n_cells
     g -= 1
     while g >= lowest:
-        if (g & 63) == 63 and words[v, u, 1 + (g >> 6)] == _ALL:
-            g -= 64
-            continue
-        if not _has(words, v, u, 1, g):
-            return g
-        g -= 1
+        w = g >> 6
+        x = ~words[v, u, 1 + w] & (_ALL >> np.uint64(63 - (g & 63)))  # unset bits at or below g
+        if x != np.uint64(0):
+            r = (w << 6) + _highest_set_bit(x)
+            return r if r >= lowest else lowest - 1
+        g = (w << 6) - 1
     return lowest - 1
 
 

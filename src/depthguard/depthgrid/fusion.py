@@ -344,7 +344,7 @@ class DepthGridFusion:
         if self.parallel or not self.column_cache:
             return self._cache_off
         if self._cache is None:
-            self._cache = column_cache(*self.cameras[0].shape, int(self.grid.n_cells))
+            self._cache = column_cache(*self.cameras[0].shape, int(self.grid.n_cells), tile=TILE)
         return self._cache._replace(gen=self._gen)
 
     def tolerance(self, centres: np.ndarray, rho: float = 0.4) -> np.ndarray:

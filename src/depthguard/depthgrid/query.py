@@ -79,6 +79,34 @@ def _first_segment(s0, surface, P, a, b, h, lim, grid):
     return dx * dx + dy * dy + dz * dz < T * T, lo, hi
 
 
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _load_tile_states(sc, tid):
+    """Set ``sc.tstate`` to what this frame has decided of tile ``tid``'s blocks (the frame's
+    :class:`~depthguard.depthgrid.records.ColumnCache` ``tiles``; all unknown without the cache).
+    Returns ``tid``, or -1 without the cache."""
+    cc = sc.cache
+    ts = sc.tstate
+    if not cc.on:
+        ts[:] = 0
+        return -1
+    if cc.tile_gen[tid] != cc.gen:
+        cc.tiles[tid, :] = 0
+        cc.tile_gen[tid] = cc.gen
+    for i in range(ts.shape[0]):
+        ts[i] = cc.tiles[tid, i]
+    return tid
+
+
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _store_tile_states(sc, tid):
+    """Keep what the tile's searches decided of its blocks for the frame's later searches
+    (:func:`_load_tile_states`)."""
+    if tid >= 0:
+        ts = sc.tstate
+        for i in range(ts.shape[0]):
+            sc.cache.tiles[tid, i] = ts[i]
+
+
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always", fastmath=FASTMATH)
 def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, sc, chunks, st, lattice_only):
     """``hits`` plus the pixels of tile (tu, tv) inside ``box``; ``st``: the direction lattice's stride (only
@@ -89,7 +117,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
     reff = qp.rho + radius
     zmax = pz + reff
     rect = (tu * tile, tv * tile, min(intr.width, tu * tile + tile), min(intr.height, tv * tile + tile))
-    sc.tstate[:] = 0
+    tid = _load_tile_states(sc, tv * ((intr.width + tile - 1) // tile) + tu)
     allclear = pending = beyond_out = False
     g0c = g1c = 0
     cells = tests = 0
@@ -100,6 +128,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
         )
         tests += 1
         if skip:
+            _store_tile_states(sc, tid)
             return hits, cells, tests
     step = st if lattice_only else 1
     va, ua = max(v0, rect[1]), max(u0, rect[0])
@@ -148,6 +177,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
                 tests += nt
             if found:
                 hits = _segment_hit(hits, P, a, b, lo, hi, h, radius, qp, summed)
+    _store_tile_states(sc, tid)
     return hits, cells, tests
 
 

@@ -91,19 +91,34 @@ class ColumnCache(NamedTuple):
     clearing), words ``1 .. nw`` the cells decided cleared (bit ``g``), words ``1 + nw .. 2 nw`` those
     decided occupied; ``nw = ceil(n_cells / 64)``. ``gen``: this frame's generation (>= 1); ``on``: use
     the cache (off for the threaded query: its threads would share the bits).
+
+    ``tiles`` (n_tiles, n_cells // TILE_BLOCK + 1) uint8: per principal tile (row-major, ``TILE`` pixels
+    square), the tile-wide block states decided so far (0 unknown, 1 cleared, 2 not cleared; a tile
+    block's state depends on the tile and the frame only, not on the query point), valid where
+    ``tile_gen`` (n_tiles,) int64 equals ``gen``.
     """
 
     words: np.ndarray
     nw: int
     gen: int
     on: bool
+    tiles: np.ndarray
+    tile_gen: np.ndarray
 
 
-def column_cache(height: int, width: int, n_cells: int, on: bool = True) -> ColumnCache:
-    """An empty :class:`ColumnCache` for an (height, width) principal image and ``n_cells`` depth cells
-    (``on=False``: a disabled one; give it ``height = width = 1``)."""
+def column_cache(height: int, width: int, n_cells: int, on: bool = True, tile: int = 16) -> ColumnCache:
+    """An empty :class:`ColumnCache` for an (height, width) principal image, ``n_cells`` depth cells and
+    ``tile``-pixel tiles (``on=False``: a disabled one; give it ``height = width = 1``)."""
     nw = max(1, -(-n_cells // 64))
-    return ColumnCache(np.zeros((height, width, 1 + 2 * nw), np.uint64), nw, 1, on)
+    n_tiles = -(-height // tile) * -(-width // tile)
+    return ColumnCache(
+        np.zeros((height, width, 1 + 2 * nw), np.uint64),
+        nw,
+        1,
+        on,
+        np.zeros((n_tiles, n_cells // TILE_BLOCK + 1), np.uint8),
+        np.zeros(n_tiles, np.int64),
+    )
 
 
 class Scratch(NamedTuple):
