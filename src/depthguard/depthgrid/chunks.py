@@ -65,7 +65,20 @@ def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     tstate = sc.tstate
     if tb0 > tb1:
         return True
-    if _blocks_cleared(rect, tb0, tb1, grid, mp, vt, sc.stack):
+    # blocks that this frame's earlier searches of the tile decided (query.py keeps them per tile): every
+    # block cleared decides the chunk; a block not cleared fails the chunk and any piece that holds it
+    # (a larger piece covers the same pixels beyond a farther depth), except with robot windows, where a
+    # larger piece's far depth may fall into a window
+    known = True
+    failed = False
+    for tb in range(tb0, tb1 + 1):
+        known = known and tstate[tb] == 1
+        failed = failed or tstate[tb] == 2
+    if known:
+        return True
+    if failed and not vt.windows and (tb1 == tb0 or not eager):
+        return False
+    if not (failed and not vt.windows) and _blocks_cleared(rect, tb0, tb1, grid, mp, vt, sc.stack):
         for tb in range(tb0, tb1 + 1):
             tstate[tb] = 1
         return True
@@ -78,13 +91,22 @@ def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     for half in range(2):
         a = tb0 if half == 0 else mid
         b = mid - 1 if half == 0 else tb1
-        if _blocks_cleared(rect, a, b, grid, mp, vt, sc.stack):
+        half_known = True
+        half_failed = False
+        for tb in range(a, b + 1):
+            half_known = half_known and tstate[tb] == 1
+            half_failed = half_failed or tstate[tb] == 2
+        if half_known or (
+            not (half_failed and not vt.windows) and _blocks_cleared(rect, a, b, grid, mp, vt, sc.stack)
+        ):
             for tb in range(a, b + 1):
                 tstate[tb] = 1
             continue
         allc = True  # decide each block now (the caller may then skip the whole tile)
         for tb in range(a, b + 1):
-            if _blocks_cleared(rect, tb, tb, grid, mp, vt, sc.stack):
+            if tstate[tb] == 2:
+                allc = False
+            elif tstate[tb] == 1 or _blocks_cleared(rect, tb, tb, grid, mp, vt, sc.stack):
                 tstate[tb] = 1
             else:
                 tstate[tb] = 2
