@@ -234,3 +234,32 @@ def test_literal_ral16_form_over_reports_off_axis_but_frustum_does_not():
     d = {m: query_distances(frame, P, 0.0, rho=0.4, mode="min", model=m).distance[0] for m in ("frustum", "ral16")}
     assert d["frustum"] <= truth + 1e-9
     assert d["ral16"] > truth + 0.01  # ~ 1/cos(25 deg): about 2.5 cm too far at 0.25 m
+
+
+def test_to_world_rotates_and_masks_rows_as_the_frame_change_says():
+    """The kernel rows (camera frame) become world-frame distances, directions and nearest points:
+    ``V_W = R^T V_C``, ``x_W = R^T (x_C - t)``, the distance ``max(d - r, 0)`` where ``d < rho + r``, and
+    inf / NaN / NaN for a row with nothing within reach (whatever garbage the row holds)."""
+    from depthguard.depthspace import to_world
+
+    rng = np.random.default_rng(5)
+    R, t = look_at(np.array([1.5, -2.0, 1.2]), np.array([0.1, 0.3, 0.6]))
+    cam = Camera(width=64, height=48, fx=50.0, fy=50.0, cx=32.0, cy=24.0, R=R, t=t)
+    n = 40
+    raw = rng.normal(size=(n, 12))
+    raw[:, 0] = rng.uniform(0.0, 0.8, n)
+    raw[:, 7] = rng.integers(0, 500, n)
+    raw[::7, 4:7] = np.nan  # nothing found: the kernel leaves NaN here
+    raw[::7, 0] = np.inf
+    radii = rng.uniform(0.0, 0.1, n)
+    res = to_world(cam, raw, radii, 0.4)
+    found = raw[:, 0] < 0.4 + radii
+    assert 0 < found.sum() < n
+    np.testing.assert_array_equal(res.distance[found], np.maximum(raw[found, 0] - radii[found], 0.0))
+    assert np.all(np.isinf(res.distance[~found]))
+    assert np.all(np.isnan(res.direction[~found])) and np.all(np.isnan(res.nearest[~found]))
+    np.testing.assert_allclose(res.direction[found], raw[found, 1:4] @ R, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(res.nearest[found], (raw[found, 4:7] - t) @ R, rtol=0, atol=1e-14)
+    back = cam.world_to_camera(res.nearest[found])  # an independent round trip through the camera
+    np.testing.assert_allclose(back, raw[found, 4:7], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(res.obstacle_pixels, raw[:, 7].astype(np.int64))

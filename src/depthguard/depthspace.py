@@ -311,11 +311,32 @@ def query_distances(
     return to_world(cam, raw, r, rho)
 
 
+@nb.njit(cache=True, nogil=True)
+def _rows_to_world(raw, radii, rho, R, t):
+    """:func:`to_world`'s arithmetic in one compiled call (the query's glue runs with the caches cold)."""
+    n = raw.shape[0]
+    dist = np.empty(n)
+    direction = np.empty((n, 3))
+    nearest = np.empty((n, 3))
+    count = np.empty(n, np.int64)
+    for i in range(n):
+        count[i] = np.int64(raw[i, 7])
+        if not raw[i, 0] < rho + radii[i]:
+            dist[i] = np.inf
+            direction[i, :] = np.nan
+            nearest[i, :] = np.nan
+            continue
+        dist[i] = max(raw[i, 0] - radii[i], 0.0)
+        for j in range(3):  # V_R = R^T V_C; x_w = R^T (x_c - t)
+            direction[i, j] = raw[i, 1] * R[0, j] + raw[i, 2] * R[1, j] + raw[i, 3] * R[2, j]
+            nearest[i, j] = (raw[i, 4] - t[0]) * R[0, j] + (raw[i, 5] - t[1]) * R[1, j] + (raw[i, 6] - t[2]) * R[2, j]
+    return dist, direction, nearest, count
+
+
 def to_world(cam: Camera, raw: np.ndarray, radii: np.ndarray, rho: float) -> PointDistances:
     """Kernel output rows (camera frame, distances from the sphere centres; see
-    :mod:`depthguard.kernels.hits`) -> world-frame :class:`PointDistances` of N spheres of ``radii``."""
-    found = raw[:, 0] < rho + radii
-    dist = np.where(found, np.maximum(raw[:, 0] - radii, 0.0), np.inf)
-    direction = np.where(found[:, None], cam.vector_to_world(raw[:, 1:4]), np.nan)
-    nearest = np.where(found[:, None], cam.camera_to_world(np.nan_to_num(raw[:, 4:7])), np.nan)
-    return PointDistances(dist, direction, nearest, raw[:, 7].astype(np.int64))
+    :mod:`depthguard.kernels.hits`) -> world-frame :class:`PointDistances` of N spheres of ``radii``:
+    distance ``max(d - r, 0)`` where ``d < rho + r``, else inf (direction and nearest point NaN)."""
+    return PointDistances(
+        *_rows_to_world(raw, np.ascontiguousarray(radii, dtype=float), float(rho), cam.R, np.asarray(cam.t, float))
+    )
