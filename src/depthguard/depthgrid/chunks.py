@@ -52,6 +52,21 @@ def _blocks_cleared(rect, tb0, tb1, grid, mp, vt, stack):
     return tile_block_cleared(ua, va, ub, vb, tb0 * TILE_BLOCK, g1, grid, mp, vt, stack)
 
 
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _known_states(tstate, tb0, tb1, windows):
+    """What this frame's earlier searches of the tile decided of the blocks ``tb0..tb1`` (query.py keeps
+    them per tile): ``(cleared, failed)``. ``cleared``: every block cleared, so the piece is. ``failed``: a
+    block not cleared, so the piece and any piece that holds it fail too (a larger piece covers the same
+    pixels beyond a farther depth); never with robot ``windows``, where a larger piece's far depth may
+    fall into a window."""
+    cleared = True
+    failed = False
+    for tb in range(tb0, tb1 + 1):
+        cleared = cleared and tstate[tb] == 1
+        failed = failed or tstate[tb] == 2
+    return cleared, failed and not windows
+
+
 @nb.njit(cache=True, nogil=True, _nrt=False)
 def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     """Decide at once the tile blocks ``tb0..tb1`` of tile ``rect`` = ``(ua, va, ub, vb)``.
@@ -65,20 +80,12 @@ def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     tstate = sc.tstate
     if tb0 > tb1:
         return True
-    # blocks that this frame's earlier searches of the tile decided (query.py keeps them per tile): every
-    # block cleared decides the chunk; a block not cleared fails the chunk and any piece that holds it
-    # (a larger piece covers the same pixels beyond a farther depth), except with robot windows, where a
-    # larger piece's far depth may fall into a window
-    known = True
-    failed = False
-    for tb in range(tb0, tb1 + 1):
-        known = known and tstate[tb] == 1
-        failed = failed or tstate[tb] == 2
+    known, failed = _known_states(tstate, tb0, tb1, vt.windows)
     if known:
         return True
-    if failed and not vt.windows and (tb1 == tb0 or not eager):
+    if failed and (tb1 == tb0 or not eager):
         return False
-    if not (failed and not vt.windows) and _blocks_cleared(rect, tb0, tb1, grid, mp, vt, sc.stack):
+    if not failed and _blocks_cleared(rect, tb0, tb1, grid, mp, vt, sc.stack):
         for tb in range(tb0, tb1 + 1):
             tstate[tb] = 1
         return True
@@ -91,14 +98,8 @@ def tile_chunk_cleared(rect, tb0, tb1, grid, mp, vt, sc, eager):
     for half in range(2):
         a = tb0 if half == 0 else mid
         b = mid - 1 if half == 0 else tb1
-        half_known = True
-        half_failed = False
-        for tb in range(a, b + 1):
-            half_known = half_known and tstate[tb] == 1
-            half_failed = half_failed or tstate[tb] == 2
-        if half_known or (
-            not (half_failed and not vt.windows) and _blocks_cleared(rect, a, b, grid, mp, vt, sc.stack)
-        ):
+        half_known, half_failed = _known_states(tstate, a, b, vt.windows)
+        if half_known or (not half_failed and _blocks_cleared(rect, a, b, grid, mp, vt, sc.stack)):
             for tb in range(a, b + 1):
                 tstate[tb] = 1
             continue

@@ -80,31 +80,18 @@ def _first_segment(s0, surface, P, a, b, h, lim, grid):
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _load_tile_states(sc, tid):
-    """Set ``sc.tstate`` to what this frame has decided of tile ``tid``'s blocks (the frame's
-    :class:`~depthguard.depthgrid.records.ColumnCache` ``tiles``; all unknown without the cache).
-    Returns ``tid``, or -1 without the cache."""
+def _tile_scratch(sc, tid):
+    """``sc`` whose ``tstate`` holds what this frame has decided of tile ``tid``'s blocks: the frame's
+    :class:`~depthguard.depthgrid.records.ColumnCache` row ``tiles[tid]`` itself, so the tile's searches
+    decide for the frame's later searches too; without the cache, ``sc.tstate`` cleared."""
     cc = sc.cache
-    ts = sc.tstate
     if not cc.on:
-        ts[:] = 0
-        return -1
+        sc.tstate[:] = 0
+        return sc
     if cc.tile_gen[tid] != cc.gen:
         cc.tiles[tid, :] = 0
         cc.tile_gen[tid] = cc.gen
-    for i in range(ts.shape[0]):
-        ts[i] = cc.tiles[tid, i]
-    return tid
-
-
-@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _store_tile_states(sc, tid):
-    """Keep what the tile's searches decided of its blocks for the frame's later searches
-    (:func:`_load_tile_states`)."""
-    if tid >= 0:
-        ts = sc.tstate
-        for i in range(ts.shape[0]):
-            sc.cache.tiles[tid, i] = ts[i]
+    return Scratch(sc.lbs, cc.tiles[tid], sc.stack, cc)
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always", fastmath=FASTMATH)
@@ -117,7 +104,7 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
     reff = qp.rho + radius
     zmax = pz + reff
     rect = (tu * tile, tv * tile, min(intr.width, tu * tile + tile), min(intr.height, tv * tile + tile))
-    tid = _load_tile_states(sc, tv * ((intr.width + tile - 1) // tile) + tu)
+    sc = _tile_scratch(sc, tv * ((intr.width + tile - 1) // tile) + tu)
     allclear = pending = beyond_out = False
     g0c = g1c = 0
     cells = tests = 0
@@ -128,7 +115,6 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
         )
         tests += 1
         if skip:
-            _store_tile_states(sc, tid)
             return hits, cells, tests
     step = st if lattice_only else 1
     va, ua = max(v0, rect[1]), max(u0, rect[0])
@@ -177,7 +163,6 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
                 tests += nt
             if found:
                 hits = _segment_hit(hits, P, a, b, lo, hi, h, radius, qp, summed)
-    _store_tile_states(sc, tid)
     return hits, cells, tests
 
 
