@@ -322,6 +322,7 @@ def test_chunked_query_equals_block_search(seed, robot_occludes):
 
 def _free_run_by_bits(words, g, going_up, lowest, n_cells):
     """Bit-by-bit reference of :func:`depthguard.depthgrid.column._free_run`."""
+
     def free(k):
         return bool((int(words[0, 0, 1 + (k >> 6)]) >> (k & 63)) & 1)
 

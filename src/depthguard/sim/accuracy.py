@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ZERO_EVAL", "ZERO_TRUE", "accuracy_metrics", "under_report_series"]
+__all__ = ["ZERO_EVAL", "ZERO_TRUE", "accuracy_metrics", "measured_bound_metrics", "under_report_series"]
 
 ZERO_EVAL = 0.005  # m: an evaluated distance at or below this counts as "at zero"
 ZERO_TRUE = 0.05  # m: ... while the true clearance exceeds this
@@ -92,4 +92,30 @@ def accuracy_metrics(log, rho: float, period: float) -> dict[str, Any]:
             "time_at_zero_s": round(float(np.sum(zero[:, k]) * period), 4),
         }
     out["accuracy_per_point"] = per
+    out["measured_bound"] = measured_bound_metrics(log, rho)
     return out
+
+
+def measured_bound_metrics(log, rho: float) -> dict[str, Any] | None:
+    """The evaluation against the measured bound ``b`` (:mod:`depthguard.sim.measured_bound`) on the sampled
+    calls, over the samples with ``c < ρ``: ``median_unmeasured_under_report`` = median(c - b) (what the
+    cameras leave unmeasured), ``median_excess_under_report`` = median(b - e) (what the distance stage adds to
+    it), ``max_over_measured_bound`` = max(e - b) (m; the stage claiming free what no camera saw free: within
+    the declared tolerance), ``samples`` and ``spacing_m`` (the bound's lattice). None without samples."""
+    rows = list(getattr(log, "bound_row", ()))
+    if not rows:
+        return None
+    _, e, c, tol = _arrays(log)
+    b = np.asarray(log.bound, float)
+    e, c, tol = np.minimum(e[rows], rho), c[rows], tol[rows]
+    m = (c < rho) & np.isfinite(b)
+    if not m.any():
+        return {"samples": 0, "spacing_m": float(log.bound_spacing)}
+    return {
+        "samples": int(m.sum()),
+        "spacing_m": float(log.bound_spacing),
+        "median_unmeasured_under_report": float(np.median(c[m] - b[m])),
+        "median_excess_under_report": float(np.median(b[m] - e[m])),
+        "max_over_measured_bound": float(np.max(e[m] - b[m])),
+        "over_measured_bound_within_tolerance": bool(np.all(e[m] - b[m] <= tol[m])),
+    }

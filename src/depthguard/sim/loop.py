@@ -93,6 +93,7 @@ class LoopConfig:
     log_every: int = 10  # control steps between logged rows (10 ms)
     progress: bool = False
     label: str = ""
+    bound_samples: int = 24  # distance calls compared with the measured bound (0: none; sim.measured_bound)
 
 
 @dataclass
@@ -129,6 +130,11 @@ class SimLog:
     acc_true: list = field(default_factory=list)
     acc_tol: list = field(default_factory=list)
     acc_excluded_groups: tuple = ()  # geom groups left out of the truth (a background model's)
+    # a few distance calls: their row in acc_* and the measured bound per control point (NaN where the true
+    # clearance is >= rho; depthguard.sim.measured_bound)
+    bound_row: list = field(default_factory=list)
+    bound: list = field(default_factory=list)
+    bound_spacing: float = 0.0
     nearest_obstacle: dict = field(default_factory=dict)
     links: list = field(default_factory=list)
     point_names: tuple = ()
@@ -197,6 +203,8 @@ def run_loop(
     prog = _Progress(cfg.duration, cfg.label, cfg.progress)
     # the elbow (joint A4) is the last control point on the upper arm (lwr_link_3)
     elbow_idx = [i for i, n in enumerate(kin.names) if n.startswith("lwr_link_3")][-1:]
+    bound_every = _bound_every(cams, cfg)
+    bound_frame = None
     t_start = time.perf_counter()
     status: dict = {}
     xdot = np.zeros(3)
@@ -207,7 +215,9 @@ def run_loop(
         # ---------------------------------------------------------------- frame stage (30 Hz)
         if t >= next_frame - 1e-9:
             next_frame += frame_every
-            depths = _frame_stage(cell, cams, kin, stage, q_meas, log)
+            depths, masks, margins = _frame_stage(cell, cams, kin, stage, q_meas, log)
+            if bound_every and frame_count % bound_every == 0:
+                bound_frame = (depths, masks, margins, q_meas.copy())
             t_frames = t  # the distances from these frames are as old as the frames (as in depthguard run)
             snap = ptruth.snapshot(cell.data)  # the obstacles as this frame saw them (metrics only)
             every = record_frames_every if depths[0].shape[1] <= 320 else 2 * record_frames_every
@@ -227,6 +237,9 @@ def run_loop(
             log.acc_eval.extend(np.asarray(res.distance, float))
             log.acc_true.extend(ptruth.evaluate(cp.centres, cp.radii, snap)[0])
             log.acc_tol.extend(stage.tolerance(cp.centres, noise))
+            if bound_frame is not None:
+                _log_bound(log, cams, kin, bound_frame, cp, log.acc_true[-len(cp.radii) :], cfg.rho)
+                bound_frame = None
         # ---------------------------------------------------------------- control stage (1 kHz)
         w0 = time.perf_counter()
         cp = kin.evaluate(q_meas)
@@ -258,6 +271,38 @@ def run_loop(
     return log
 
 
+BOUND_SPACING = 0.01  # m, lattice of the measured bound
+
+
+def _bound_every(cams: list, cfg: LoopConfig) -> int:
+    """Every how many frames a distance call is compared with the measured bound (0: never; only depth
+    cameras of the project's camera model are sampled)."""
+    from depthguard.camera import Camera
+
+    if cfg.bound_samples <= 0 or not cams or not all(isinstance(getattr(c, "camera", None), Camera) for c in cams):
+        return 0
+    return max(1, int(cfg.duration / cfg.frame_period) // cfg.bound_samples)
+
+
+def _log_bound(log: SimLog, cams: list, kin: Kinematics, frame, cp, truth, rho: float) -> None:
+    """The measured bound of the spheres whose true clearance is below rho (metrics only)."""
+    from depthguard.robot.interior import interior_capsules
+    from depthguard.sim.measured_bound import measured_bound, measured_views
+
+    depths, masks, margins, q = frame
+    truth = np.asarray(truth, float)
+    near = truth < rho
+    out = np.full(len(truth), np.nan)
+    if near.any():
+        views = measured_views([c.camera for c in cams], depths, [np.asarray(m, bool) for m in masks])
+        caps = interior_capsules(kin.model, q)
+        c, r = np.asarray(cp.centres)[near], np.asarray(cp.radii)[near]
+        out[near] = measured_bound(views, c, r, rho, caps, float(max(margins)), spacing=BOUND_SPACING)
+    log.bound_row.append(len(log.acc_t) - 1)
+    log.bound.append(out)
+    log.bound_spacing = BOUND_SPACING
+
+
 def _frame_stage(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: DistanceStage, q_meas, log: SimLog):
     """One frame set: capture every camera, self-filter at the measured joints, update the distance stage;
     logs the camera and frame-stage wall times. Returns the depth images."""
@@ -270,7 +315,7 @@ def _frame_stage(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: Dist
     stage.update(depths, masks, q_meas, kin.model, margins)
     log.wall_camera.append(w1 - w0)
     log.wall_frame.append(time.perf_counter() - w1)
-    return depths
+    return depths, masks, margins
 
 
 def _distance_call(stage: DistanceStage, kin: Kinematics, q_meas, cfg: LoopConfig, pivot):

@@ -1,0 +1,111 @@
+"""The measured bound (depthguard.sim.measured_bound) on analytic scenes with a known answer.
+
+One camera at the origin looking along +z (R = I) at a wall 3 m away; the bound is the distance from a
+sphere to the space that no camera sees free, so it is known in closed form: the wall's half-space
+``z >= 3``, a missing block's frustum, a second camera's view. The lattice makes the bound smaller by at
+most half its diagonal (sqrt(3)/2 h) and by at most one more spacing where the frontier is oblique.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from depthguard.camera import Camera
+from depthguard.sim.measured_bound import measured_bound, measured_views
+
+H = 0.01
+HALF = 0.5 * np.sqrt(3) * H
+
+
+def _cam(R=None, t=None) -> Camera:
+    return Camera(
+        width=160,
+        height=120,
+        fx=120.0,
+        fy=120.0,
+        cx=80.0,
+        cy=60.0,
+        R=np.eye(3) if R is None else R,
+        t=np.zeros(3) if t is None else t,
+        min_depth=0.3,
+    )
+
+
+def _wall(cam: Camera, z: float = 3.0) -> np.ndarray:
+    return np.full(cam.shape, z, np.float32)
+
+
+def _bound(cams, depths, masks, centre, radius, rho=0.5, caps=None, margin=0.0):
+    v = measured_views(cams, depths, masks)
+    return float(measured_bound(v, np.array([centre], float), np.array([radius]), rho, caps, margin, H)[0])
+
+
+def test_a_wall_bounds_the_space_behind_it():
+    cam = _cam()
+    no_robot = [np.zeros(cam.shape, bool)]
+    for zc, want in ((2.7, 0.2), (2.5, 0.4), (2.0, 0.5)):  # 0.5 = rho: nothing unseen within reach
+        b = _bound([cam], [_wall(cam)], no_robot, (0.0, 0.0, zc), 0.1)
+        assert want - HALF - 1e-9 <= b <= want + 1e-9, (zc, b)
+
+
+def test_a_missing_block_beyond_the_fill_radius_is_unseen_along_its_whole_ray():
+    cam = _cam()
+    d = _wall(cam)
+    d[50:70, 90:110] = np.nan  # 20 x 20 pixels: wider than the 9 x 9 fill window, so its centre stays a hole
+    m = np.zeros(cam.shape, bool)
+    # the hole's inner part (not reached by the fill) spans pixels u 94-105, i.e. x/z in [14/120, 26/120)
+    centre = np.array([0.0, 0.0, 1.5])
+    b = _bound([cam], [d], [m], centre, 0.05)
+    x_edge = 14.0 / 120.0 * 1.5  # the frustum's near side at the sphere's depth
+    want = x_edge - 0.05  # perpendicular distance to that plane is a little less: the frustum is oblique
+    assert b <= want + 1e-9
+    assert b >= want * np.cos(np.arctan(14.0 / 120.0)) - HALF - H
+    # a 4 x 4 hole is filled from its neighbours (the missing-depth policy): the wall again
+    d2 = _wall(cam)
+    d2[58:62, 98:102] = np.nan
+    assert _bound([cam], [d2], [m], centre, 0.05) == pytest.approx(0.5)
+
+
+def test_a_second_camera_clears_the_principals_hidden_space_but_not_its_own_holes():
+    cam0 = _cam()
+    d0 = _wall(cam0)
+    d0[40:80, 60:100] = 2.0  # a panel at 2 m hides what lies behind it from the principal camera
+    # the second camera 1 m to the side (at x = -1), looking at the same wall along parallel axes; the rule,
+    # not the physics, is under test: its image shows the wall only
+    cam1 = _cam(t=np.array([1.0, 0.0, 0.0]))
+    d1 = _wall(cam1)
+    m = [np.zeros(cam0.shape, bool), np.zeros(cam1.shape, bool)]
+    centre = (0.0, 0.0, 2.3)  # behind the panel
+    alone = _bound([cam0], [d0], m[:1], centre, 0.05)
+    assert alone == pytest.approx(0.0)
+    both = _bound([cam0, cam1], [d0, d1], m, centre, 0.05)
+    assert both == pytest.approx(0.5)  # the wall at 3 m is 0.65 away: nothing unseen within rho
+    d1_hole = d1.copy()
+    d1_hole[:, 120:] = np.nan  # the second camera's missing columns cover the sphere's ray (u = 80 + 120 * 1/2.3)
+    assert _bound([cam0, cam1], [d0, d1_hole], m, centre, 0.05) == pytest.approx(0.0)
+    # ... unless those pixels are the robot's: a secondary camera's robot pixel sees past
+    m_rob = [m[0], np.zeros(cam1.shape, bool)]
+    m_rob[1][:, 120:] = True
+    assert _bound([cam0, cam1], [d0, d1_hole], m_rob, centre, 0.05) >= 0.5 - 1e-9
+
+
+def test_space_inside_the_inflated_capsules_is_the_robot():
+    cam = _cam()
+    d = _wall(cam)
+    d[:, :] = np.nan  # nothing measured: everything unseen, except inside the capsule
+    m = [np.zeros(cam.shape, bool)]
+    caps = (np.array([[0.0, 0.0, 1.5]]), np.array([[0.0, 0.0, 1.5]]), np.array([0.2]))
+    b = _bound([cam], [d], m, (0.0, 0.0, 1.5), 0.05, caps=caps, margin=0.05)
+    assert 0.2 - HALF - 1e-9 <= b <= 0.2 + 1e-9  # from the sphere's surface (0.05) to the inflated 0.25
+
+
+def test_bad_input_is_refused():
+    cam = _cam()
+    with pytest.raises(ValueError, match="one depth image"):
+        measured_views([cam], [], [])
+    v = measured_views([cam], [_wall(cam)], [np.zeros(cam.shape, bool)])
+    with pytest.raises(ValueError, match="radii"):
+        measured_bound(v, np.zeros((2, 3)), np.zeros(3), 0.5)
+    with pytest.raises(ValueError, match="positive"):
+        measured_bound(v, np.zeros((1, 3)), np.zeros(1), float("nan"))
