@@ -28,6 +28,13 @@ import mujoco  # noqa: F401  (ImportError here lets the CLI fall back to the sta
 __all__ = ["run_demo"]
 
 
+def _get(res: dict, key: str | tuple[str, str]):
+    """``res[key]``, or ``res[key[0]][key[1]]`` for a nested key; None where missing."""
+    if isinstance(key, tuple):
+        return (res.get(key[0]) or {}).get(key[1])
+    return res.get(key)
+
+
 def _fmt(v, unit: str = "", nd: int = 3) -> str:
     if v is None:
         return "-"
@@ -104,13 +111,15 @@ def run_demo(out_dir: str | Path | None = None) -> int:
         ("frame stage median [ms]", "frame_ms_median", "", 1),
         ("eval. vs true: max over-report [m]", "max_over_report", "", 3),
         ("eval. vs true: median under-report [m]", "median_under_report", "", 3),
+        ("  of which unmeasured by any camera [m]", ("measured_bound", "median_unmeasured_under_report"), "", 3),
+        ("  added by the fusion [m]", ("measured_bound", "median_excess_under_report"), "", 3),
         ("phantom contact (eval. 0, true > 5 cm) [s]", "time_at_zero_s", "", 2),
         ("wall time [s]", "wall_seconds", "", 1),
     ]
     print()
     print(f"{'':44s} {'avoidance ON':>14s} {'avoidance OFF':>14s}")
     for label, key, unit, nd in rows:
-        print(f"{label:44s} {_fmt(on.get(key), unit, nd):>14s} {_fmt(off.get(key), unit, nd):>14s}")
+        print(f"{label:44s} {_fmt(_get(on, key), unit, nd):>14s} {_fmt(_get(off, key), unit, nd):>14s}")
     print(
         f"(over-report tolerance declared by the fusion: {_fmt(on.get('declared_tolerance'), ' m', 3)}; "
         "README: how the distances are computed)"

@@ -19,7 +19,10 @@ Metrics (ground truth from ``mj_geomDistance``, never seen by the pipeline):
   median and the 99th-percentile call time ``t`` (control points + distances + repulsion);
 * ``control_ms_p99``: 99th-percentile wall time of one control cycle; frame-stage timings likewise;
 * ``max_over_report``, ``median_under_report``, ``time_at_zero_s``, ``declared_tolerance``: evaluated
-  against true distances per control point and distance-stage call (:mod:`depthguard.sim.accuracy`).
+  against true distances per control point and distance-stage call (:mod:`depthguard.sim.accuracy`);
+* ``measured_bound``: on 24 sampled calls, the under-report split into what no camera measures and what
+  the distance stage adds (:func:`depthguard.sim.accuracy.measured_bound_metrics`,
+  :mod:`depthguard.sim.measured_bound`).
 """
 
 from __future__ import annotations

@@ -145,7 +145,8 @@ def plot_run(out_dir: str | Path, runs: dict, title: str, rho: float = 0.4) -> d
 
 
 def plot_under_report(path: str | Path, log, title: str, rho: float = 0.4) -> Path:
-    """Under-report (true clearance minus evaluated distance) of every control point over time."""
+    """Under-report (true clearance minus evaluated distance) of every control point over time, and at the
+    calls sampled for the measured bound the part of it that no camera measures (black crosses)."""
     from depthguard.sim.accuracy import under_report_series
 
     plt = _mpl()
@@ -165,6 +166,22 @@ def plot_under_report(path: str | Path, log, title: str, rho: float = 0.4) -> Pa
             alpha=0.15,
             transform=ax.get_xaxis_transform(),
             label=f"phantom zero ({at_zero.sum() * dt:.2f} s)",
+        )
+    rows = list(getattr(log, "bound_row", ()))
+    if rows:  # the part of it that no camera measures (depthguard.sim.measured_bound)
+        b = np.asarray(log.bound, float)
+        c = np.asarray(log.acc_true, float).reshape(len(t), -1)[rows]
+        tb = np.repeat(t[rows][:, None], b.shape[1], axis=1)
+        ok = np.isfinite(b) & (c < rho)
+        ax.scatter(
+            tb[ok],
+            (c - b)[ok],
+            s=14,
+            marker="x",
+            color="k",
+            lw=0.8,
+            zorder=5,
+            label="of which unmeasured (true - measured bound)",
         )
     ax.axhline(0.0, color="k", lw=0.8)
     ax.set_xlabel("simulated time [s]")
