@@ -80,14 +80,28 @@ def test_a_second_camera_clears_the_principals_hidden_space_but_not_its_own_hole
     alone = _bound([cam0], [d0], m[:1], centre, 0.05)
     assert alone == pytest.approx(0.0)
     both = _bound([cam0, cam1], [d0, d1], m, centre, 0.05)
-    assert both == pytest.approx(0.5)  # the wall at 3 m is 0.65 away: nothing unseen within rho
+    # the hidden space is cleared; what remains is the panel that the principal measures, 0.3 - 0.05 away
+    assert 0.25 - HALF - 1e-9 <= both <= 0.25 + 1e-9
     d1_hole = d1.copy()
     d1_hole[:, 120:] = np.nan  # the second camera's missing columns cover the sphere's ray (u = 80 + 120 * 1/2.3)
     assert _bound([cam0, cam1], [d0, d1_hole], m, centre, 0.05) == pytest.approx(0.0)
-    # ... unless those pixels are the robot's: a secondary camera's robot pixel sees past
+    # ... unless those pixels are the robot's: a secondary camera's robot pixel sees past, but it does not
+    # erase the panel that the principal camera measures
     m_rob = [m[0], np.zeros(cam1.shape, bool)]
     m_rob[1][:, 120:] = True
-    assert _bound([cam0, cam1], [d0, d1_hole], m_rob, centre, 0.05) >= 0.5 - 1e-9
+    assert 0.25 - HALF - 1e-9 <= _bound([cam0, cam1], [d0, d1_hole], m_rob, centre, 0.05) <= 0.25 + 1e-9
+
+
+def test_with_one_camera_the_space_that_the_robot_hides_is_free():
+    """The depth space skips robot pixels (ICRA'12 §IV-B): behind the robot's pixels nothing is unseen."""
+    cam = _cam()
+    d = _wall(cam)
+    d[40:80, 60:100] = 2.0
+    m = np.zeros(cam.shape, bool)
+    centre = (0.0, 0.0, 2.3)
+    assert _bound([cam], [d], [m], centre, 0.05) == pytest.approx(0.0)  # a panel: its shadow is unseen
+    m[40:80, 60:100] = True  # the same pixels are the robot's
+    assert _bound([cam], [d], [m], centre, 0.05) == pytest.approx(0.5)
 
 
 def test_space_inside_the_inflated_capsules_is_the_robot():

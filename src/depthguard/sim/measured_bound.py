@@ -18,7 +18,11 @@ camera's image with the same rules as the fusion's documented contract (README, 
   pixel takes the minimum valid non-robot depth of its ``(2 fill_radius + 1)²`` window (the project's
   missing-depth policy), computed here with :func:`scipy.ndimage.minimum_filter`;
 * a robot pixel of a secondary camera sees past (the robot is not an obstacle to itself); one of the
-  principal camera sees free only in front of its reading;
+  principal camera sees free only in front of its reading, except with a single camera, where the depth
+  space skips robot pixels (ICRA'12 §IV-B: space that the robot hides is free, a documented limit);
+* a point that some camera measures (within half the lattice's diagonal, along that camera's ray, of a
+  valid non-robot reading) is an obstacle, whatever the other cameras see (a robot pixel of one camera
+  does not erase a box that another measures);
 * a point inside the robot's inner capsules inflated by the self-filter margin is the robot, not space.
 
 The first lattice point seen free by no camera gives the bound, minus half the lattice's diagonal (so
@@ -44,11 +48,13 @@ class MeasuredViews:
 
     Attributes: ``R`` (K, 3, 3), ``t`` (K, 3), ``intr`` (K, 5) = fx, fy, cx, cy, min_depth, ``size`` (K, 2) =
     width, height, ``depth`` (K, Hmax, Wmax) float32 m (NaN: nothing measured there; the principal's holes
-    filled), ``robot`` (K, Hmax, Wmax) bool.
+    filled), ``robot`` (K, Hmax, Wmax) bool, ``measured`` (K, Hmax, Wmax) bool: a valid non-robot reading
+    (not a filled hole).
     """
 
-    def __init__(self, R, t, intr, size, depth, robot) -> None:
+    def __init__(self, R, t, intr, size, depth, robot, measured) -> None:
         self.R, self.t, self.intr, self.size, self.depth, self.robot = R, t, intr, size, depth, robot
+        self.measured = measured
 
 
 def _filled_principal(depth: np.ndarray, robot: np.ndarray, fill_radius: int) -> np.ndarray:
@@ -75,17 +81,19 @@ def measured_views(
     Wm = max(c.width for c in cameras)
     depth = np.full((K, Hm, Wm), np.nan, np.float32)
     robot = np.zeros((K, Hm, Wm), bool)
+    measured = np.zeros((K, Hm, Wm), bool)
     for k, (c, d, m) in enumerate(zip(cameras, depths, robot_masks, strict=True)):
         d = np.asarray(c.check_image(d, f"depths[{k}]"), np.float64)
         m = np.asarray(c.check_image(m, f"robot_masks[{k}]"), bool)
         dk = _filled_principal(d, m, fill_radius) if k == 0 else np.where(np.isfinite(d) & (d > 0), d, np.nan)
         depth[k, : c.height, : c.width] = dk
         robot[k, : c.height, : c.width] = m
+        measured[k, : c.height, : c.width] = np.isfinite(d) & (d > 0) & ~m
     R = np.stack([np.asarray(c.R, float) for c in cameras])
     t = np.stack([np.asarray(c.t, float) for c in cameras])
     intr = np.array([[c.fx, c.fy, c.cx, c.cy, float(getattr(c, "min_depth", 0.0) or 0.0)] for c in cameras])
     size = np.array([[c.width, c.height] for c in cameras], np.int64)
-    return MeasuredViews(R, t, intr, size, depth, robot)
+    return MeasuredViews(R, t, intr, size, depth, robot, measured)
 
 
 @lru_cache(maxsize=8)
@@ -102,7 +110,10 @@ def _lattice(h: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True)
-def _seen_free(p, R, t, intr, size, depth, robot) -> bool:
+def _seen_free(p, R, t, intr, size, depth, robot, measured, band) -> bool:
+    """Whether some camera sees ``p`` free and none measures a surface there (within ``band`` m in depth)."""
+    free = False
+    single = R.shape[0] == 1
     for k in range(R.shape[0]):
         x = R[k, 0, 0] * p[0] + R[k, 0, 1] * p[1] + R[k, 0, 2] * p[2] + t[k, 0]
         y = R[k, 1, 0] * p[0] + R[k, 1, 1] * p[1] + R[k, 1, 2] * p[2] + t[k, 1]
@@ -114,12 +125,17 @@ def _seen_free(p, R, t, intr, size, depth, robot) -> bool:
         if not (fu >= 0.0 and fv >= 0.0 and fu < size[k, 0] and fv < size[k, 1]):
             continue
         u, v = int(np.floor(fu)), int(np.floor(fv))
-        if k > 0 and robot[k, v, u]:
-            return True
+        if robot[k, v, u]:
+            if k > 0 or single:
+                free = True
+                continue
         d = depth[k, v, u]
-        if d == d and z < d:
-            return True
-    return False
+        if d == d:
+            if measured[k, v, u] and abs(z - d) <= band:
+                return False  # a measured surface
+            if z < d:
+                free = True
+    return free
 
 
 @njit(cache=True, nogil=True)
@@ -136,7 +152,7 @@ def _inside_capsules(p, a, b, cr) -> bool:
 
 
 @njit(cache=True, nogil=True)
-def _bound_kernel(centres, radii, rho, offs, norms, half_diag, R, t, intr, size, depth, robot, a, b, cr, out):
+def _bound_kernel(centres, radii, rho, offs, norms, half_diag, R, t, intr, size, depth, robot, measured, a, b, cr, out):
     p = np.empty(3)
     for i in range(centres.shape[0]):
         best = rho
@@ -147,7 +163,7 @@ def _bound_kernel(centres, radii, rho, offs, norms, half_diag, R, t, intr, size,
             p[0] = centres[i, 0] + offs[j, 0]
             p[1] = centres[i, 1] + offs[j, 1]
             p[2] = centres[i, 2] + offs[j, 2]
-            if _inside_capsules(p, a, b, cr) or _seen_free(p, R, t, intr, size, depth, robot):
+            if _inside_capsules(p, a, b, cr) or _seen_free(p, R, t, intr, size, depth, robot, measured, half_diag):
                 continue
             best = min(max(dist - half_diag, 0.0), rho)
             break
@@ -191,5 +207,7 @@ def measured_bound(
         cr = cr + float(margin)
     out = np.empty(c.shape[0])
     v = views
-    _bound_kernel(c, r, float(rho), offs, norms, half, v.R, v.t, v.intr, v.size, v.depth, v.robot, a, b, cr, out)
+    _bound_kernel(
+        c, r, float(rho), offs, norms, half, v.R, v.t, v.intr, v.size, v.depth, v.robot, v.measured, a, b, cr, out
+    )
     return out
