@@ -9,6 +9,8 @@ controller's own robot model. Nothing here reads the simulator's state.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from depthguard.camera import Camera
@@ -176,6 +178,20 @@ class Controller:
         return out.q_cmd, out.qdot_cmd, {"status": out.status.name, "scale": out.scale, "xdot_c": out.xdot_c}
 
 
+_SIDE: list = []
+
+
+def _side_thread():
+    """One worker thread for the frame stage's independent kernels (None on a single core)."""
+    if (os.cpu_count() or 1) < 2:
+        return None
+    if not _SIDE:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _SIDE.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="depthguard-frame"))
+    return _SIDE[0]
+
+
 class DistanceStage:
     """Frame stage + distance stage for one or several cameras.
 
@@ -247,11 +263,16 @@ class DistanceStage:
             a, b, r = interior_capsules(model, q) if q is not None and model is not None else (None, None, [])
             if len(r):
                 ms = list(margins) if margins is not None else [SELF_FILTER_MARGIN] * len(self.cameras)
+
+                def secondary_windows() -> list:
+                    return [robot_windows(c, a, b, r, margin=m) for c, m in zip(self.cameras[1:], ms[1:], strict=True)]
+
+                # (both kernels release the GIL: the secondary windows run beside the principal's pixels)
+                side = _side_thread()
+                job = side.submit(secondary_windows) if side is not None else None
                 d0, m0 = principal_robot_pixels(self.cameras[0], depths[0], masks[0], a, b, r, margin=ms[0])
                 depths, masks = [d0, *depths[1:]], [m0, *masks[1:]]
-                windows = [None] + [
-                    robot_windows(c, a, b, r, margin=m) for c, m in zip(self.cameras[1:], ms[1:], strict=True)
-                ]
+                windows = [None, *(job.result() if job is not None else secondary_windows())]
             else:
                 windows = None
             self.fusion.update(depths, masks, windows=windows)
