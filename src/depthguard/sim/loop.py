@@ -305,7 +305,7 @@ def _log_bound(log: SimLog, cams: list, kin: Kinematics, frame, cp, truth, rho: 
 
 def _frame_stage(cell: Cell, cams: list[KinectSim], kin: Kinematics, stage: DistanceStage, q_meas, log: SimLog):
     """One frame set: capture every camera, self-filter at the measured joints, update the distance stage;
-    logs the camera and frame-stage wall times. Returns the depth images."""
+    logs the camera and frame-stage wall times. Returns ``(depth images, robot masks, self-filter margins)``."""
     cell.forward()
     w0 = time.perf_counter()
     depths = [c.capture(cell.data) for c in cams]

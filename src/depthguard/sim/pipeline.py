@@ -179,6 +179,7 @@ class Controller:
 
 
 _SIDE: list = []
+os.register_at_fork(after_in_child=_SIDE.clear)  # a forked child has no worker thread: it makes its own
 
 
 def _side_thread():
