@@ -141,3 +141,23 @@ def test_stored_and_on_the_fly_maps_agree(seed, tmp_path_factory):
         for x, y in zip(a, b, strict=True):
             assert np.array_equal(x, y, equal_nan=True)
         assert np.array_equal(fly.last_cells, stored.last_cells)
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_fusion_never_claims_free_what_no_camera_saw_free(seed):
+    """fused <= measured bound + tolerance, with two and three cameras: the measured bound
+    (depthguard.sim.measured_bound, an independent lattice search) is the distance to the space that no
+    camera sees free or that some camera measures. Stronger than the truth check where space is unseen:
+    there the truth may be far while the bound is near."""
+    from depthguard.sim.measured_bound import measured_bound, measured_views
+
+    cams, _, depths, P, radii = setup(seed)
+    for n in (2, 3):
+        f = DepthGridFusion(cams[:n], dd=0.01, workspace=WORKSPACE)
+        f.update(depths[:n])
+        fused = np.minimum(f.query(P, radii, rho=RHO, mode="min").distance, RHO)
+        tol = f.tolerance(P, RHO)
+        views = measured_views(cams[:n], depths[:n], [np.zeros(c.shape, bool) for c in cams[:n]])
+        bound = measured_bound(views, P, radii, RHO)
+        assert np.all(fused <= bound + tol), (n, fused, bound, tol)
