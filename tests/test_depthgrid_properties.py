@@ -153,6 +153,11 @@ def test_fusion_never_claims_free_what_no_camera_saw_free(seed):
     from depthguard.sim.measured_bound import measured_bound, measured_views
 
     cams, _, depths, P, radii = setup(seed)
+    # one camera, the depth space (RA-L'16 §II-IV): its tolerance is one pixel footprint at d_p + rho
+    single = np.minimum(query_distances(prepare_frame(cams[0], depths[0]), P, radii, rho=RHO, mode="min").distance, RHO)
+    tol1 = (np.maximum(cams[0].world_to_camera(P)[:, 2], 0.0) + RHO) / min(cams[0].fx, cams[0].fy)
+    bound1 = measured_bound(measured_views(cams[:1], depths[:1], [np.zeros(cams[0].shape, bool)]), P, radii, RHO)
+    assert np.all(single <= bound1 + tol1), (single, bound1, tol1)
     for n in (2, 3):
         f = DepthGridFusion(cams[:n], dd=0.01, workspace=WORKSPACE)
         f.update(depths[:n])
