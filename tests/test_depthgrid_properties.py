@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -166,3 +167,39 @@ def test_fusion_never_claims_free_what_no_camera_saw_free(seed):
         views = measured_views(cams[:n], depths[:n], [np.zeros(c.shape, bool) for c in cams[:n]])
         bound = measured_bound(views, P, radii, RHO)
         assert np.all(fused <= bound + tol), (n, fused, bound, tol)
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**32 - 1))
+def test_update_beside_a_side_thread_gives_the_same_answers(seed):
+    """``update(side=...)`` (the secondary part on a worker thread, a principal correction on this one)
+    answers bit for bit as the plain update; an error in the secondary part raises and leaves no answer."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cams, _, depths, P, radii = setup(seed)
+    rng = np.random.default_rng(seed)
+    masks = [rng.random(c.shape) < 0.05 for c in cams]
+    windows = [None] + [
+        (np.full(c.shape, 1.0, np.float32), np.full(c.shape, 1.0 + rng.uniform(0, 1), np.float32)) for c in cams[1:]
+    ]
+
+    def principal(d, m):  # some correction of the principal frame (here: drop the mask's first rows)
+        m = m.copy()
+        m[:5] = False
+        return d, m
+
+    plain = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    d0, m0 = principal(depths[0], masks[0])
+    plain.update([d0, *depths[1:]], [m0, *masks[1:]], windows=windows)
+    side = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    with ThreadPoolExecutor(max_workers=1) as ex:
+        side.update(depths, masks, windows=lambda: windows, side=ex, principal=principal)
+        for mode in ("min", "hybrid"):
+            a, b = plain.query(P, radii, rho=RHO, mode=mode), side.query(P, radii, rho=RHO, mode=mode)
+            np.testing.assert_array_equal(a.distance, b.distance)
+            np.testing.assert_array_equal(a.direction, b.direction)
+        bad = [None, (np.zeros((3, 3), np.float32), np.zeros((3, 3), np.float32)), None]
+        with pytest.raises(ValueError, match="windows"):
+            side.update(depths, masks, windows=lambda: bad, side=ex, principal=principal)
+        with pytest.raises(RuntimeError, match="update"):
+            side.query(P, radii, rho=RHO)

@@ -87,6 +87,9 @@ obstacle within ρ costs 0.15-0.7 ms (2-5 ms before). See BENCHMARKS.md.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import Executor
+
 import numpy as np
 
 from depthguard.camera import Camera
@@ -208,7 +211,10 @@ class DepthGridFusion:
         depths: list[np.ndarray],
         masks: list[np.ndarray | None] | None = None,
         invalid: str = "conservative",
-        windows: list[tuple[np.ndarray, np.ndarray] | None] | None = None,
+        windows: list[tuple[np.ndarray, np.ndarray] | None] | Callable[[], list] | None = None,
+        *,
+        side: Executor | None = None,
+        principal: Callable[[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray | None]] | None = None,
     ) -> None:
         """Take one depth image per camera (per frame, camera rate).
 
@@ -224,7 +230,13 @@ class DepthGridFusion:
                 the cell's far depth ``d_end`` lies in ``[lo, hi]``: the robot's body holds no obstacle
                 (the self-filter's margin limit), even where a box hides it from camera k. The cleared
                 part of the cell lies within one cell diameter (Δd and a principal pixel footprint) of
-                that body.
+                that body. Or a callable that returns them (called where the secondary part runs).
+            side: an executor (one worker thread): the secondary cameras' part (windows, votes, vote
+                pyramid) runs there while the principal camera's part (segments and their tile bounds)
+                runs on this thread. The two write disjoint arrays; the kernels release the GIL. The answers
+                are the same as without it.
+            principal: a callable ``(depth, mask) -> (depth, mask)`` applied to the principal camera's
+                frame before its part (on this thread; :func:`depthguard.robot.interior.principal_robot_pixels`).
         """
         if invalid not in INVALID_POLICIES:
             raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
@@ -234,40 +246,66 @@ class DepthGridFusion:
             masks = [None] * len(self.cameras)
         if len(masks) != len(self.cameras):
             raise ValueError(f"masks: got {len(masks)} entries for {len(self.cameras)} cameras")
-        conservative = invalid == "conservative"
-        if windows is not None and len(windows) != len(self.cameras):
+        if windows is not None and not callable(windows) and len(windows) != len(self.cameras):
             raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
+        conservative = invalid == "conservative"
+        self._ready = False  # (until both parts are done: a failed update leaves no answer)
+
+        def principal_part() -> None:
+            d0, m0 = principal(depths[0], masks[0]) if principal is not None else (depths[0], masks[0])
+            self._update_principal(d0, m0, conservative)
+
+        if side is None:
+            principal_part()
+            self._update_secondary(depths, masks, conservative, windows)
+        else:
+            job = side.submit(self._update_secondary, depths, masks, conservative, windows)
+            try:
+                principal_part()
+            finally:
+                job.result()  # (raises the secondary part's error, if any)
+        self._invalid = invalid
+        self._gen += 1  # every cached cell state belongs to the frames before
+        self._ready = True
+
+    def _image(self, cam, image, name: str, dtype):
+        return np.ascontiguousarray(cam.check_image(image, name), dtype=dtype)
+
+    def _update_principal(self, depth, mask, conservative: bool) -> None:
+        """The principal camera's part of :meth:`update`: segment starts and kinds, and their tile bounds."""
+        cam = self.cameras[0]
+        d = self._image(cam, depth, "depth", np.float32)
+        has_mask = mask is not None
+        robot = self._image(cam, mask, "mask", np.bool_) if has_mask else np.zeros((1, 1), dtype=np.bool_)
+        prepare_principal(
+            d, robot, has_mask, self.fill_radius, np.float32(cam.min_depth), conservative, self._start, self._kind
+        )
+        self._tmin = tile_min(self._start, TILE)
+        self._tmax = tile_max_start(self._start, self._kind, TILE)
+
+    def _update_secondary(self, depths, masks, conservative: bool, windows) -> None:
+        """The secondary cameras' part of :meth:`update`: robot windows, votes and the vote pyramid (it
+        touches nothing that :meth:`_update_principal` writes)."""
+        if callable(windows):
+            windows = windows()
+            if windows is not None and len(windows) != len(self.cameras):
+                raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
         hm = self._hm
         self._has_windows = write_windows(self._votes, hm, self.cameras, windows)
-        for k, (cam, depth, mask) in enumerate(zip(self.cameras, depths, masks, strict=True)):
-            d = np.ascontiguousarray(cam.check_image(depth, "depth"), dtype=np.float32)
+        for k in range(1, len(self.cameras)):
+            cam, mask = self.cameras[k], masks[k]
+            d = self._image(cam, depths[k], "depth", np.float32)
             has_mask = mask is not None
-            robot = (
-                np.ascontiguousarray(cam.check_image(mask, "mask"), dtype=np.bool_)
-                if has_mask
-                else np.zeros((1, 1), dtype=np.bool_)
+            robot = self._image(cam, mask, "mask", np.bool_) if has_mask else np.zeros((1, 1), dtype=np.bool_)
+            prepare_secondary(
+                d,
+                robot,
+                has_mask,
+                conservative,
+                self.robot_occludes,
+                np.float32(self.vote_margin),
+                self._votes[k - 1, : cam.height, : cam.width],
             )
-            if k == 0:
-                prepare_principal(
-                    d,
-                    robot,
-                    has_mask,
-                    self.fill_radius,
-                    np.float32(cam.min_depth),
-                    conservative,
-                    self._start,
-                    self._kind,
-                )
-            else:
-                prepare_secondary(
-                    d,
-                    robot,
-                    has_mask,
-                    conservative,
-                    self.robot_occludes,
-                    np.float32(self.vote_margin),
-                    self._votes[k - 1, : cam.height, : cam.width],
-                )
         if not self.robot_occludes:  # several secondary cameras: see limit_robot_votes
             limit_robot_votes(
                 self.cameras[1:],
@@ -276,13 +314,8 @@ class DepthGridFusion:
                 [self._votes[k - 1, : c.height, : c.width] for k, c in enumerate(self.cameras[1:], start=1)],
                 self.vote_margin,
             )
-        self._tmin = tile_min(self._start, TILE)
-        self._tmax = tile_max_start(self._start, self._kind, TILE)
         base = window_aware_votes(self._votes, hm) if self._has_windows else self._votes[:, :hm]
         build_pyramid(np.ascontiguousarray(base), self._pyr_meta, self._pyr)
-        self._invalid = invalid
-        self._gen += 1  # every cached cell state belongs to the frames before
-        self._ready = True
 
     # ------------------------------------------------------------------ distance stage
     def query(

@@ -266,17 +266,17 @@ class DistanceStage:
                 ms = list(margins) if margins is not None else [SELF_FILTER_MARGIN] * len(self.cameras)
 
                 def secondary_windows() -> list:
-                    return [robot_windows(c, a, b, r, margin=m) for c, m in zip(self.cameras[1:], ms[1:], strict=True)]
+                    sec = zip(self.cameras[1:], ms[1:], strict=True)
+                    return [None, *(robot_windows(c, a, b, r, margin=m) for c, m in sec)]
 
-                # (both kernels release the GIL: the secondary windows run beside the principal's pixels)
-                side = _side_thread()
-                job = side.submit(secondary_windows) if side is not None else None
-                d0, m0 = principal_robot_pixels(self.cameras[0], depths[0], masks[0], a, b, r, margin=ms[0])
-                depths, masks = [d0, *depths[1:]], [m0, *masks[1:]]
-                windows = [None, *(job.result() if job is not None else secondary_windows())]
+                def principal(d, m):
+                    return principal_robot_pixels(self.cameras[0], d, m, a, b, r, margin=ms[0])
+
+                # the secondary cameras' part (windows, votes, pyramid) on a side thread, beside the principal
+                # camera's (robot pixels, segments): disjoint arrays, kernels without the GIL
+                self.fusion.update(depths, masks, windows=secondary_windows, side=_side_thread(), principal=principal)
             else:
-                windows = None
-            self.fusion.update(depths, masks, windows=windows)
+                self.fusion.update(depths, masks)
         else:
             self.frames = [
                 prepare_frame(self.cameras[0], depths[0], masks[0], invalid=self.invalid, fill_radius=self.fill_radius)
