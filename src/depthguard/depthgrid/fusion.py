@@ -17,7 +17,9 @@ iv.  (§VII) a robot pixel at ``d_r``: nothing lies before ``d_r``; the cells fr
      (otherwise every control sphere would touch the phantom space right behind its own link). A robot
      pixel without a reading is searched from the near limit.
 
-Where the code is (one concept per module): :mod:`~depthguard.depthgrid.query` (the per-sphere, per-tile,
+Where the code is (one concept per module): :mod:`~depthguard.depthgrid.frame_stage` (the per-frame
+update: the principal camera's part and the secondary cameras' part, on two threads) with its kernels in
+:mod:`~depthguard.depthgrid.frames`, :mod:`~depthguard.depthgrid.query` (the per-sphere, per-tile,
 per-pixel walk with the cases above), :mod:`~depthguard.depthgrid.column` (case iii/iv column search,
 nearest segment first, free space skipped in blocks), :mod:`~depthguard.depthgrid.chunks` (per-tile depth
 chunks decided at once, whole tiles skipped in shadows), :mod:`~depthguard.depthgrid.votes` (the votes of
@@ -94,10 +96,10 @@ import numpy as np
 
 from depthguard.camera import Camera
 from depthguard.depthgrid.chunks import tile_max_start
-from depthguard.depthgrid.frames import limit_robot_votes, prepare_principal, prepare_secondary, write_windows
+from depthguard.depthgrid.frame_stage import update_principal, update_secondary
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
-from depthguard.depthgrid.pyramid import build_pyramid, pyramid_layout, window_aware_votes
+from depthguard.depthgrid.pyramid import pyramid_layout
 from depthguard.depthgrid.query import query_many, query_many_parallel
 from depthguard.depthgrid.records import ColumnCache, Grid, Principal, Votes, column_cache
 from depthguard.depthspace import (
@@ -253,13 +255,13 @@ class DepthGridFusion:
 
         def principal_part() -> None:
             d0, m0 = principal(depths[0], masks[0]) if principal is not None else (depths[0], masks[0])
-            self._update_principal(d0, m0, conservative)
+            update_principal(self, d0, m0, conservative)
 
         if side is None:
             principal_part()
-            self._update_secondary(depths, masks, conservative, windows)
+            update_secondary(self, depths, masks, conservative, windows)
         else:
-            job = side.submit(self._update_secondary, depths, masks, conservative, windows)
+            job = side.submit(update_secondary, self, depths, masks, conservative, windows)
             try:
                 principal_part()
             finally:
@@ -267,55 +269,6 @@ class DepthGridFusion:
         self._invalid = invalid
         self._gen += 1  # every cached cell state belongs to the frames before
         self._ready = True
-
-    def _image(self, cam, image, name: str, dtype):
-        return np.ascontiguousarray(cam.check_image(image, name), dtype=dtype)
-
-    def _update_principal(self, depth, mask, conservative: bool) -> None:
-        """The principal camera's part of :meth:`update`: segment starts and kinds, and their tile bounds."""
-        cam = self.cameras[0]
-        d = self._image(cam, depth, "depth", np.float32)
-        has_mask = mask is not None
-        robot = self._image(cam, mask, "mask", np.bool_) if has_mask else np.zeros((1, 1), dtype=np.bool_)
-        prepare_principal(
-            d, robot, has_mask, self.fill_radius, np.float32(cam.min_depth), conservative, self._start, self._kind
-        )
-        self._tmin = tile_min(self._start, TILE)
-        self._tmax = tile_max_start(self._start, self._kind, TILE)
-
-    def _update_secondary(self, depths, masks, conservative: bool, windows) -> None:
-        """The secondary cameras' part of :meth:`update`: robot windows, votes and the vote pyramid (it
-        touches nothing that :meth:`_update_principal` writes)."""
-        if callable(windows):
-            windows = windows()
-            if windows is not None and len(windows) != len(self.cameras):
-                raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
-        hm = self._hm
-        self._has_windows = write_windows(self._votes, hm, self.cameras, windows)
-        for k in range(1, len(self.cameras)):
-            cam, mask = self.cameras[k], masks[k]
-            d = self._image(cam, depths[k], "depth", np.float32)
-            has_mask = mask is not None
-            robot = self._image(cam, mask, "mask", np.bool_) if has_mask else np.zeros((1, 1), dtype=np.bool_)
-            prepare_secondary(
-                d,
-                robot,
-                has_mask,
-                conservative,
-                self.robot_occludes,
-                np.float32(self.vote_margin),
-                self._votes[k - 1, : cam.height, : cam.width],
-            )
-        if not self.robot_occludes:  # several secondary cameras: see limit_robot_votes
-            limit_robot_votes(
-                self.cameras[1:],
-                depths[1:],
-                masks[1:],
-                [self._votes[k - 1, : c.height, : c.width] for k, c in enumerate(self.cameras[1:], start=1)],
-                self.vote_margin,
-            )
-        base = window_aware_votes(self._votes, hm) if self._has_windows else self._votes[:, :hm]
-        build_pyramid(np.ascontiguousarray(base), self._pyr_meta, self._pyr)
 
     # ------------------------------------------------------------------ distance stage
     def query(
