@@ -337,3 +337,162 @@ def test_reach_mask_marks_exactly_the_nodes_whose_boxes_overlap_a_reachable_cell
             if np.all((np.array(idx) >= lo_i) & (np.array(idx) <= hi_i)):
                 want[idx] = True
     assert np.array_equal(out, want)
+
+
+@pytest.mark.parametrize("mode", ["saphari", "conservative"])
+def test_observations_and_reach_given_later_give_the_same_frame(scene, mode):
+    """Observations given as tasks (called on the sensors' threads) and C(t) given as a callable (called
+    once the sets are done, which are then computed over the whole box) or as a Future of the backend:
+    the same nodes, flags and kinds as when everything is given at once."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from depthguard.octree.backend import OctreeBackend
+
+    _, obs, _ = scene
+    sc = scanner_at([-0.9, 0.0, 0.2], yaw=0.3)
+    scan = ScanObservation(sc, scan_cylinder(sc, np.array([0.0, 0.0]), 0.08))
+    every = [*obs, scan]
+    rng = np.random.default_rng(3)
+    reach = rng.random(BOX.shape) < 0.7
+    ref = fuse(BOX, every, reach, mode=mode)
+    tasks = [lambda o=o: o for o in every]
+    for got in (
+        fuse(BOX, tasks, lambda: reach, mode=mode),
+        fuse(BOX, every, lambda: reach, mode=mode, workers=1),
+    ):
+        assert np.array_equal(got.kind, ref.kind) and np.array_equal(got.flags, ref.flags)
+        assert np.array_equal(got.mask, reach)
+        assert not got.flags[:, ~reach].any()  # 0 outside C(t), as documented
+    whole = fuse(BOX, every, None, mode=mode)
+    later_none = fuse(BOX, tasks, lambda: None, mode=mode)
+    assert np.array_equal(later_none.kind, whole.kind) and np.array_equal(later_none.flags, whole.flags)
+    be = OctreeBackend(BOX, mode=mode)
+    with ThreadPoolExecutor(1) as pool:
+        frame = be.update(tasks, pool.submit(lambda: reach))
+    assert np.array_equal(frame.kind, ref.kind)
+    with pytest.raises(ValueError, match="reach mask has shape"):
+        fuse(BOX, tasks, lambda: np.ones((2, 2, 2), bool), mode=mode)
+    with pytest.raises(ValueError, match="reach mask has shape"):
+        be.update(every, np.ones((2, 2, 2), bool))
+    with pytest.raises(ValueError, match="call update"):
+        be.query(np.zeros((1, 3)))  # a failed update leaves no answer
+
+
+def _scanner_sets_by_definition(box, sc, obstacle, robot):
+    """Per node, with numpy: the scan plane cuts the node (its centre within the node's half extent along
+    the plane's normal); the beam sectors that meet the angular range of its 8 corners (``arctan2`` of
+    each, as seen from the scanner); its planar range from its centre's distance less half its diagonal
+    to its farthest corner; O / R: some ray of those blocked within that range; V: all in the fan and range."""
+    idx = np.indices(box.shape).reshape(3, -1).T
+    c_w = box.origin + (idx + 0.5) * box.res
+    c_s = c_w @ sc.R.T + sc.t
+    n = sc.R[2]
+    ez = 0.5 * box.res * np.abs(n).sum()
+    cut = np.abs(c_s[:, 2]) <= ez
+    offs = (np.indices((2, 2, 2)).reshape(3, -1).T - 0.5) * box.res
+    corners = c_s[:, None, :2] + (offs @ sc.R.T)[None, :, :2]
+    phic = np.arctan2(c_s[:, 1], c_s[:, 0])
+    rel = np.arctan2(corners[..., 1], corners[..., 0]) - phic[:, None]
+    rel = (rel + np.pi) % (2 * np.pi) - np.pi
+    lo, hi = np.minimum(rel.min(axis=1), 0.0), np.maximum(rel.max(axis=1), 0.0)
+    rc = np.hypot(c_s[:, 0], c_s[:, 1])
+    h = 0.5 * math.sqrt(3.0) * box.res
+    rhi = np.hypot(corners[..., 0], corners[..., 1]).max(axis=1)
+    inc, a0, nr = sc.angle_increment, sc.angle_min, sc.n_rays
+    flags = np.zeros(len(idx), np.uint8)
+    for m in np.flatnonzero(cut):
+        if rc[m] <= h:
+            i0, i1, in_fov = 0, nr - 1, False
+        else:
+            i0 = math.ceil((phic[m] + lo[m] - a0 - 0.5 * inc) / inc)
+            i1 = math.floor((phic[m] + hi[m] - a0 + 0.5 * inc) / inc)
+            if i1 < 0:
+                i0, i1 = i0 + round(2 * math.pi / inc), i1 + round(2 * math.pi / inc)
+            in_fov = i0 >= 0 and i1 < nr and rc[m] - h >= sc.range_min and rhi[m] <= sc.range_max
+            i0, i1 = max(i0, 0), min(i1, nr - 1)
+            if i0 > i1:
+                continue
+        fl = (4 if (obstacle[i0 : i1 + 1] <= rhi[m]).any() else 0) | (8 if (robot[i0 : i1 + 1] <= rhi[m]).any() else 0)
+        if in_fov:
+            fl |= 1 | (16 if fl == 0 else 0)
+        flags[m] = fl
+    return flags.reshape(box.shape)
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st.integers(0, 2**31), tilt=st.floats(0.0, 0.4), res=st.sampled_from([0.05, 0.1]))
+def test_scanner_sets_follow_their_definition(seed, tilt, res):
+    """The scanner's sets (which compare the corners' angles through their tangents from the node's
+    direction) against the definition written with ``arctan2`` of every corner, on random poses (the scan
+    plane tilted too), ranges and robot rays."""
+    from depthguard.octree.sets import scanner_sets
+
+    rng = np.random.default_rng(seed)
+    box = VoxelBox.around([-0.8, -0.8, -0.4], [0.8, 0.8, 0.6], res)
+    yaw, roll = rng.uniform(-np.pi, np.pi), rng.uniform(-tilt, tilt)
+    cy, sy, cr, sr = math.cos(yaw), math.sin(yaw), math.cos(roll), math.sin(roll)
+    R_ws = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]]) @ np.array(
+        [[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]]
+    )
+    pos = rng.uniform(-0.4, 0.4, 3)
+    sc = LaserScanner(R_ws.T, -R_ws.T @ pos, n_rays=541)
+    obstacle = np.where(rng.random(541) < 0.3, np.inf, rng.uniform(0.05, 1.5, 541))
+    robot = np.where(rng.random(541) < 0.1, rng.uniform(0.1, 0.8, 541), np.inf)
+    mask = np.ones(box.shape, bool)
+    got = scanner_sets(mask, box, sc, obstacle, robot)
+    assert np.array_equal(got, _scanner_sets_by_definition(box, sc, obstacle, robot))
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(1, 70), st.integers(1, 70), st.integers(0, 2**31))
+def test_min_and_negated_max_pyramids_in_one_pass(h, w, seed):
+    from depthguard.octree.pyramids import min_negmax_pyramids, min_pyramid
+
+    rng = np.random.default_rng(seed)
+    img = rng.random((h, w)).astype(np.float32)
+    img[rng.random((h, w)) < 0.2] = np.inf
+    lo, neg, offs, hs, ws = min_negmax_pyramids(img)
+    for got, ref in ((lo, min_pyramid(img)), (neg, min_pyramid(-img))):
+        assert np.array_equal(got, ref[0])
+        assert np.array_equal(offs, ref[1]) and np.array_equal(hs, ref[2]) and np.array_equal(ws, ref[3])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**31), res=st.sampled_from([0.02, 0.05, 0.1]))
+def test_measured_points_mark_the_nodes_that_hold_them(seed, res):
+    """P of a camera against numpy: every measured, non-robot pixel within the depth limits unprojected to
+    the world and binned into the box's nodes (inside the mask); nothing else."""
+    from depthguard.octree.sets import bin_depth_points
+
+    rng = np.random.default_rng(seed)
+    cam = CAMS[seed % 2]
+    box = VoxelBox.around([-1.0, -1.0, 0.0], [1.0, 1.0, 1.5], res)
+    depth = rng.uniform(0.1, 5.0, cam.shape).astype(np.float32)
+    depth[rng.random(cam.shape) < 0.1] = np.nan
+    depth[rng.random(cam.shape) < 0.05] = 0.0
+    robot = rng.random(cam.shape) < 0.2
+    mask = rng.random(box.shape) < 0.8
+    got = np.zeros(box.shape, np.uint8)
+    bin_depth_points(cam, depth, robot, box, mask, got)
+    ok = ~robot & (depth >= cam.min_depth) & (depth <= cam.max_depth)
+    pts = cam.unproject_image(np.where(ok, depth, 0.0).astype(float))[ok]
+    f = (pts - box.origin) / box.res
+    # a point within 1e-9 of a node face may land on either side of it (rounding)
+    edge = np.abs(f - np.round(f)) < 1e-9
+    idx = np.floor(f).astype(int)
+    inside = np.all((idx >= 0) & (idx < np.array(box.shape)), axis=1) & ~edge.any(axis=1)
+    ref = np.zeros(box.shape, bool)
+    ref[tuple(idx[inside].T)] = True
+    ref &= mask
+    assert np.array_equal((got & P) != 0, ref | ((got & P) != 0) & ~ref & _near_faces(pts, edge, box, mask))
+
+
+def _near_faces(pts, edge, box, mask):
+    """Nodes that a point within 1e-9 of a node face may be binned into (either side)."""
+    out = np.zeros(box.shape, bool)
+    for p in pts[edge.any(axis=1)]:
+        for d in np.indices((2, 2, 2)).reshape(3, -1).T:
+            i = np.floor((p - box.origin) / box.res + (d - 0.5) * 2e-9).astype(int)
+            if np.all((i >= 0) & (i < np.array(box.shape))):
+                out[tuple(i)] = True
+    return out & mask

@@ -15,6 +15,7 @@ from depthguard.robot.selffilter import (  # noqa: E402
     render_capsules_depth,
     self_filter,
     self_filter_capsules,
+    self_filter_tasks,
 )
 from depthguard.scene import Capsule, HalfSpace, Scene, Sphere, render_depth  # noqa: E402
 
@@ -238,3 +239,41 @@ def test_property_no_robot_left_and_nothing_removed_beyond_the_margin(seed: int)
     removed = res.mask & np.isfinite(measured) & (measured > 0)
     pts = cam.unproject_image(measured)[removed]
     assert np.all(Scene(robot).distance(pts) <= MARGIN + TOL)  # nothing removed beyond the margin
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), margin=st.floats(0.0, 0.08), holes=st.floats(0.0, 0.3))
+def test_the_mask_alone_is_the_same_mask(seed: int, margin: float, holes: float) -> None:
+    """``with_depth=False`` tests measured pixels as points against the capsules instead of intersecting
+    their rays: the mask must be the same, pixel for pixel, with noisy depths that straddle the inflated
+    surfaces, holes inside and beside the silhouette, and the camera close to the robot."""
+    lwr = load_lwr4()
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(lwr.q_min, lwr.q_max) * 0.8
+    ang = rng.uniform(-np.pi, np.pi)
+    dist = rng.uniform(0.6, 2.0)
+    eye = np.array([dist * np.cos(ang), dist * np.sin(ang), rng.uniform(0.3, 1.8)])
+    R, t = look_at(eye, np.array([0.0, 0.0, rng.uniform(0.2, 0.9)]))
+    cam = Camera(width=160, height=120, fx=130.0, fy=130.0, cx=79.5, cy=59.5, R=R, t=t, min_depth=0.1)
+    measured = render_depth(cam, Scene(_robot_scene(lwr, q) + _wall_and_floor()))
+    measured = measured * (1.0 + rng.normal(0.0, 0.03, measured.shape))  # points on both sides of the margin
+    measured[rng.random(measured.shape) < holes] = np.nan
+    full = self_filter(cam, measured, q, lwr, margin=margin)
+    fast = self_filter(cam, measured, q, lwr, margin=margin, with_depth=False)
+    assert fast.robot_depth is None
+    assert full.mask.any()
+    assert np.array_equal(full.mask, fast.mask)
+
+
+def test_tasks_on_threads_give_each_camera_s_own_filter(lwr) -> None:
+    from concurrent.futures import ThreadPoolExecutor
+
+    cams = [_camera(), _camera(eye=(-0.4, 1.7, 1.0)), _camera(eye=(1.2, -1.2, 0.5))]
+    depths = [render_depth(c, Scene(_robot_scene(lwr, Q) + _wall_and_floor())) for c in cams]
+    with ThreadPoolExecutor(2) as pool:
+        got = [f.result() for f in [pool.submit(task) for task in self_filter_tasks(cams, depths, Q, lwr)]]
+    for c, d, g in zip(cams, depths, got, strict=True):
+        ref = self_filter(c, d, Q, lwr)
+        assert np.array_equal(g.mask, ref.mask) and np.array_equal(g.robot_depth, ref.robot_depth, equal_nan=True)
+    with pytest.raises(ValueError, match="2 cameras but 1 depth images"):
+        self_filter_tasks(cams[:2], depths[:1], Q, lwr)

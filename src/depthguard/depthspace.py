@@ -48,7 +48,9 @@ from depthguard.validation import check_points
 __all__ = [
     "TILE",
     "DepthFrame",
+    "FilledDepth",
     "PointDistances",
+    "fill_missing_depth",
     "prepare_frame",
     "query_distances",
     "MODES",
@@ -209,6 +211,51 @@ def tile_min(img, tile):
     return out
 
 
+class FilledDepth(NamedTuple):
+    """One depth image after the robot mask and the missing-depth policy (:func:`fill_missing_depth`).
+
+    Attributes:
+        depth: (H, W) float32, the image as given.
+        missing: (H, W) bool, no reading (0, NaN, inf or negative).
+        robot: (H, W) bool, robot pixels.
+        obstacle_depth: (H, W) float32, as :attr:`DepthFrame.obstacle_depth`.
+        filled_pixels, unknown_pixels: as in :class:`DepthFrame`.
+    """
+
+    depth: np.ndarray
+    missing: np.ndarray
+    robot: np.ndarray
+    obstacle_depth: np.ndarray
+    filled_pixels: int
+    unknown_pixels: int
+
+
+def fill_missing_depth(
+    camera: Camera,
+    depth: np.ndarray,
+    mask: np.ndarray | None = None,
+    invalid: str = "conservative",
+    fill_radius: int = 4,
+) -> FilledDepth:
+    """The robot mask and the missing-depth policy of :func:`prepare_frame` (same arguments), without the
+    depth space's tile minima: what other backends (the octree) start from. Returns a :class:`FilledDepth`."""
+    if invalid not in INVALID_POLICIES:
+        raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
+    if isinstance(fill_radius, bool) or not isinstance(fill_radius, int | np.integer) or fill_radius < 0:
+        raise ValueError(f"fill_radius must be an integer >= 0, got {fill_radius!r}")
+    d = np.asarray(camera.check_image(depth, "depth"), dtype=np.float32)
+    missing = ~np.isfinite(d) | (d <= 0)
+    if mask is None:
+        robot = np.zeros(camera.shape, dtype=bool)
+    else:
+        robot = np.asarray(camera.check_image(mask, "mask")).astype(bool)
+    obs = np.empty(camera.shape, dtype=np.float32)
+    filled, unknown = _fill_holes(
+        d, missing, robot, int(fill_radius), np.float32(camera.min_depth), invalid == "conservative", obs
+    )
+    return FilledDepth(d, missing, robot, obs, int(filled), int(unknown))
+
+
 def prepare_frame(
     camera: Camera,
     depth: np.ndarray,
@@ -230,25 +277,12 @@ def prepare_frame(
     Returns:
         A :class:`DepthFrame`.
     """
-    if invalid not in INVALID_POLICIES:
-        raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
-    if isinstance(fill_radius, bool) or not isinstance(fill_radius, int | np.integer) or fill_radius < 0:
-        raise ValueError(f"fill_radius must be an integer >= 0, got {fill_radius!r}")
-    d = np.asarray(camera.check_image(depth, "depth"), dtype=np.float32)
-    missing = ~np.isfinite(d) | (d <= 0)
-    if mask is None:
-        robot = np.zeros(camera.shape, dtype=bool)
-    else:
-        robot = np.asarray(camera.check_image(mask, "mask")).astype(bool)
-    obs = np.empty(camera.shape, dtype=np.float32)
-    filled, unknown = _fill_holes(
-        d, missing, robot, int(fill_radius), np.float32(camera.min_depth), invalid == "conservative", obs
-    )
-    robot_depth = np.where(robot & ~missing, d, np.float32(np.nan)).astype(np.float32)
-    tmin = tile_min(obs, TILE)
-    for a in (obs, robot, robot_depth, tmin):
+    f = fill_missing_depth(camera, depth, mask, invalid, fill_radius)
+    robot_depth = np.where(f.robot & ~f.missing, f.depth, np.float32(np.nan)).astype(np.float32)
+    tmin = tile_min(f.obstacle_depth, TILE)
+    for a in (f.obstacle_depth, f.robot, robot_depth, tmin):
         a.setflags(write=False)
-    return DepthFrame(camera, obs, robot, robot_depth, tmin, invalid, int(filled), int(unknown))
+    return DepthFrame(camera, f.obstacle_depth, f.robot, robot_depth, tmin, invalid, f.filled_pixels, f.unknown_pixels)
 
 
 # ---------------------------------------------------------------------------------------------- query stage

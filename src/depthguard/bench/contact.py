@@ -43,7 +43,7 @@ def _frame():
     q = cell.q()
     with np.errstate(invalid="ignore"):
         depth = sim.capture(cell.data)
-    mask = self_filter(cam, depth, q, cell.robot).mask
+    mask = self_filter(cam, depth, q, cell.robot, with_depth=False).mask
     return cell, cam, depth, bg, mask, q, cell.contacts()[0][1]
 
 

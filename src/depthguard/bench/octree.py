@@ -12,8 +12,10 @@ against the machine-speed reference measured at the start of the run, ``referenc
   restricted to C(t) (cameras' missing-depth policy included);
 * ``octree-distance``: the arm's control spheres to the occupied nodes;
 * ``octree-cycle``: all of the above for one frame (reachability at 0.09 m, self-filter, fusion at 0.05 m,
-  distance), the reachability on a worker thread beside the self-filter (as the scenario's octree stage
-  runs it beside the scans); ``octree-cycle-serial``: the same one stage after the other;
+  distance), the reachability on a worker thread beside everything else (each sensor's self-filter and
+  sets in one task on the fusion's two threads, which take C(t) only at the end; the scenario's octree
+  stage runs it beside the scans and the sets the same way); ``octree-cycle-serial``: the same one stage
+  after the other, on one thread but for the sets' own two workers;
 * ``pyoctomap-insert``: ``OcTree.insertPointCloud`` of the same four point clouds (robot removed) at 0.05 m.
 
 ``comparison``: the same frames through the depth space (camera 1), the depth grid (both cameras) and the
@@ -23,6 +25,7 @@ spheres (mean |error|, max over-report) and time per query.
 
 from __future__ import annotations
 
+import functools
 import time
 from concurrent.futures import ThreadPoolExecutor
 
@@ -36,7 +39,7 @@ from depthguard.octree.reach import reachability_grid
 from depthguard.octree.scanner import scan_points, scan_robot_rays
 from depthguard.robot.control_points import ControlPointSet
 from depthguard.robot.reach import chain_sweep, robot_reachability
-from depthguard.robot.selffilter import self_filter
+from depthguard.robot.selffilter import self_filter_tasks
 
 __all__ = ["run_octree_benchmark"]
 
@@ -69,15 +72,27 @@ def _pyoctomap_insert(clouds, res: float):
     return tree
 
 
-def _self_filter_all(model, q, obs):
-    out = []
+def _self_filter_all(model, q, obs, later: bool = False):
+    """Robot pixels of every camera (the kinematics once) and robot rays of every scan; ``later``: each
+    observation as a task that filters it when called (see :func:`depthguard.octree.fusion.fuse`)."""
+    cams = [o for o in obs if isinstance(o, CameraObservation)]
+    tasks = iter(self_filter_tasks([o.camera for o in cams], [o.depth for o in cams], q, model, with_depth=False))
     a, b, r = model.link_capsules(q)
+    out = []
     for o in obs:
         if isinstance(o, CameraObservation):
-            out.append(CameraObservation(o.camera, o.depth, self_filter(o.camera, o.depth, q, model).mask))
+            out.append(functools.partial(_camera_observation, o, next(tasks)))
         else:
-            out.append(ScanObservation(o.scanner, o.ranges, scan_robot_rays(o.scanner, o.ranges, a, b, r)))
-    return out
+            out.append(functools.partial(_scan_observation, o, a, b, r))
+    return out if later else [task() for task in out]
+
+
+def _camera_observation(o: CameraObservation, self_filter_task) -> CameraObservation:
+    return CameraObservation(o.camera, o.depth, self_filter_task().mask)
+
+
+def _scan_observation(o: ScanObservation, a, b, r) -> ScanObservation:
+    return ScanObservation(o.scanner, o.ranges, scan_robot_rays(o.scanner, o.ranges, a, b, r))
 
 
 def _comparison(model, q, obs, depths, cps, box, reach, repeat: int) -> list[dict]:
@@ -216,10 +231,14 @@ def run_octree_benchmark(quick: bool = False) -> dict:
 
     worker = ThreadPoolExecutor(max_workers=1)
 
-    def cycle():  # the reachability beside the self-filter (the model's kinematics stay on this thread)
-        pending = worker.submit(reachability_grid, chain_sweep(model, q), 0.5, 0.09)
-        o = _self_filter_all(model, q, raw_obs)
-        be.update(o, reach_mask(box, pending.result()))
+    def cycle():
+        # the reachability on its own thread beside everything else; each sensor's self-filter and sets
+        # in one task on the fusion's threads, which take C(t) only at the end (OctreeBackend.update with a
+        # Future); the model's kinematics stay on this thread
+        chain = chain_sweep(model, q)
+        tasks = _self_filter_all(model, q, raw_obs, later=True)
+        pending = worker.submit(reachability_grid, chain, 0.5, 0.09)
+        be.update(tasks, pending)
         s = cps.evaluate(q)
         return be.query(s.centres, s.radii, rho=RHO)
 

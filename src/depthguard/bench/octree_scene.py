@@ -105,7 +105,7 @@ def sense(model, q: np.ndarray, scene: Scene, width: int = 640, height: int = 48
         if seed is not None:
             d = kinect_noise(d, np.random.default_rng(seed + i))
         d = np.nan_to_num(d, nan=0.0).astype(np.float32)
-        mask = self_filter(cam, d, q, model).mask
+        mask = self_filter(cam, d, q, model, with_depth=False).mask
         obs.append(CameraObservation(cam, d, mask))
         depths.append(d)
     a, b, r = model.link_capsules(q)

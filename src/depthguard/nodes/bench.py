@@ -61,7 +61,8 @@ def _frames(quick: bool, cell, n_sets: int):
     for tick in src.ticks():
         if tick.frames is not None:
             masks = [
-                np.asarray(self_filter(c, d, tick.q, model)[0]) for c, d in zip(src.cameras, tick.frames, strict=True)
+                np.asarray(self_filter(c, d, tick.q, model, with_depth=False)[0])
+                for c, d in zip(src.cameras, tick.frames, strict=True)
             ]
             out.append((tick.q.copy(), tick.frames, masks))
             if len(out) >= n_sets:

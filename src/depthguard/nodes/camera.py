@@ -107,9 +107,9 @@ def run_camera_node(
                 from depthguard.sim.pipeline import model_filter_margin
 
                 margin = model_filter_margin(cam, q, model, cc.noise_coeff)
-                mask = np.asarray(self_filter(cam, depth, q, model, margin=margin)[0])
+                mask = np.asarray(self_filter(cam, depth, q, model, margin=margin, with_depth=False)[0])
             else:
-                mask = np.asarray(self_filter(cam, depth, q, model)[0])
+                mask = np.asarray(self_filter(cam, depth, q, model, with_depth=False)[0])
             fid = msg.header.frame_id
             p1 = pub_d.publish(ros2.image_msg(t, fid, depth, "32FC1"))
             pub_m.publish(mask_msg(t, fid, mask))

@@ -3,6 +3,8 @@ same result type as the depth-space backend (:class:`depthguard.depthspace.Point
 
 from __future__ import annotations
 
+from concurrent.futures import Future
+
 import numpy as np
 
 from depthguard.depthspace import PointDistances
@@ -43,12 +45,18 @@ class OctreeBackend:
 
     def update(self, observations: list, reach=None) -> OctreeFrame:
         """Fuse one frame. ``reach``: a :class:`~depthguard.octree.reach.ReachabilityGrid` (C(t)), a bool mask
-        over :attr:`box`, or None (the whole box counts)."""
-        mask = None
-        if reach is not None:
-            mask = reach if isinstance(reach, np.ndarray) else reach_mask(self.box, reach)
-        self.frame = fuse(self.box, observations, mask, self.mode, self.invalid, self.fill_radius)
+        over :attr:`box`, None (the whole box counts), or a :class:`concurrent.futures.Future` of one of
+        these or a callable that returns one: the sensors' sets are then computed while it completes
+        (:func:`~depthguard.octree.fusion.fuse`). ``observations`` may hold tasks, as in ``fuse``.
+        """
+        later = reach.result if isinstance(reach, Future) else reach if callable(reach) else None
+        reach = (lambda: self._mask(later())) if later is not None else self._mask(reach)
+        self.frame = None  # a failed update leaves no answer
+        self.frame = fuse(self.box, observations, reach, self.mode, self.invalid, self.fill_radius)
         return self.frame
+
+    def _mask(self, reach) -> np.ndarray | None:
+        return reach if reach is None or isinstance(reach, np.ndarray) else reach_mask(self.box, reach)
 
     @property
     def ready(self) -> bool:

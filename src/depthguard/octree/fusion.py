@@ -22,6 +22,7 @@ missing-depth policy of :func:`depthguard.depthspace.prepare_frame`; scanners: R
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
@@ -31,7 +32,7 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthspace import prepare_frame
+from depthguard.depthspace import fill_missing_depth
 from depthguard.octree.grid import VoxelBox
 from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points
 from depthguard.octree.sets import (
@@ -120,10 +121,10 @@ def sensor_sets(
     ``box``); ``mp`` is the mask's :func:`~depthguard.octree.sets.mask_pyramid` (computed when None)."""
     if isinstance(obs, CameraObservation):
         cam = obs.camera
-        frame = prepare_frame(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
-        robot = robot_blocking_depth(frame.robot_mask, frame.robot_depth, np.float32(cam.min_depth))
-        flags = camera_sets(mask, box, cam, frame.obstacle_depth, robot, mp)
-        bin_depth_points(cam, np.asarray(obs.depth, dtype=np.float32), frame.robot_mask, box, mask, flags)
+        f = fill_missing_depth(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
+        robot = robot_blocking_depth(f.robot, f.missing, f.depth, np.float32(cam.min_depth))
+        flags = camera_sets(mask, box, cam, f.obstacle_depth, robot, mp)
+        bin_depth_points(cam, f.depth, f.robot, box, mask, flags)
         return flags
     if isinstance(obs, ScanObservation):
         sc = obs.scanner
@@ -144,15 +145,14 @@ def sensor_sets(
 
 
 @nb.njit(cache=True, nogil=True)
-def robot_blocking_depth(robot_mask, robot_depth, near):
+def robot_blocking_depth(robot, missing, depth, near):
     """(H, W) float32 depth at which each pixel is blocked by the robot: its reading on a robot pixel (the
     near limit where the reading is missing), inf on every other pixel."""
-    H, W = robot_mask.shape
+    H, W = robot.shape
     out = np.empty((H, W), np.float32)
     for v in range(H):
         for u in range(W):
-            d = robot_depth[v, u]
-            out[v, u] = (near if np.isnan(d) else d) if robot_mask[v, u] else np.inf
+            out[v, u] = (near if missing[v, u] else depth[v, u]) if robot[v, u] else np.inf
     return out
 
 
@@ -161,10 +161,25 @@ def _pool(workers: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="octree-sensor")
 
 
+@lru_cache(maxsize=8)
+def _whole_box(shape: tuple[int, int, int]):
+    """The all-True mask of a box shape and its pyramid (read-only, shared)."""
+    mask = np.ones(shape, dtype=bool)
+    mask.setflags(write=False)
+    return mask, mask_pyramid(mask, _mask_levels(shape))
+
+
+def _reach_array(reach, shape) -> np.ndarray:
+    mask = np.ascontiguousarray(reach, dtype=bool)
+    if mask.shape != shape:
+        raise ValueError(f"reach mask has shape {mask.shape}, expected the box's {shape}")
+    return mask
+
+
 def fuse(
     box: VoxelBox,
     observations: list,
-    reach: np.ndarray | None = None,
+    reach: np.ndarray | Callable[[], np.ndarray | None] | None = None,
     mode: str = "conservative",
     invalid: str = "conservative",
     fill_radius: int = 4,
@@ -174,8 +189,15 @@ def fuse(
 
     Args:
         box: the node lattice (node size 0.02-0.1 m).
-        observations: :class:`CameraObservation` and :class:`ScanObservation` items, world-frame poses.
-        reach: (nx, ny, nz) bool C(t) on ``box`` (see :func:`reach_mask`), or None for the whole box.
+        observations: :class:`CameraObservation` and :class:`ScanObservation` items, world-frame poses; an
+            item may also be a callable without arguments that returns one (e.g. a camera's observation
+            with its self-filter, :func:`depthguard.robot.selffilter.self_filter_tasks`), called on the
+            sensors' threads, so that its preparation runs beside the other sensors' sets.
+        reach: (nx, ny, nz) bool C(t) on ``box`` (see :func:`reach_mask`), or None for the whole box; or a
+            callable that returns one of these (e.g. the ``result`` of a reachability grid that a thread is
+            still computing): it is called once the sensors' sets are done, which are then computed over
+            the whole box. The flags inside C(t) are the same either way (a node's flags depend on the
+            sensors only), so this only lets C(t) be computed beside the sensors.
         mode: ``"conservative"`` or ``"saphari"``.
         invalid: missing-depth policy of the cameras (``"conservative"``; ``"ignore"`` only on request).
         fill_radius: hole-filling radius of the cameras, pixels.
@@ -186,23 +208,42 @@ def fuse(
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if not observations:
         raise ValueError("observations: give at least one camera or scanner frame")
-    if reach is None:
-        mask = np.ones(box.shape, dtype=bool)
+    later = reach if callable(reach) else None
+    if reach is None or later is not None:
+        mask, mp = _whole_box(box.shape)
     else:
-        mask = np.ascontiguousarray(reach, dtype=bool)
-        if mask.shape != box.shape:
-            raise ValueError(f"reach mask has shape {mask.shape}, expected the box's {box.shape}")
-    mp = mask_pyramid(mask, _mask_levels(box.shape))
+        mask = _reach_array(reach, box.shape)
+        mp = mask_pyramid(mask, _mask_levels(box.shape))
     n_work = min(len(observations), workers if workers is not None else (os.cpu_count() or 1))
-    if n_work > 1:
-        parts = list(_pool(n_work).map(lambda o: sensor_sets(box, mask, o, invalid, fill_radius, mp), observations))
-    else:
-        parts = [sensor_sets(box, mask, o, invalid, fill_radius, mp) for o in observations]
-    flags = np.stack(parts)
+
+    def sets(o) -> tuple[np.ndarray, bool]:
+        o = o() if callable(o) else o
+        return sensor_sets(box, mask, o, invalid, fill_radius, mp), isinstance(o, ScanObservation)
+
+    parts = list(_pool(n_work).map(sets, observations)) if n_work > 1 else [sets(o) for o in observations]
+    flags = np.stack([f for f, _ in parts])
+    if later is not None:
+        got = later()
+        mask = _whole_box(box.shape)[0] if got is None else _reach_array(got, box.shape)
+        if got is not None:
+            clear_outside(flags, mask)
     if mode == "conservative":  # a 2-D scan never sees a node's whole volume free
-        for s, o in enumerate(observations):
-            if isinstance(o, ScanObservation):
+        for s, (_, scan) in enumerate(parts):
+            if scan:
                 flags[s] &= np.uint8(~F & 0xFF)
     kind = np.empty(box.shape, np.uint8)
     combine(flags, mask, mode == "conservative", kind)
     return OctreeFrame(box, kind != FREE, kind, mask, flags, mode)
+
+
+@nb.njit(cache=True, nogil=True)
+def clear_outside(flags, mask):
+    """Zero the (S, nx, ny, nz) flags of the nodes outside ``mask`` (nx, ny, nz)."""
+    S = flags.shape[0]
+    nx, ny, nz = mask.shape
+    for s in range(S):
+        for i in range(nx):
+            for j in range(ny):
+                for k in range(nz):
+                    if not mask[i, j, k]:
+                        flags[s, i, j, k] = 0

@@ -1,7 +1,7 @@
 """Image and mask pyramids for the octree's per-sensor sets (:mod:`depthguard.octree.sets`).
 
 * :func:`min_pyramid` / :func:`max_pyramid`: per 2^l x 2^l pixel block the minimum (maximum) of a depth
-  image, all levels in one flat array;
+  image, all levels in one flat array; :func:`min_negmax_pyramids`: both at once (the maximum negated);
 * :func:`any_le`: whether some pixel of a rectangle is <= a threshold, descending the min-pyramid only into
   blocks that can hold one;
 * :func:`mask_pyramid`: the any-True pyramid of a 3-D node mask (the octree's inner nodes).
@@ -12,13 +12,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["min_pyramid", "max_pyramid", "any_le", "mask_pyramid"]
+__all__ = ["min_pyramid", "min_negmax_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
 
 
 @nb.njit(cache=True, nogil=True)
-def min_pyramid(img):
-    """Min-pyramid of a (H, W) float32 image: (flat data, level offsets, level heights, level widths)."""
-    H, W = img.shape
+def _layout(H, W):
+    """Level offsets, heights and widths of a pyramid over an (H, W) image, up to one 1 x 1 level."""
     hs = [H]
     ws = [W]
     while hs[-1] > 1 or ws[-1] > 1:
@@ -30,15 +29,17 @@ def min_pyramid(img):
     for lv in range(L):
         offs[lv] = tot
         tot += hs[lv] * ws[lv]
-    data = np.empty(tot, np.float32)
-    for v in range(H):
-        for u in range(W):
-            data[v * W + u] = img[v, u]
-    for lv in range(1, L):
+    return offs, np.array(hs, np.int64), np.array(ws, np.int64), tot
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _reduce_levels(data, offs, hs, ws):
+    """Fill levels 1.. of ``data`` with the minima of their 2 x 2 blocks of the level below."""
+    for lv in range(1, offs.size):
         h0, w0, o0 = hs[lv - 1], ws[lv - 1], offs[lv - 1]
-        h1, w1, o1 = hs[lv], ws[lv], offs[lv]
+        w1, o1 = ws[lv], offs[lv]
         full_u = w0 // 2  # blocks with two columns; an odd width leaves one block of one column
-        for v in range(h1):
+        for v in range(hs[lv]):
             r0 = o0 + 2 * v * w0
             r1 = r0 + w0 if 2 * v + 1 < h0 else r0  # an odd height: the last block row has one row
             out = o1 + v * w1
@@ -48,7 +49,37 @@ def min_pyramid(img):
                 )
             if full_u < w1:
                 data[out + full_u] = min(data[r0 + 2 * full_u], data[r1 + 2 * full_u])
-    return data, offs, np.array(hs, np.int64), np.array(ws, np.int64)
+
+
+@nb.njit(cache=True, nogil=True)
+def min_pyramid(img):
+    """Min-pyramid of a (H, W) float32 image: (flat data, level offsets, level heights, level widths)."""
+    H, W = img.shape
+    offs, hs, ws, tot = _layout(H, W)
+    data = np.empty(tot, np.float32)
+    for v in range(H):
+        for u in range(W):
+            data[v * W + u] = img[v, u]
+    _reduce_levels(data, offs, hs, ws)
+    return data, offs, hs, ws
+
+
+@nb.njit(cache=True, nogil=True)
+def min_negmax_pyramids(img):
+    """The min-pyramid of a (H, W) float32 image and the min-pyramid of its negation (a negated
+    max-pyramid), read in one pass: (min data, negated max data, offsets, heights, widths)."""
+    H, W = img.shape
+    offs, hs, ws, tot = _layout(H, W)
+    lo = np.empty(tot, np.float32)
+    neg = np.empty(tot, np.float32)
+    for v in range(H):
+        for u in range(W):
+            x = img[v, u]
+            lo[v * W + u] = x
+            neg[v * W + u] = -x
+    _reduce_levels(lo, offs, hs, ws)
+    _reduce_levels(neg, offs, hs, ws)
+    return lo, neg, offs, hs, ws
 
 
 @nb.njit(cache=True, nogil=True)

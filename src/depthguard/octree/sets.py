@@ -25,7 +25,7 @@ import math
 import numba as nb
 import numpy as np
 
-from depthguard.octree.pyramids import any_le, mask_pyramid, max_pyramid, min_pyramid
+from depthguard.octree.pyramids import any_le, mask_pyramid, max_pyramid, min_negmax_pyramids, min_pyramid
 
 __all__ = [
     "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "scanner_sets",
@@ -118,7 +118,8 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     no_r = (state & 4) != 0
                     if lv > 0:
                         if not (no_o or all_o):  # exact decisions through the pyramids
-                            no_o = not any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                            mid = obs[(v0 + v1) >> 1, (u0 + u1) >> 1]  # one read answers most "some"
+                            no_o = not (mid <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work))
                             if not no_o:  # every ray blocked before the block (no pixel beyond z_lo): occluded
                                 all_o = not any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
                         if not no_r:
@@ -147,9 +148,12 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                                 n += 1
                         continue
                     fl = 0
-                    if not no_o and (all_o or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
+                    vc, uc = (v0 + v1) >> 1, (u0 + u1) >> 1  # the middle pixel first: one read answers most "yes"
+                    if not no_o and (
+                        all_o or obs[vc, uc] <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                    ):
                         fl |= 4
-                    if not no_r and any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work):
+                    if not no_r and (rob[vc, uc] <= zhi or any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
                         fl |= 8
                     if in_fov:
                         fl |= 1
@@ -184,14 +188,15 @@ def camera_sets(
         mp = mask_pyramid(mask, top)
     obs = np.ascontiguousarray(obstacle_depth, dtype=np.float32)
     rob = np.ascontiguousarray(robot_depth, dtype=np.float32)
-    opyr = min_pyramid(obs)
+    lo, neg, *layout = min_negmax_pyramids(obs)
+    opyr = (lo, *layout)
     if stats is None:
         stats = np.zeros(32, np.int64)
     _camera_kernel(
         mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
         np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
         (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
-        (camera.min_depth, camera.max_depth), obs, opyr, min_pyramid(-obs)[0], rob, min_pyramid(rob), flags, stats,
+        (camera.min_depth, camera.max_depth), obs, opyr, neg, rob, min_pyramid(rob), flags, stats,
     )  # fmt: skip
     return flags
 
@@ -201,6 +206,14 @@ def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob
     nx, ny, nz = shape[0], shape[1], shape[2]
     h = 0.5 * math.sqrt(3.0) * res
     ez = 0.5 * res * (abs(Rs[2, 0]) + abs(Rs[2, 1]) + abs(Rs[2, 2]))
+    ex = np.empty(8)  # the corners' offsets from the node's centre, in the scan plane's x and y
+    ey = np.empty(8)
+    for c in range(8):
+        dx = ((c & 1) - 0.5) * res
+        dy = (((c >> 1) & 1) - 0.5) * res
+        dz = (((c >> 2) & 1) - 0.5) * res
+        ex[c] = Rs[0, 0] * dx + Rs[0, 1] * dy + Rs[0, 2] * dz
+        ey[c] = Rs[1, 0] * dx + Rs[1, 1] * dy + Rs[1, 2] * dz
     # the nodes that the plane z_S = 0 can cut: restrict the k range when the plane is horizontal enough
     for i in range(nx):
         for j in range(ny):
@@ -222,28 +235,28 @@ def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob
                 zc = Rs[2, 0] * x + Rs[2, 1] * y + Rs[2, 2] * z + ts[2]
                 if abs(zc) > ez:
                     continue  # the scan plane misses the node
-                rc = math.sqrt(xc * xc + yc * yc)
-                phic = math.atan2(yc, xc)
-                rhi = 0.0
-                lo_rel, hi_rel = 0.0, 0.0
+                rc2 = xc * xc + yc * yc
+                r2hi = 0.0
+                tlo, thi = 0.0, 0.0  # tangents of the corners' angles from the centre's direction
                 for c in range(8):
-                    dx = ((c & 1) - 0.5) * res
-                    dy = (((c >> 1) & 1) - 0.5) * res
-                    dz = (((c >> 2) & 1) - 0.5) * res
-                    px = xc + Rs[0, 0] * dx + Rs[0, 1] * dy + Rs[0, 2] * dz
-                    py = yc + Rs[1, 0] * dx + Rs[1, 1] * dy + Rs[1, 2] * dz
-                    rhi = max(rhi, math.sqrt(px * px + py * py))
-                    rel = math.atan2(py, px) - phic
-                    if rel > math.pi:
-                        rel -= 2 * math.pi
-                    elif rel < -math.pi:
-                        rel += 2 * math.pi
-                    lo_rel, hi_rel = min(lo_rel, rel), max(hi_rel, rel)
+                    px = xc + ex[c]
+                    py = yc + ey[c]
+                    r2hi = max(r2hi, px * px + py * py)
+                    # within h < rc of the centre, every corner lies within 90 degrees of its direction
+                    # (dot > rc (rc - h) > 0), where the tangent of the angle grows with the angle
+                    dot = xc * px + yc * py
+                    if dot > 0.0:
+                        tc = (xc * py - yc * px) / dot
+                        tlo, thi = min(tlo, tc), max(thi, tc)
+                rhi = math.sqrt(r2hi)
+                rc = math.sqrt(rc2)
                 rlo = max(0.0, rc - h)
                 if rc <= h:  # the node holds the scanner: every ray may meet it
                     i0, i1 = 0, n - 1
                     in_fov = False
                 else:
+                    phic = math.atan2(yc, xc)
+                    lo_rel, hi_rel = math.atan(tlo), math.atan(thi)
                     i0 = int(math.ceil((phic + lo_rel - a0 - 0.5 * inc) / inc))
                     i1 = int(math.floor((phic + hi_rel - a0 + 0.5 * inc) / inc))
                     if i1 < 0:  # the angle wrapped past -pi
@@ -307,20 +320,31 @@ def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
     H, W = depth.shape
     nx, ny, nz = mask.shape
     inv = 1.0 / res
-    ifx = 1.0 / fx
+    # a pixel's point in node units is d (a (u + 1/2 - cx) + b_v) + e: affine in u along a row, so the
+    # coordinates of a row are computed in a loop without branches (which vectorises), then binned
+    ax, ay, az = Rt[0, 0] * inv / fx, Rt[1, 0] * inv / fx, Rt[2, 0] * inv / fx
+    e0, e1, e2 = (pos[0] - origin[0]) * inv, (pos[1] - origin[1]) * inv, (pos[2] - origin[2]) * inv
+    fi = np.empty(W)
+    fj = np.empty(W)
+    fk = np.empty(W)
     for v in range(H):
         yv = (v + 0.5 - cy) / fy
+        bx = (Rt[0, 1] * yv + Rt[0, 2]) * inv
+        by = (Rt[1, 1] * yv + Rt[1, 2]) * inv
+        bz = (Rt[2, 1] * yv + Rt[2, 2]) * inv
+        for u in range(W):
+            d = depth[v, u]
+            xu = u + 0.5 - cx
+            fi[u] = d * (ax * xu + bx) + e0
+            fj[u] = d * (ay * xu + by) + e1
+            fk[u] = d * (az * xu + bz) + e2
         for u in range(W):
             d = depth[v, u]
             if robot[v, u] or not (d >= zlim[0] and d <= zlim[1]):
                 continue  # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
-            xc = (u + 0.5 - cx) * ifx * d
-            yc = yv * d
-            fi = (Rt[0, 0] * xc + Rt[0, 1] * yc + Rt[0, 2] * d + pos[0] - origin[0]) * inv
-            fj = (Rt[1, 0] * xc + Rt[1, 1] * yc + Rt[1, 2] * d + pos[1] - origin[1]) * inv
-            fk = (Rt[2, 0] * xc + Rt[2, 1] * yc + Rt[2, 2] * d + pos[2] - origin[2]) * inv
-            if fi >= 0.0 and fj >= 0.0 and fk >= 0.0 and fi < nx and fj < ny and fk < nz:
-                i, j, k = int(fi), int(fj), int(fk)
+            a, b, c = fi[u], fj[u], fk[u]
+            if a >= 0.0 and b >= 0.0 and c >= 0.0 and a < nx and b < ny and c < nz:
+                i, j, k = int(a), int(b), int(c)
                 if mask[i, j, k]:
                     flags[i, j, k] |= 2
 

@@ -216,17 +216,20 @@ def mesh_kernel(
 
 
 @njit(cache=True, nogil=True)
-def finish_kernel(depth: np.ndarray, mask: np.ndarray, near: np.ndarray, robot_depth: np.ndarray, ubox) -> None:
-    """Inside the inflated silhouette (``near`` < inf): robot depth = ``near``; a pixel without reading is
-    robot. Outside it nothing is touched (a hole beside the robot follows the missing-depth policy).
-    Resets ``near`` to inf over ``ubox``."""
+def finish_kernel(
+    depth: np.ndarray, mask: np.ndarray, near: np.ndarray, robot_depth: np.ndarray, ubox, with_depth: bool = True
+) -> None:
+    """Inside the inflated silhouette (``near`` < inf): robot depth = ``near`` (unless ``with_depth`` is
+    False); a pixel without reading is robot. Outside it nothing is touched (a hole beside the robot follows
+    the missing-depth policy). Resets ``near`` to inf over ``ubox``."""
     if ubox[1] < 0:
         return
     for v in range(ubox[2], ubox[3] + 1):
         for u in range(ubox[0], ubox[1] + 1):
             zn = near[v, u]
             if zn < np.inf:
-                robot_depth[v, u] = zn
+                if with_depth:
+                    robot_depth[v, u] = zn
                 d = depth[v, u]
                 if not (d > 0.0 and d < np.inf):
                     mask[v, u] = True

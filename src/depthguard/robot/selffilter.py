@@ -34,8 +34,10 @@ out), so points up to that much beyond the margin may go at the prism's side edg
 
 from __future__ import annotations
 
+import functools
 import threading
 import warnings
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -44,17 +46,25 @@ from depthguard.camera import Camera
 from depthguard.robot._capsule_raster import capsule_kernel
 from depthguard.robot._raster import finish_kernel, mesh_kernel
 
-__all__ = ["SelfFilterResult", "self_filter", "self_filter_capsules", "render_capsules_depth", "render_robot_depth"]
+__all__ = [
+    "SelfFilterResult",
+    "self_filter",
+    "self_filter_tasks",
+    "self_filter_capsules",
+    "render_capsules_depth",
+    "render_robot_depth",
+]
 
 ZNEAR = 1e-3  # m: triangles are clipped at this depth
 
 
 class SelfFilterResult(NamedTuple):
     """Self-filter output. ``mask``: (H, W) bool, True = robot (remove). ``robot_depth``: (H, W) float
-    metres, conservative robot depth inside the inflated silhouette, NaN elsewhere."""
+    metres, conservative robot depth inside the inflated silhouette, NaN elsewhere (None when the filter
+    was asked for the mask alone)."""
 
     mask: np.ndarray
-    robot_depth: np.ndarray
+    robot_depth: np.ndarray | None
 
 
 _WORK = threading.local()
@@ -95,26 +105,28 @@ def _check(camera: Camera, depth: np.ndarray, margin: float, pad_px: int) -> np.
             DeprecationWarning,
             stacklevel=3,
         )
-    return np.ascontiguousarray(depth, dtype=np.float64)
+    return depth
 
 
-def _run(camera: Camera, d: np.ndarray, margin: float, caps, meshes) -> SelfFilterResult:
-    """Shared driver: capsules ``(A, B, R)`` in the camera frame and meshes ``(geometry, T)`` or None."""
+def _run(camera: Camera, depth: np.ndarray, margin: float, caps, meshes, with_depth: bool = True) -> SelfFilterResult:
+    """Shared driver: capsules ``(A, B, R)`` in the camera frame and meshes ``(geometry, T)`` or None;
+    ``with_depth=False``: the mask alone (``robot_depth`` None)."""
+    d = np.ascontiguousarray(depth, dtype=np.float64)
     mask = np.zeros(camera.shape, dtype=np.bool_)
-    robot_depth = np.full(camera.shape, np.nan)
+    robot_depth = np.full(camera.shape, np.nan) if with_depth else np.empty((0, 0))
     near, snear, sfar, wn = _work_buffers(camera.shape)
     ubox = np.array([1 << 30, -1, 1 << 30, -1], dtype=np.int64)
     cam = (camera.fx, camera.fy, camera.cx, camera.cy)
     A, B, R = caps
     if len(R):
-        capsule_kernel(A, B, R, float(margin), *cam, d, mask, near, ubox)
+        capsule_kernel(A, B, R, float(margin), *cam, d, mask, near, ubox, bool(with_depth))
     if meshes is not None:
         g, T = meshes
         infl = np.maximum(float(margin) - g.excess, g.slack)  # decimated: within margin of the original
         winding = (wn, g.face_planes, g.closed)
         mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, *winding, ubox)
-    finish_kernel(d, mask, near, robot_depth, ubox)
-    return SelfFilterResult(mask, robot_depth)
+    finish_kernel(d, mask, near, robot_depth, ubox, bool(with_depth))
+    return SelfFilterResult(mask, robot_depth if with_depth else None)
 
 
 def self_filter_capsules(
@@ -165,6 +177,7 @@ def self_filter(
     *,
     margin: float = 0.03,
     pad_px: int = 0,
+    with_depth: bool = True,
 ) -> SelfFilterResult:
     """Remove the robot at joint positions ``q`` (nq,) from ``depth`` (H, W), metres (0/NaN = no reading).
 
@@ -172,16 +185,47 @@ def self_filter(
     :func:`depthguard.robot.model.load_lwr4`, one per thread); its collision geometry, attachments
     included, is removed. ``q`` has the model's full ``nq`` (e.g. a Panda's finger joints).
     ``margin`` (m, >= 0) inflates the geometry; ``pad_px`` is ignored (deprecated).
-    Returns ``(mask (H, W) bool, robot_depth (H, W) float)`` as a :class:`SelfFilterResult`.
+    Returns ``(mask (H, W) bool, robot_depth (H, W) float)`` as a :class:`SelfFilterResult`;
+    ``with_depth=False``: the same mask, faster (capsules test measured pixels as points), and
+    ``robot_depth`` None.
     """
+    return _tasks([camera], [_check(camera, depth, margin, pad_px)], q, model, margin, with_depth)[0]()
+
+
+def self_filter_tasks(
+    cameras: list[Camera],
+    depths: list[np.ndarray],
+    q: np.ndarray,
+    model=None,
+    *,
+    margin: float = 0.03,
+    with_depth: bool = True,
+) -> list[Callable[[], SelfFilterResult]]:
+    """:func:`self_filter` of several cameras at one joint state, as one task per camera: the kinematics are
+    computed here, once, on this thread (a model's kinematics are not shared between threads); each task
+    (no arguments) draws the robot into its camera's image and may run on any thread (its kernels release
+    the GIL). ``depths``: one (H, W) image per camera, metres; ``margin``, ``with_depth``: as
+    :func:`self_filter`."""
+    cameras, depths = list(cameras), list(depths)
+    if len(cameras) != len(depths):
+        raise ValueError(f"self-filter: {len(cameras)} cameras but {len(depths)} depth images")
+    ds = [_check(c, d, margin, 0) for c, d in zip(cameras, depths, strict=True)]
+    return _tasks(cameras, ds, q, model, margin, with_depth)
+
+
+def _tasks(cameras: list[Camera], ds: list[np.ndarray], q: np.ndarray, model, margin: float, with_depth) -> list:
+    """The per-camera tasks of checked depth images ``ds``; the kinematics here, once."""
     model = _DefaultModel.get() if model is None else model
-    d = _check(camera, depth, margin, pad_px)
     H, _ = model.joint_kinematics(model.check_q(q))  # (J+1, 4, 4) joint poses
     R, p = H[:, :3, :3], H[:, :3, 3]
     g = model.geometry
-    caps = _capsules_in_camera(camera, *g.world_capsules(R, p)) if len(g.cap_r) else _NO_CAPSULES
-    meshes = (g, g.mesh_transforms(R, p, camera.R, camera.t)) if g.n_triangles else None
-    return _run(camera, d, margin, caps, meshes)
+    world_caps = g.world_capsules(R, p) if len(g.cap_r) else None
+    tasks = []
+    for c, d in zip(cameras, ds, strict=True):
+        caps = _capsules_in_camera(c, *world_caps) if world_caps is not None else _NO_CAPSULES
+        meshes = (g, g.mesh_transforms(R, p, c.R, c.t)) if g.n_triangles else None
+        tasks.append(functools.partial(_run, c, d, margin, caps, meshes, bool(with_depth)))
+    return tasks
 
 
 def render_robot_depth(camera: Camera, q: np.ndarray, model, *, margin: float = 0.0) -> np.ndarray:

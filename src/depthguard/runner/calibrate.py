@@ -190,7 +190,7 @@ def _chain_effect(cell: CellFile, model, cam, frames, robot, link) -> tuple[int,
     left, dist = 0, []
     for (d, q), m in zip(frames, robot, strict=True):
         c = cam if link is None else carried_camera(cam, model, q, link)
-        mask = np.asarray(self_filter(c, d, q, model, margin=SELF_FILTER_MARGIN)[0])
+        mask = np.asarray(self_filter(c, d, q, model, margin=SELF_FILTER_MARGIN, with_depth=False)[0])
         left += int(np.sum(m & ~mask))
         stage = cell_distance_stage(cell, [c])
         stage.update([d], [mask], q, model)

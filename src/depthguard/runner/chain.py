@@ -332,10 +332,13 @@ class Chain:
         )
         margins = self_filter_margins(self.cell, self.cameras, q, self.model)  # None: the 3 cm default
         if margins is None:
-            masks = [np.asarray(self_filter(c, d, q, self.model)[0]) for c, d in zip(self.cameras, depths, strict=True)]
+            masks = [
+                np.asarray(self_filter(c, d, q, self.model, with_depth=False)[0])
+                for c, d in zip(self.cameras, depths, strict=True)
+            ]
         else:
             masks = [
-                np.asarray(self_filter(c, d, q, self.model, margin=m)[0])
+                np.asarray(self_filter(c, d, q, self.model, margin=m, with_depth=False)[0])
                 for c, d, m in zip(self.cameras, depths, margins, strict=True)
             ]
         # with the joint state, the principal camera's robot pixels and the secondary cameras' robot windows

@@ -155,7 +155,7 @@ def _record(src, cell, model, source: str, frames: int, progress: bool, follow_t
                 if np.shape(d) != c.shape:
                     raise ValueError(f"{source}: a frame of shape {np.shape(d)} for a camera of {c.width}x{c.height}")
                 kw = {} if m is None else {"margin": m}
-                a.add(d, np.asarray(self_filter(c, d, tick.q, model, **kw)[0]))
+                a.add(d, np.asarray(self_filter(c, d, tick.q, model, **kw, with_depth=False)[0]))
             taken += 1
             if progress:
                 _progress(taken, frames, f"commission {source}")

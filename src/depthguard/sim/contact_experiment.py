@@ -191,7 +191,7 @@ def _frame(camera: _Camera, surf: RobotSurface, q: np.ndarray, n_hands: int, log
     """One depth frame: capture, self-filter, foreground, hands near the robot. Returns (vertices, hands)."""
     V, S = surf.pose(q)
     depth = camera.capture(S, surf.axis_radii)
-    sf = self_filter(camera.cam, depth, q, surf.model)
+    sf = self_filter(camera.cam, depth, q, surf.model, with_depth=False)
     box = image_box(camera.cam, S, surf.axis_radii + 0.2)
     fg = foreground_mask(depth, camera.bg, sf.mask, camera.bg_margin, box=box)
     hands = [h for h in locate_hands(camera.cam, depth, fg, S, surf.axis_radii, n_hands) if h.distance < 0.1]

@@ -12,7 +12,7 @@ import numpy as np
 
 from depthguard.depthspace import PointDistances
 from depthguard.octree.backend import OctreeBackend
-from depthguard.octree.fusion import CameraObservation, ScanObservation, reach_mask
+from depthguard.octree.fusion import CameraObservation, ScanObservation
 from depthguard.octree.grid import VoxelBox
 from depthguard.octree.reach import ChainSweep, ReachabilityGrid, reachability_grid
 from depthguard.octree.scanner import scan_robot_rays
@@ -23,7 +23,8 @@ __all__ = ["OctreeStage"]
 
 @lru_cache(maxsize=1)
 def _reach_worker() -> ThreadPoolExecutor:
-    """One thread for the reachability grid, which overlaps the scans (its kernels release the GIL)."""
+    """One thread for the reachability grid, which overlaps the scans and the sensors' sets (its kernels
+    release the GIL)."""
     return ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree-reach")
 
 
@@ -113,13 +114,19 @@ class OctreeStage:
             a, b, r = self.scan_capsules(q)
             for las, s in zip(self.lasers, scans, strict=True):
                 obs.append(ScanObservation(las.scanner, s, scan_robot_rays(las.scanner, s, a, b, r)))
-        self.reach, t_reach = pending.result() if pending is not None else (None, 0.0)
         t3 = time.perf_counter()
-        mask = None if self.reach is None else reach_mask(self.backend.box, self.reach)
-        frame = self.backend.update(obs, mask)
+        self.reach, t_reach = None, 0.0
+
+        def reach():  # called by the fusion once the sensors' sets are done (they do not need C(t))
+            self.reach, t = pending.result()
+            nonlocal t_reach
+            t_reach = t
+            return self.reach
+
+        frame = self.backend.update(obs, reach if pending is not None else None)
         t4 = time.perf_counter()
-        # the reachability's own time (it ran beside the scans), the scans, their filter (and the wait for
-        # the reachability, if it took longer), the fusion
+        # the reachability's own time (it ran beside the scans and the sets), the scans, their filter, the
+        # fusion (and the wait for the reachability, if it took longer)
         for k, v in zip(self.times, (t_reach, t2 - t1, t3 - t2, t4 - t3), strict=False):
             self.times[k].append(v)
         self.update_wall.append(t4 - t_start)

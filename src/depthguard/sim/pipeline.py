@@ -94,8 +94,8 @@ def self_filter(
     """Robot pixels (H, W) bool of a depth image, from the controller's model at the measured ``q``;
     ``margin`` (m, default: the self-filter's 3 cm) inflates the geometry (see :func:`filter_margin`)."""
     if margin is None:
-        return _robot_self_filter(camera, depth, q, kin.model).mask
-    return _robot_self_filter(camera, depth, q, kin.model, margin=float(margin)).mask
+        return _robot_self_filter(camera, depth, q, kin.model, with_depth=False).mask
+    return _robot_self_filter(camera, depth, q, kin.model, margin=float(margin), with_depth=False).mask
 
 
 class Controller:
