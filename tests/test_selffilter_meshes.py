@@ -82,8 +82,10 @@ def test_robot_pixels_removed_and_background_kept(name: str) -> None:
 
 def test_dense_meshes_meet_the_targets(tmp_path) -> None:
     """The Panda with each mesh triangle cut into four (the benchmark's ~10k-triangle case,
-    ``bench.selffilter_meshes.dense_urdf``): four times the triangles, the same surface, the same targets
-    against the truth of the original meshes."""
+    ``bench.selffilter_meshes.dense_urdf``): the same surface, the same targets against the truth of the
+    original meshes. Its meshes are convex, so each is drawn as its hull's rounded offset; the cut
+    triangles' new vertices lie on the hull's facets to rounding, and some count as hull vertices, so the
+    filter draws more triangles than for the original meshes (about 10k in all)."""
     from depthguard.bench.selffilter_meshes import dense_urdf
     from depthguard.robot.model import RobotModel
     from depthguard.robot.robots import ROBOTS
@@ -96,7 +98,7 @@ def test_dense_meshes_meet_the_targets(tmp_path) -> None:
         return int(sum(b - a for (a, b), k in zip(g.fr, kinds, strict=True) if k == "mesh"))
 
     n0, n1 = mesh_triangles(_model("panda")), mesh_triangles(dense)
-    assert n1 == 4 * n0, (n0, n1)  # the same surface, each triangle cut into four
+    assert n1 > 1.5 * n0 and dense.geometry.n_triangles > 10_000, (n0, n1, dense.geometry.n_triangles)
     q = _random_q(dense, 7)
     truth = MeshRobotTruth(str(robot_urdf("panda")), q, ENV)
     _assert_targets(_check_view("panda", dense, q, truth, VIEWS[0]))

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from depthguard.robot.inflation import inflation_directions
+from depthguard.robot.inflation import inflation_directions, is_closed, rounded_convex_mesh
 from depthguard.robot.shapes import (
     Shape,
     ShapeGeometry,
@@ -72,6 +72,35 @@ def _decimate(v: np.ndarray, f: np.ndarray, target: int) -> tuple[np.ndarray, np
     return v2, f2, slack, excess
 
 
+HULL_TOLERANCE = 0.002  # m: a closed mesh whose convex hull lies within this of it is drawn as its hull
+
+
+def _hull_excess(v: np.ndarray, f: np.ndarray) -> float | None:
+    """How far (m) the convex hull of the closed mesh ``v``, ``f`` lies outside it, when at most
+    :data:`HULL_TOLERANCE` (a convex or nearly convex mesh, e.g. a collision hull saved with rounding);
+    None otherwise (open, clearly concave, or farther). Measured like decimation's ``excess``: the hull's
+    triangles that are not faces of the mesh are sampled every 5 mm (:func:`surface_points`) and their
+    distance to the mesh taken with coal; the hull's other triangles lie on the mesh."""
+    from scipy.spatial import ConvexHull
+
+    if not is_closed(f):
+        return None
+    try:
+        hull = ConvexHull(v)
+    except Exception:  # noqa: BLE001 - flat or degenerate: not a solid
+        return None
+    tri = v[f]
+    volume = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0
+    if volume < 0.98 * hull.volume:  # clearly concave: no need to measure
+        return None
+    faces = {tuple(sorted(t)) for t in f.tolist()}
+    extra = np.array([t for t in hull.simplices if tuple(sorted(t)) not in faces], dtype=np.int64).reshape(-1, 3)
+    if not len(extra):
+        return 0.0
+    excess = float(_point_distances(v, f, surface_points(v, extra, 0.005)).max(initial=0.0))
+    return excess if excess <= HULL_TOLERANCE else None
+
+
 def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """Capsules inside a box or a cylinder shape, link frame: ends ``a``, ``b`` (3,) m and radius (m).
 
@@ -99,14 +128,6 @@ def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, floa
     else:
         return []
     return [(Rs @ a + ps, Rs @ b + ps, radius) for a, b in ends]
-
-
-def _is_closed(f: np.ndarray) -> bool:
-    """Every directed edge of the faces ``f`` (F, 3) appears once, and so does its reverse (a closed,
-    consistently wound mesh)."""
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    fwd = {(int(a), int(b)) for a, b in e}
-    return len(fwd) == len(e) and all((b, a) in fwd for a, b in fwd)
 
 
 def _face_planes(v: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -153,15 +174,21 @@ class RobotGeometry:
                 cr.append(g.radius)
                 continue
             v, f = g.vertices, g.faces
-            if g.filter_mesh is not None:  # a box: convex, its rounded offset
+            decimate = max_triangles is not None and len(f) > max_triangles
+            if g.filter_mesh is None and g.shape.kind == "mesh" and not decimate:
+                hull_excess = _hull_excess(v, f)
+                if hull_excess is not None:  # (nearly) convex: its hull's rounded offset, less the hull's excess
+                    g.filter_mesh, g.excess = rounded_convex_mesh(v), hull_excess
+            if g.filter_mesh is not None and not (decimate and g.shape.kind == "mesh"):
+                # a box or a convex mesh: its rounded offset (a convex mesh above max_triangles is decimated)
                 v, o, f = g.filter_mesh
                 closed.append(False)  # convex: the depth interval alone is exact
             else:
-                if max_triangles is not None and len(f) > max_triangles:
+                if decimate:
                     v, f, g.slack, g.excess = _decimate(v, f, max_triangles)
                     g.vertices, g.faces = v, f
                 o = inflation_directions(v, f)
-                closed.append(_is_closed(f))
+                closed.append(is_closed(f))
             mj.append(int(frame.parentJoint))
             Vs.append(v @ Rl.T + pl)
             Os.append(o @ Rl.T)

@@ -3,15 +3,16 @@
 * :func:`inflation_directions`: per-vertex offsets of a general mesh, at most one margin long, that move
   every face out by as much as that allows (the full margin where the surface is smooth).
 * :func:`rounded_offset_mesh`: a convex polytope's Minkowski sum with a polyhedral ball, as a mesh with
-  explicit offsets (boxes: :func:`rounded_box`): faces move out by exactly the margin, edges and corners by
-  the ball's inradius times it, and nothing lies farther than the margin from the polytope.
+  explicit offsets (boxes: :func:`rounded_box`; convex meshes: :func:`rounded_convex_mesh`): faces move out
+  by exactly the margin, edges and corners by the ball's inradius times it, and nothing lies farther than
+  the margin from the polytope.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["inflation_directions", "rounded_box", "rounded_offset_mesh"]
+__all__ = ["inflation_directions", "is_closed", "rounded_box", "rounded_convex_mesh", "rounded_offset_mesh"]
 
 
 def inflation_directions(v: np.ndarray, f: np.ndarray, max_offset: float = 1.0, iters: int = 60) -> np.ndarray:
@@ -73,6 +74,11 @@ def _ball_directions(azimuths: np.ndarray, n_lat: int) -> np.ndarray:
     return np.vstack([[[0.0, 0.0, -1.0], [0.0, 0.0, 1.0]], *ring])
 
 
+def ball_directions_26() -> np.ndarray:
+    """The 26 unit directions of the polyhedral ball used for boxes and convex meshes (inradius 0.863)."""
+    return _ball_directions(np.arange(8) * np.pi / 4, 3)
+
+
 def rounded_offset_mesh(core: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The Minkowski sum of a convex polytope (vertices ``core`` (P, 3)) with a polyhedral ball (unit
     ``directions`` (D, 3)) as a mesh whose vertex ``k`` is ``V[k] + m O[k]`` for any margin ``m > 0``:
@@ -103,4 +109,37 @@ def rounded_box(size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     margin out)."""
     h = 0.5 * np.asarray(size, float)
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float) * h
-    return rounded_offset_mesh(corners, _ball_directions(np.arange(8) * np.pi / 4, 3))
+    return rounded_offset_mesh(corners, ball_directions_26())
+
+
+def is_closed(f: np.ndarray) -> bool:
+    """Every directed edge of the faces ``f`` (F, 3) appears once, and so does its reverse (a closed,
+    consistently wound mesh)."""
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    fwd = {(int(a), int(b)) for a, b in e}
+    return len(fwd) == len(e) and all((b, a) in fwd for a, b in fwd)
+
+
+def ball_directions_42() -> np.ndarray:
+    """42 unit directions: an icosahedron's 12 vertices and its 30 edge midpoints pushed onto the unit
+    sphere. Their convex hull (80 faces) has inradius 0.934."""
+    t = (1.0 + 5.0**0.5) / 2.0
+    ico = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t], [0, -1, -t],
+                    [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], float)  # fmt: skip
+    ico /= np.linalg.norm(ico, axis=1)[:, None]
+    d = np.linalg.norm(ico[:, None] - ico[None], axis=2)
+    i, j = np.nonzero(np.triu(np.abs(d - d[d > 1e-9].min()) < 1e-9))  # the 30 edges
+    mid = ico[i] + ico[j]
+    return np.vstack([ico, mid / np.linalg.norm(mid, axis=1)[:, None]])
+
+
+def rounded_convex_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Minkowski sum of the convex hull of ``points`` (P, 3) with the 42-direction polyhedral ball of
+    :func:`ball_directions_42`: every facet, edge and corner of the hull moves out by at least 93.4 % of
+    the margin, and nothing lies farther than the margin from the hull. Returns ``V``, ``O``, faces as
+    :func:`rounded_offset_mesh` (vertex ``k`` is ``V[k] + m O[k]``). (Adding the hull's own facet normals
+    to the directions would move every facet by exactly the margin, at 2.8 times the triangles: 18k for
+    the Panda's meshes instead of 6.5k.)"""
+    from scipy.spatial import ConvexHull
+
+    return rounded_offset_mesh(points[ConvexHull(points).vertices], ball_directions_42())
