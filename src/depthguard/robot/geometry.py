@@ -6,7 +6,8 @@ URDF's and the user's attachments, :class:`depthguard.robot.shapes.Shape`), spli
 * analytic capsules (spheres, capsules, URDF cylinders with a sphere at each end): segment ends in the
   parent *joint* frame, radii;
 * triangle meshes (meshes, boxes, plain cylinders): vertices in the parent joint frame, per-vertex inflation
-  offsets (:func:`depthguard.robot.inflation.inflation_directions`), faces; optionally decimated at load time
+  offsets (:func:`depthguard.robot.inflation.inflation_directions`; boxes and convex meshes: their rounded
+  offset, :func:`depthguard.robot.inflation.rounded_convex_mesh`), faces; optionally decimated at load time
   (``max_triangles`` per mesh), in which case the self-filter inflates it by ``margin - excess`` (so that
   it still removes nothing farther than ``margin`` from the original surface), at least by ``slack`` (so
   that the original surface stays inside).
