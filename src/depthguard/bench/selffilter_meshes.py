@@ -13,7 +13,8 @@ clock and thread CPU time, which a shared machine distorts less), the triangle c
 9.6k triangles), the "about 10k triangles in view" case of the self-filter's time target; the truth and
 the counts are those of the original meshes. Its meshes are convex, so the filter draws each as its hull's
 rounded offset; the cut triangles' new vertices lie on the hull's facets to rounding and some count as
-hull vertices, so it draws about 12k triangles (``triangles``), against 7.4k for the original Panda. ``panda_x4_decimated``: the same dense meshes loaded with
+hull vertices, so it draws about 12k triangles (``triangles``), against 7.4k for the original Panda.
+``panda_x4_decimated``: the same dense meshes loaded with
 ``max_triangles`` (:data:`DECIMATE_TO` per mesh), as the target allows ("decimate meshes at load time if
 needed"); its counts too are against the original meshes.
 """
