@@ -131,17 +131,22 @@ def test_self_filter_against_the_exact_robot_silhouette():
         assert np.isfinite(only_robot).sum() >= robot.sum()
 
 
-def test_projector_shadow_matches_rays_cast_from_the_projector():
+@pytest.mark.parametrize("roll", [0.0, 180.0, -90.0])
+def test_projector_shadow_matches_rays_cast_from_the_projector(roll):
     """The simulated Kinect's missing band is the projector's shadow: checked against MuJoCo rays cast from
     the projector (7.5 cm to the camera's right) to every pixel's surface point. Away from the band's
     boundary pixels (sampling), a pixel is dropped exactly when that ray is blocked; and the band lies to the
-    left of the nearer object (none along horizontal edges)."""
+    left of the nearer object (none along horizontal edges). Also for a camera rolled about its optical axis
+    (``kinect_camera(roll_deg=)``: 180 = mounted upside down, -90 = projector above the lens), whose
+    projector, rigid on the body, moves with it."""
     import mujoco
 
-    from depthguard.sim.depthcam import KINECT_BASELINE, projector_shadow
+    from depthguard.sim.depthcam import KINECT_BASELINE, kinect_camera, projector_shadow
 
     cell = _cell(160, 120)
     cam = cell.cameras[0]
+    if roll:
+        cam = kinect_camera(cam.position, (0.0, 0.0, 0.45), width=160, height=120, roll_deg=roll)
     z = raycast_depth(cell.model, cell.data, cam)
     shadow = projector_shadow(np.where(np.isfinite(z), z, np.inf), float(cam.fx), KINECT_BASELINE)
     proj = cam.position + cam.R.T @ np.array([KINECT_BASELINE, 0.0, 0.0])
@@ -171,6 +176,25 @@ def test_projector_shadow_matches_rays_cast_from_the_projector():
     for v, u in zip(vv, uu, strict=True):
         right = z[v, u + 1 :][~shadow[v, u + 1 :] & np.isfinite(z[v, u + 1 :])]
         assert right.size and right[0] < z[v, u]
+
+
+def test_kinect_camera_roll():
+    """``roll_deg`` turns the camera about its optical axis: 0 is bit-identical to no roll, 180 equals aiming
+    with ``up`` reversed (the image turned by 180 degrees), and a quarter turn keeps the centre and the axis."""
+    from depthguard.sim.depthcam import kinect_camera
+
+    eye, aim = (1.75, -0.95, 1.5), (0.0, 0.0, 0.45)
+    a = kinect_camera(eye, aim, width=160, height=120)
+    b = kinect_camera(eye, aim, width=160, height=120, roll_deg=0.0)
+    assert np.array_equal(a.R, b.R) and np.array_equal(a.t, b.t)
+    c = kinect_camera(eye, aim, width=160, height=120, roll_deg=180.0)
+    d = kinect_camera(eye, aim, width=160, height=120, up=(0.0, 0.0, -1.0))
+    assert np.array_equal(c.R, d.R) and np.array_equal(c.R[:2], -a.R[:2]) and np.array_equal(c.R[2], a.R[2])
+    q = kinect_camera(eye, aim, width=160, height=120, roll_deg=-90.0)
+    assert np.allclose(q.position, eye) and np.array_equal(q.R[2], a.R[2])
+    assert np.array_equal(q.R[0], -a.R[1]) and np.array_equal(q.R[1], a.R[0])  # +x (projector) = old "up"
+    assert q.R[0][2] > 0  # the projector side points up in the world
+    assert np.allclose(q.R @ q.R.T, np.eye(3)) and np.isclose(np.linalg.det(q.R), 1.0)
 
 
 def test_projector_shadow_band_width():

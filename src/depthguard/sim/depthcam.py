@@ -20,7 +20,10 @@ Sensor model (Kinect v1, after Khoshelham & Elberink 2012): axial noise with sta
 (``shadow="projector"``, the default): the projector sits ``baseline`` (7.5 cm) to the camera's right (+x),
 so a nearer object casts, on the surface behind it, a band without reading on its *left* side, as wide as
 the disparity difference ``f b (1/z_near - 1/z_far)`` pixels, and horizontal edges cast none (the
-structured-light geometry: the pattern's epipolar lines are the image rows). ``shadow="band"`` is the
+structured-light geometry: the pattern's epipolar lines are the image rows). The projector is rigid on the
+camera body: a camera rolled about its optical axis (:func:`kinect_camera`'s ``roll_deg``; 180 = mounted
+upside down, -90 = projector above the lens) keeps the band on the left *in its image*, which puts it on
+another side of the objects in the world. ``shadow="band"`` is the
 older, cruder model: ``edge_band`` pixels on the far side of every edge, in all four directions, where
 the depth jumps by more than ``edge_jump`` m.
 The noise generator is seeded (``seed``), so runs are repeatable.
@@ -78,14 +81,24 @@ def kinect_camera(
     height: int = 480,
     hfov_deg: float = 57.0,
     up: np.ndarray = (0.0, 0.0, 1.0),
+    roll_deg: float = 0.0,
 ) -> Camera:
     """A Kinect v1-like camera at ``eye`` looking at ``target``: ``hfov_deg`` horizontal FOV, 0.5-4.5 m.
 
     The principal point is the image centre (``cx = W/2``), square pixels, so the renderer path can
     reproduce it exactly. Reduced resolutions keep the same field of view.
+
+    ``roll_deg``: the camera body rolled about its optical axis by this angle (degrees; positive turns
+    the image's x axis towards its y axis, i.e. clockwise as seen from behind the camera), after
+    aiming with ``up``. 180 is a Kinect mounted upside down: its image is turned by 180 degrees and its
+    projector, rigidly ``baseline`` m along the camera's +x axis, sits on the other side of the lens in the
+    world, so the projector shadow bands fall on the other side of the nearer objects in the world (still
+    on their left in the image, :func:`projector_shadow`). 0 (default) leaves the pose bit-identical.
     """
     fx = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
     R, t = look_at(np.asarray(eye, float), np.asarray(target, float), np.asarray(up, float))
+    if roll_deg:
+        R, t = _rolled(R, t, float(roll_deg))
     return Camera(
         width=width,
         height=height,
@@ -98,6 +111,18 @@ def kinect_camera(
         min_depth=0.5,
         max_depth=4.5,
     )
+
+
+def _rolled(R: np.ndarray, t: np.ndarray, roll_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, t)`` of the camera rolled by ``roll_deg`` about its optical axis (the centre stays put): the new
+    x axis is ``cos a x + sin a y``, the new y axis ``-sin a x + cos a y`` (multiples of 90 degrees exact)."""
+    a = math.radians(roll_deg)
+    c, s = math.cos(a), math.sin(a)
+    q = roll_deg / 90.0
+    if abs(q - round(q)) < 1e-12:  # exact signs for quarter turns (180: x -> -x, y -> -y)
+        c, s = [(1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)][int(round(q)) % 4]
+    Rz = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    return Rz @ R, Rz @ t
 
 
 def cast_rays(
