@@ -114,6 +114,28 @@ def test_space_inside_the_inflated_capsules_is_the_robot():
     assert 0.2 - HALF - 1e-9 <= b <= 0.2 + 1e-9  # from the sphere's surface (0.05) to the inflated 0.25
 
 
+def test_a_principal_robot_pixel_without_reading_sees_free_in_front_of_the_robot():
+    """The fill rule for a depth edge on the robot (``principal_robot_pixels``, which the fusion applies): a
+    robot pixel of the principal camera without a reading, with valid pixels around and none of them a
+    non-robot one nearer, sees free what lies in front of the robot along its ray, and nothing behind it.
+    The second camera measures nothing, so only that rule can free the space on those rays."""
+    cam, side = _cam(), _cam(np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]), np.array([0.0, 0.0, 3.0]))
+    d = _wall(cam)
+    m = np.zeros(cam.shape, bool)
+    d[50:70, 70:90], m[50:70, 70:90] = 1.8, True  # the robot's pixels, a ball at 2 m
+    d[58:62, 78:82] = np.nan  # a few of them without a reading, on the ray through the ball's centre
+    caps = (np.array([[0.0, 0.0, 2.0]]), np.array([[0.0, 0.0, 2.0]]), np.array([0.17]))
+    nothing = np.full(side.shape, np.nan, np.float32)
+    views = ([cam, side], [d, nothing], [m, np.zeros(side.shape, bool)])
+    front = _bound(*views, (0.0, 0.0, 1.0), 0.05, rho=0.3, caps=caps, margin=0.03)
+    assert front == pytest.approx(0.3)  # in front of the robot: all free (it was 0 before the rule)
+    behind = _bound(*views, (0.0, 0.0, 2.5), 0.05, rho=0.3, caps=caps, margin=0.03)
+    assert behind <= HALF + 1e-9  # behind the robot, on those rays: unseen
+    d[56, 76] = 0.95  # a valid non-robot pixel in the window, nearer than the points in front of the ball
+    near = _bound(*views, (0.0, 0.0, 1.35), 0.05, rho=0.3, caps=caps, margin=0.03)
+    assert near <= 0.05  # those rays are no longer seen free beyond 0.95 m
+
+
 def test_bad_input_is_refused():
     cam = _cam()
     with pytest.raises(ValueError, match="one depth image"):

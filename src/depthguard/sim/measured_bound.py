@@ -16,7 +16,11 @@ camera's image with the same rules as the fusion's documented contract (README, 
   pixel ``(floor(p_x), floor(p_y))``) and lies in front of the pixel's depth;
 * a missing pixel sees nothing free, except in the principal camera (index 0), where a missing non-robot
   pixel takes the minimum valid non-robot depth of its ``(2 fill_radius + 1)²`` window (the project's
-  missing-depth policy), computed here with :func:`scipy.ndimage.minimum_filter`;
+  missing-depth policy), computed here with :func:`scipy.ndimage.minimum_filter`, and a *robot* pixel
+  without a reading sees free the points in front of the robot (the fill rule for a depth edge on the
+  robot, :func:`depthguard.robot.interior.principal_robot_pixels`): when its window holds a valid pixel and
+  no valid non-robot pixel nearer than the point, and the camera's ray through the point meets the
+  robot's inflated inner capsules beyond it and not before it;
 * a robot pixel of a secondary camera sees past (the robot is not an obstacle to itself); one of the
   principal camera sees free only in front of its reading, except with a single camera, where the depth
   space skips robot pixels (ICRA'12 §IV-B: space that the robot hides is free, a documented limit);
@@ -36,7 +40,7 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
-from scipy.ndimage import minimum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 
 from depthguard.camera import Camera
 
@@ -49,12 +53,15 @@ class MeasuredViews:
     Attributes: ``R`` (K, 3, 3), ``t`` (K, 3), ``intr`` (K, 5) = fx, fy, cx, cy, min_depth, ``size`` (K, 2) =
     width, height, ``depth`` (K, Hmax, Wmax) float32 m (NaN: nothing measured there; the principal's holes
     filled), ``robot`` (K, Hmax, Wmax) bool, ``measured`` (K, Hmax, Wmax) bool: a valid non-robot reading
-    (not a filled hole).
+    (not a filled hole), ``edge`` (Hmax, Wmax) float32 m: at the principal's robot pixels without a reading
+    whose window holds a valid pixel, the nearest valid non-robot depth of the window (inf: none); NaN
+    elsewhere.
     """
 
-    def __init__(self, R, t, intr, size, depth, robot, measured) -> None:
+    def __init__(self, R, t, intr, size, depth, robot, measured, edge=None) -> None:
         self.R, self.t, self.intr, self.size, self.depth, self.robot = R, t, intr, size, depth, robot
         self.measured = measured
+        self.edge = np.full(depth.shape[1:], np.nan, np.float32) if edge is None else edge
 
 
 def _filled_principal(depth: np.ndarray, robot: np.ndarray, fill_radius: int) -> np.ndarray:
@@ -67,6 +74,22 @@ def _filled_principal(depth: np.ndarray, robot: np.ndarray, fill_radius: int) ->
     hole = ~valid & ~robot & np.isfinite(win)
     d[hole] = win[hole]
     return d
+
+
+def _robot_edges(depth: np.ndarray, robot: np.ndarray, fill_radius: int) -> np.ndarray:
+    """(H, W) float32: at robot pixels without a reading whose window holds a valid pixel, the nearest valid
+    non-robot depth of the window (inf: none); NaN elsewhere."""
+    valid = np.isfinite(depth) & (depth > 0)
+    out = np.full(depth.shape, np.nan, np.float32)
+    if fill_radius <= 0:
+        return out
+    size = 2 * fill_radius + 1
+    near = minimum_filter(np.where(valid & ~robot, depth, np.inf).astype(np.float32), size=size, mode="constant",
+                          cval=np.inf)  # fmt: skip
+    some = maximum_filter(valid, size=size, mode="constant", cval=False)
+    edge = robot & ~valid & some
+    out[edge] = near[edge]
+    return out
 
 
 def measured_views(
@@ -89,11 +112,15 @@ def measured_views(
         depth[k, : c.height, : c.width] = dk
         robot[k, : c.height, : c.width] = m
         measured[k, : c.height, : c.width] = np.isfinite(d) & (d > 0) & ~m
+    edge = np.full((Hm, Wm), np.nan, np.float32)
+    c0 = cameras[0]
+    d0 = np.asarray(c0.check_image(depths[0], "depths[0]"), np.float64)
+    edge[: c0.height, : c0.width] = _robot_edges(d0, np.asarray(robot_masks[0], bool), fill_radius)
     R = np.stack([np.asarray(c.R, float) for c in cameras])
     t = np.stack([np.asarray(c.t, float) for c in cameras])
     intr = np.array([[c.fx, c.fy, c.cx, c.cy, float(getattr(c, "min_depth", 0.0) or 0.0)] for c in cameras])
     size = np.array([[c.width, c.height] for c in cameras], np.int64)
-    return MeasuredViews(R, t, intr, size, depth, robot, measured)
+    return MeasuredViews(R, t, intr, size, depth, robot, measured, edge)
 
 
 @lru_cache(maxsize=8)
@@ -110,7 +137,67 @@ def _lattice(h: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True, nogil=True)
-def _seen_free(p, R, t, intr, size, depth, robot, measured, band) -> bool:
+def _segment_distance2(p0, p1, q0, q1) -> float:
+    """Squared distance between the segments ``p0 p1`` and ``q0 q1`` (3,)."""
+    d1x, d1y, d1z = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
+    d2x, d2y, d2z = q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]
+    rx, ry, rz = p0[0] - q0[0], p0[1] - q0[1], p0[2] - q0[2]
+    a = d1x * d1x + d1y * d1y + d1z * d1z
+    e = d2x * d2x + d2y * d2y + d2z * d2z
+    f = d2x * rx + d2y * ry + d2z * rz
+    c = d1x * rx + d1y * ry + d1z * rz
+    b = d1x * d2x + d1y * d2y + d1z * d2z
+    best = np.inf
+    # the minimum lies at an end of one segment or at the interior critical point: try them all
+    cands = np.empty((5, 2))
+    n = 0
+    den = a * e - b * b
+    if den > 1e-18 * a * e and a > 0.0 and e > 0.0:
+        s = (b * f - c * e) / den
+        tt = (a * f - b * c) / den
+        if 0.0 <= s <= 1.0 and 0.0 <= tt <= 1.0:
+            cands[n, 0], cands[n, 1] = s, tt
+            n += 1
+    for s in (0.0, 1.0):  # ends of p: the nearest point of q
+        tt = 0.0 if e <= 0.0 else min(max((f + s * b) / e, 0.0), 1.0)
+        cands[n, 0], cands[n, 1] = s, tt
+        n += 1
+    for tt in (0.0, 1.0):  # ends of q: the nearest point of p
+        s = 0.0 if a <= 0.0 else min(max((tt * b - c) / a, 0.0), 1.0)
+        cands[n, 0], cands[n, 1] = s, tt
+        n += 1
+    for k in range(n):
+        s, tt = cands[k, 0], cands[k, 1]
+        x = rx + s * d1x - tt * d2x
+        y = ry + s * d1y - tt * d2y
+        z = rz + s * d1z - tt * d2z
+        best = min(best, x * x + y * y + z * z)
+    return best
+
+
+@njit(cache=True, nogil=True)
+def _in_front_of_robot(p, R, t, a, b, cr) -> bool:
+    """Whether the principal camera's ray through ``p`` meets a capsule ``(a, b, cr)`` beyond ``p`` (within
+    10 m) and none between the camera and ``p``."""
+    eye = np.empty(3)
+    for r in range(3):
+        eye[r] = -(R[0, 0, r] * t[0, 0] + R[0, 1, r] * t[0, 1] + R[0, 2, r] * t[0, 2])
+    dx, dy, dz = p[0] - eye[0], p[1] - eye[1], p[2] - eye[2]
+    L = np.sqrt(dx * dx + dy * dy + dz * dz)
+    far = np.empty(3)
+    far[0], far[1], far[2] = p[0] + 10.0 * dx / L, p[1] + 10.0 * dy / L, p[2] + 10.0 * dz / L
+    beyond = False
+    for j in range(cr.shape[0]):
+        r2 = cr[j] * cr[j]
+        if _segment_distance2(eye, p, a[j], b[j]) <= r2:
+            return False  # the robot lies between the camera and p
+        if _segment_distance2(p, far, a[j], b[j]) <= r2:
+            beyond = True
+    return beyond
+
+
+@njit(cache=True, nogil=True)
+def _seen_free(p, R, t, intr, size, depth, robot, measured, band, edge, a, b, cr) -> bool:
     """Whether some camera sees ``p`` free and none measures a surface there (within ``band`` m in depth)."""
     free = False
     single = R.shape[0] == 1
@@ -129,6 +216,9 @@ def _seen_free(p, R, t, intr, size, depth, robot, measured, band) -> bool:
             if k > 0 or single:
                 free = True
                 continue
+            e = edge[v, u]  # a robot pixel of the principal without a reading: in front of the robot
+            if e == e and e >= z and not free and _in_front_of_robot(p, R, t, a, b, cr):
+                free = True
         d = depth[k, v, u]
         if d == d:
             if measured[k, v, u] and abs(z - d) <= band:
@@ -152,7 +242,9 @@ def _inside_capsules(p, a, b, cr) -> bool:
 
 
 @njit(cache=True, nogil=True)
-def _bound_kernel(centres, radii, rho, offs, norms, half_diag, R, t, intr, size, depth, robot, measured, a, b, cr, out):
+def _bound_kernel(
+    centres, radii, rho, offs, norms, half_diag, R, t, intr, size, depth, robot, measured, edge, a, b, cr, out
+):
     p = np.empty(3)
     for i in range(centres.shape[0]):
         best = rho
@@ -163,7 +255,9 @@ def _bound_kernel(centres, radii, rho, offs, norms, half_diag, R, t, intr, size,
             p[0] = centres[i, 0] + offs[j, 0]
             p[1] = centres[i, 1] + offs[j, 1]
             p[2] = centres[i, 2] + offs[j, 2]
-            if _inside_capsules(p, a, b, cr) or _seen_free(p, R, t, intr, size, depth, robot, measured, half_diag):
+            if _inside_capsules(p, a, b, cr) or _seen_free(
+                p, R, t, intr, size, depth, robot, measured, half_diag, edge, a, b, cr
+            ):
                 continue
             best = min(max(dist - half_diag, 0.0), rho)
             break
@@ -208,6 +302,23 @@ def measured_bound(
     out = np.empty(c.shape[0])
     v = views
     _bound_kernel(
-        c, r, float(rho), offs, norms, half, v.R, v.t, v.intr, v.size, v.depth, v.robot, v.measured, a, b, cr, out
+        c,
+        r,
+        float(rho),
+        offs,
+        norms,
+        half,
+        v.R,
+        v.t,
+        v.intr,
+        v.size,
+        v.depth,
+        v.robot,
+        v.measured,
+        v.edge,
+        a,
+        b,
+        cr,
+        out,
     )
     return out
