@@ -197,6 +197,31 @@ def test_kinect_camera_roll():
     assert np.allclose(q.R @ q.R.T, np.eye(3)) and np.isclose(np.linalg.det(q.R), 1.0)
 
 
+def test_rolled_placements():
+    """``ral-rolled``: the "ral" principal camera and the second one on its side, projector up;
+    ``ral-rolled-far``: the principal 0.29 m farther back along its horizontal direction, same height and
+    aim. The command line offers exactly the known placements."""
+    import argparse
+
+    from depthguard.cli import _add_scenario
+    from depthguard.sim.depthcam import PLACEMENTS, placement
+
+    ral, rolled, far = (placement(n, 160, 120) for n in ("ral", "ral-rolled", "ral-rolled-far"))
+    assert np.array_equal(rolled[0].R, ral[0].R) and np.array_equal(rolled[0].t, ral[0].t)
+    assert np.allclose(rolled[1].position, ral[1].position) and np.array_equal(rolled[1].R[2], ral[1].R[2])
+    assert rolled[1].R[0][2] > 0.8  # the projector (+x) points up in the world (the camera looks down)
+    assert np.array_equal(far[1].R, rolled[1].R) and np.allclose(far[0].R[2], ral[0].R[2], atol=0.06)  # a bit flatter
+    back = far[0].position[:2] - ral[0].position[:2]
+    assert np.isclose(np.linalg.norm(back), 0.29, atol=0.01) and back @ ral[0].position[:2] > 0
+    assert np.isclose(far[0].position[2], ral[0].position[2])
+    sub = argparse.ArgumentParser().add_subparsers()
+    _add_scenario(sub)
+    action = next(a for a in sub.choices["scenario"]._actions if "--placement" in a.option_strings)
+    assert tuple(action.choices) == PLACEMENTS
+    with pytest.raises(ValueError, match="unknown camera placement"):
+        placement("ral-sideways")
+
+
 def test_projector_shadow_band_width():
     """A 1 m plane in front of a 3 m wall at fx = 575 px: f b (1/1 - 1/3) = 28.75 px to its left, none to its
     right, above or below."""

@@ -101,6 +101,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             progress=not args.json,
             **({"backend": "octree", "octree_res": args.octree_res or 0.05} if args.backend == "octree" else {}),
             ssm=bool(getattr(args, "ssm", False)),
+            placement=getattr(args, "placement", None),
         )
     if args.json:
         print(json.dumps(out, default=float))
@@ -185,6 +186,13 @@ def _add_scenario(sub) -> None:
         choices=[1, 2, 3],
         default=None,
         help='number of cameras (3: the "ral" scenarios with a third camera behind the arm, docs/phantom-zero.md)',
+    )
+    p.add_argument(
+        "--placement",
+        choices=["icra", "icra-ssm", "ral", "ral3", "ral-rolled", "ral-rolled-far"],
+        default=None,
+        help="camera placement instead of the scenario file's (ral-rolled: the second camera on its side; "
+        "docs/phantom-zero.md, fourth round)",
     )
     p.add_argument(
         "--backend", choices=["depthspace", "octree"], default=None, help="distance backend (default depthspace)"

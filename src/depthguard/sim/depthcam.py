@@ -315,6 +315,9 @@ class KinectSim:
             self._renderer = None
 
 
+PLACEMENTS = ("icra", "icra-ssm", "ral", "ral3", "ral-rolled", "ral-rolled-far")
+
+
 def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
     """Camera placements of the papers.
 
@@ -332,6 +335,13 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
       sees the rays that the two leave unmeasured (the projector shadows of the second camera that pass
       behind the arm in the principal view, ``docs/phantom-zero.md``). ``--cameras 3`` of a ``"ral"``
       scenario uses it.
+    * ``"ral-rolled"``: the ``"ral"`` cameras with the second one on its side (rolled by -90 degrees, its
+      projector above the lens), so that its projector shadows no longer cross the space that the arm and
+      the panel hide from the principal camera (docs/phantom-zero.md, fourth round).
+    * ``"ral-rolled-far"``: ``"ral-rolled"`` with the principal camera 0.29 m farther back along its own
+      horizontal direction, at (2.0, -1.09, 1.5), so that the end effector pushed towards it stays in its
+      view (it changes the one-camera premise of ``ral-hidden``: the arm no longer hits the hidden box).
+    Select one with ``depthguard scenario NAME --placement NAME``.
     """
     target = (0.0, 0.0, 0.35)
     if name == "icra":
@@ -347,4 +357,11 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
         if name == "ral3":  # a third camera high behind the arm (docs/phantom-zero.md)
             cams.append(kinect_camera((-0.9, -0.9, 2.0), aim, width=width, height=height))
         return cams
-    raise ValueError(f"unknown camera placement {name!r}; known: 'icra', 'icra-ssm', 'ral', 'ral3'")
+    if name in ("ral-rolled", "ral-rolled-far"):
+        aim = (0.0, 0.0, 0.45)
+        principal = (2.0, -1.09, 1.5) if name == "ral-rolled-far" else (1.75, -0.95, 1.5)
+        return [
+            kinect_camera(principal, aim, width=width, height=height),
+            kinect_camera((-0.75, 1.85, 1.5), aim, width=width, height=height, roll_deg=-90.0),
+        ]
+    raise ValueError(f"unknown camera placement {name!r}; known: {', '.join(repr(k) for k in PLACEMENTS)}")

@@ -64,7 +64,7 @@ def build_scenario_cell(sc: dict, *, quick: bool, cameras: int | None, demo: boo
         BoxSpec(b["name"], tuple(b["center"]), tuple(b["half"]), bool(b.get("movable", False)))
         for b in sc.get("boxes", [])
     ]
-    room = tuple(sc.get("room", (-1.1, 2.0, -1.1, 2.0) if sc["cameras"] == "ral" else (-1.5, 2.3, -1.6, 2.3)))
+    room = tuple(sc.get("room", (-1.1, 2.0, -1.1, 2.0) if sc["cameras"].startswith("ral") else (-1.5, 2.3, -1.6, 2.3)))
     spec = CellSpec(cameras=cams, boxes=boxes, people=people, q0=tuple(q0), floor_z=floor_z, room=room, robot=robot)
     cell = build_cell(spec)
     return cell, kin, ee0

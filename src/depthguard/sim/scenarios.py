@@ -269,6 +269,7 @@ def run_scenario(
     backend: str = "depthspace",
     octree_res: float = 0.05,
     ssm: bool = False,
+    placement: str | None = None,
 ) -> dict[str, Any]:
     """Run a scenario; return its metrics (the object ``depthguard scenario NAME --json`` prints).
 
@@ -287,12 +288,20 @@ def run_scenario(
             mode, nodes of ``octree_res`` m over the scenario's workspace, C(t) from the arm's reachability).
         ssm: speed and separation monitoring (ISO/TS 15066) on top of the repulsion; adds the keys of
             :func:`depthguard.sim.ssm_metrics.ssm_metrics` and ``ssm.png``. Off when ``avoidance`` is False.
+        placement: a camera placement of :func:`depthguard.sim.depthcam.placement` instead of the file's
+            ``cameras`` (e.g. ``"ral-rolled"``; None: the file's).
     Returns:
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
     """
 
     sc = load_scenario(name)
+    if placement is not None:
+        from depthguard.sim.depthcam import PLACEMENTS
+
+        if placement not in PLACEMENTS:
+            raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {placement!r}")
+        sc = {**sc, "cameras": placement}
     if out_dir is not None:  # check the output folder before the run, not after it
         from depthguard.io.files import prepare_out_dir
 
@@ -306,6 +315,7 @@ def run_scenario(
     cell, log, task, cfg = _run_one(sc, label=label, demo=demo, **run_kw)
     result: dict[str, Any] = {
         "scenario": sc["name"],
+        "placement": sc.get("cameras"),
         "description": sc.get("description", ""),
         "quick": quick,
         "avoidance": avoidance,
