@@ -145,3 +145,23 @@ def test_bad_input_is_refused():
         measured_bound(v, np.zeros((2, 3)), np.zeros(3), 0.5)
     with pytest.raises(ValueError, match="positive"):
         measured_bound(v, np.zeros((1, 3)), np.zeros(1), float("nan"))
+
+
+def test_segment_distance_against_dense_sampling():
+    """The bound's segment-segment distance (used by the principal robot-edge rule) against the minimum
+    over 400 x 400 sampled point pairs, random segments including degenerate and parallel ones."""
+    from depthguard.sim.measured_bound import _segment_distance2
+
+    rng = np.random.default_rng(3)
+    s = np.linspace(0.0, 1.0, 400)
+    for k in range(40):
+        p0, p1, q0, q1 = rng.normal(size=(4, 3))
+        if k % 10 == 1:
+            p1 = p0.copy()  # a point
+        if k % 10 == 2:
+            q1 = q0 + 0.7 * (p1 - p0)  # parallel
+        P = p0 + s[:, None] * (p1 - p0)
+        Q = q0 + s[:, None] * (q1 - q0)
+        brute = np.min(np.sum((P[:, None] - Q[None]) ** 2, axis=2))
+        got = _segment_distance2(p0, p1, q0, q1)
+        assert got <= brute + 1e-12 and np.sqrt(brute) - np.sqrt(got) < 0.02, (k, got, brute)
