@@ -447,3 +447,20 @@ def test_simulated_scenario_checks_out_before_the_run(tmp_path, monkeypatch_modu
         main(["scenario", "icra-exp1", "--quick", "--json", "--out", str(tmp_path / "new" / "run")])
     assert (tmp_path / "new" / "run").is_dir()  # created before the (stubbed) run started
     assert len(monkeypatch_module.calls) == 1
+
+
+@pytest.mark.parametrize("placement", ["ral3", "ral-rolled", "ral-rolled-far"])
+def test_scenario_files_take_every_ral_placement(tmp_path, placement):
+    """A scenario file may name any of the ral cell's placements (``ral3`` used to raise a KeyError in the
+    camera-count check); a camera count beyond the placement is refused with the field's name."""
+    from depthguard.sim.depthcam import placement as cameras_of
+    from depthguard.sim.scenarios import load_scenario
+
+    sc = tomllib.loads(_scenario_bytes("ral-shadow").decode())
+    sc["cameras"] = placement
+    (tmp_path / "a.toml").write_text(_toml_dump(sc))
+    assert load_scenario(tmp_path / "a.toml")["cameras"] == placement
+    sc["camera_count"] = len(cameras_of(placement)) + 1
+    (tmp_path / "b.toml").write_text(_toml_dump(sc))
+    with pytest.raises(InputError, match=r"field 'camera_count'"):
+        load_scenario(tmp_path / "b.toml")

@@ -129,7 +129,7 @@ TOP_LEVEL: dict[str, Any] = {
     "name": (_str, True),
     "description": (lambda x: None if isinstance(x, str) else "a string", False),
     "paper": (lambda x: None if isinstance(x, str) else "a string", False),
-    "cameras": (_choice("icra", "ral", "ral3", "platform"), True),
+    "cameras": (_choice("icra", "ral", "ral3", "ral-rolled", "ral-rolled-far", "platform"), True),
     "camera_count": (_int_range(1, 8), False),
     "ssm_camera_count": (_int_range(1, 8), False),
     "ssm_cameras": (_choice("icra-ssm"), False),
@@ -202,7 +202,7 @@ def _check_cross(data: dict[str, Any], source: str) -> None:
     task = data["task"]
     if task.get("kind", "points") != "hold" and "waypoints" not in task:
         raise _fail(source, "field 'task.waypoints'", 'is missing (needed unless task.kind = "hold")')
-    n_placed = {"icra": 1, "ral": 2, "platform": 2}[data["cameras"]]
+    n_placed = {"icra": 1, "ral": 2, "ral3": 3, "ral-rolled": 2, "ral-rolled-far": 2, "platform": 2}[data["cameras"]]
     if data.get("camera_count", 1) > n_placed:
         raise _fail(source, "field 'camera_count'", f"must be 1..{n_placed} for cameras = {data['cameras']!r}")
     n_ssm = n_placed + (data["cameras"] == "ral")  # (the "ral" cell has an optional third camera)
