@@ -102,6 +102,28 @@ def _hull_excess(v: np.ndarray, f: np.ndarray) -> float | None:
     return excess if excess <= HULL_TOLERANCE else None
 
 
+def _filter_mesh(g: ShapeGeometry, max_triangles: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """What the self-filter draws for the mesh shape ``g`` (link frame): vertices, inflation offsets, faces
+    and whether its winding number counts (a closed, non-convex mesh).
+
+    A box, or a (nearly) convex mesh at most ``max_triangles`` big, is drawn as its rounded offset (convex:
+    the depth interval alone is exact; a mesh's hull excess is taken off the margin through ``g.excess``);
+    any other mesh is decimated above ``max_triangles`` (``g.slack``, ``g.excess`` set) and inflated by
+    per-vertex offsets. Updates ``g`` accordingly."""
+    v, f = g.vertices, g.faces
+    decimate = max_triangles is not None and len(f) > max_triangles
+    if g.shape.kind == "mesh":
+        hull_excess = None if decimate else _hull_excess(v, f)
+        if hull_excess is not None:  # (nearly) convex: its hull's rounded offset, less the hull's excess
+            g.filter_mesh, g.excess = rounded_convex_mesh(v), hull_excess
+    if g.filter_mesh is not None:
+        return *g.filter_mesh, False
+    if decimate:
+        v, f, g.slack, g.excess = _decimate(v, f, max_triangles)
+        g.vertices, g.faces = v, f
+    return v, inflation_directions(v, f), f, is_closed(f)
+
+
 def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """Capsules inside a box or a cylinder shape, link frame: ends ``a``, ``b`` (3,) m and radius (m).
 
@@ -174,22 +196,8 @@ class RobotGeometry:
                 cb.append(Rl @ g.b + pl)
                 cr.append(g.radius)
                 continue
-            v, f = g.vertices, g.faces
-            decimate = max_triangles is not None and len(f) > max_triangles
-            if g.filter_mesh is None and g.shape.kind == "mesh" and not decimate:
-                hull_excess = _hull_excess(v, f)
-                if hull_excess is not None:  # (nearly) convex: its hull's rounded offset, less the hull's excess
-                    g.filter_mesh, g.excess = rounded_convex_mesh(v), hull_excess
-            if g.filter_mesh is not None and not (decimate and g.shape.kind == "mesh"):
-                # a box or a convex mesh: its rounded offset (a convex mesh above max_triangles is decimated)
-                v, o, f = g.filter_mesh
-                closed.append(False)  # convex: the depth interval alone is exact
-            else:
-                if decimate:
-                    v, f, g.slack, g.excess = _decimate(v, f, max_triangles)
-                    g.vertices, g.faces = v, f
-                o = inflation_directions(v, f)
-                closed.append(is_closed(f))
+            v, o, f, is_shut = _filter_mesh(g, max_triangles)
+            closed.append(is_shut)
             mj.append(int(frame.parentJoint))
             Vs.append(v @ Rl.T + pl)
             Os.append(o @ Rl.T)

@@ -147,27 +147,23 @@ def _segment_distance2(p0, p1, q0, q1) -> float:
     f = d2x * rx + d2y * ry + d2z * rz
     c = d1x * rx + d1y * ry + d1z * rz
     b = d1x * d2x + d1y * d2y + d1z * d2z
+    # the minimum lies at the interior critical point or on an edge of the parameter square, where it is the
+    # clamped projection of one segment's end onto the other: try them all
     best = np.inf
-    # the minimum lies at an end of one segment or at the interior critical point: try them all
-    cands = np.empty((5, 2))
-    n = 0
     den = a * e - b * b
-    if den > 1e-18 * a * e and a > 0.0 and e > 0.0:
-        s = (b * f - c * e) / den
-        tt = (a * f - b * c) / den
-        if 0.0 <= s <= 1.0 and 0.0 <= tt <= 1.0:
-            cands[n, 0], cands[n, 1] = s, tt
-            n += 1
-    for s in (0.0, 1.0):  # ends of p: the nearest point of q
-        tt = 0.0 if e <= 0.0 else min(max((f + s * b) / e, 0.0), 1.0)
-        cands[n, 0], cands[n, 1] = s, tt
-        n += 1
-    for tt in (0.0, 1.0):  # ends of q: the nearest point of p
-        s = 0.0 if a <= 0.0 else min(max((tt * b - c) / a, 0.0), 1.0)
-        cands[n, 0], cands[n, 1] = s, tt
-        n += 1
-    for k in range(n):
-        s, tt = cands[k, 0], cands[k, 1]
+    for k in range(5):
+        if k == 0:
+            if not (den > 1e-18 * a * e and a > 0.0 and e > 0.0):
+                continue
+            s, tt = (b * f - c * e) / den, (a * f - b * c) / den
+            if not (0.0 <= s <= 1.0 and 0.0 <= tt <= 1.0):
+                continue
+        elif k <= 2:  # an end of p, the nearest point of q
+            s = float(k - 1)
+            tt = 0.0 if e <= 0.0 else min(max((f + s * b) / e, 0.0), 1.0)
+        else:  # an end of q, the nearest point of p
+            tt = float(k - 3)
+            s = 0.0 if a <= 0.0 else min(max((tt * b - c) / a, 0.0), 1.0)
         x = rx + s * d1x - tt * d2x
         y = ry + s * d1y - tt * d2y
         z = rz + s * d1z - tt * d2z
