@@ -246,7 +246,7 @@ def test_cli_calibrate_writes_a_file_the_cell_file_uses(tmp_path, capsys):
     from depthguard.sim.depthcam import placement
 
     src = (Path(__file__).resolve().parents[1] / "examples" / "cells" / "sim-hexagon.toml").read_text()
-    off = src.replace("eye = [1.75, -0.95, 1.5]", "eye = [1.77, -0.97, 1.52]").replace(
+    off = src.replace("eye = [2.0, -1.09, 1.5]", "eye = [2.02, -1.11, 1.52]").replace(
         "target = [0.0, 0.0, 0.45]", "target = [0.05, 0.0, 0.50]", 1
     )
     cell = tmp_path / "cell.toml"
@@ -271,7 +271,7 @@ def test_cli_calibrate_writes_a_file_the_cell_file_uses(tmp_path, capsys):
         assert entry["rmse"] == pytest.approx(reported["rmse_m"], rel=1e-5)
         assert entry["inlier_fraction"] == pytest.approx(reported["inlier_fraction"], rel=1e-3)
     cell.write_text('calibration = "cell.calibration.toml"\n' + off)
-    truth = placement("ral", 160, 120)
+    truth = placement("ral-rolled-far", 160, 120)  # ral-hexagon's cameras
     for cc, cam in zip(read_cell(cell).cameras, truth, strict=True):
         assert np.linalg.norm(cc.build().position - cam.position) < 0.01
         assert np.rad2deg(Rotation.from_matrix(cc.R @ cam.R.T).magnitude()) < 0.5

@@ -234,7 +234,7 @@ def test_live_view_draws_a_carried_camera_where_its_link_is(tmp_path):
     from depthguard.viz.live import LiveView
 
     text = (EXAMPLES / "sim-hexagon.toml").read_text()
-    text = text.replace("eye = [1.75, -0.95, 1.5]", 'parent = "lwr_link_4"\neye = [1.75, -0.95, 1.5]', 1)
+    text = text.replace("eye = [2.0, -1.09, 1.5]", 'parent = "lwr_link_4"\neye = [2.0, -1.09, 1.5]', 1)
     p = tmp_path / "cell.toml"
     p.write_text(text)
     cell = read_cell(p)

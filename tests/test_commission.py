@@ -119,7 +119,7 @@ def test_commissioned_background_is_the_empty_cell(commissioned):
     assert summary["frames"] == 30 and [c["name"] for c in summary["cameras"]] == list(NAMES)
     bg = read_background(out)
     assert bg.names == NAMES and bg.frames == 30 and bg.source == "sim:ral-hexagon" and bg.date
-    src = SimSource("ral-hexagon", quick=True, cameras=3, people=False)
+    src = SimSource("ral-hexagon", quick=True, cameras=3, people=False, ssm=True)
     try:
         groups = np.zeros(6, np.uint8)
         groups[0] = 1
@@ -185,7 +185,7 @@ def test_a_box_above_the_table_is_still_seen(commissioned, tmp_path):
 
     def frame(center, half):
         box = f'\n[[boxes]]\nname = "probe"\ncenter = {list(center)}\nhalf = {list(half)}\n'
-        src = SimSource(str(_scenario(tmp_path, 0.1, people=False, boxes=box)), quick=True, cameras=3)
+        src = SimSource(str(_scenario(tmp_path, 0.1, people=False, boxes=box)), quick=True, cameras=3, ssm=True)
         try:
             q = src.cell.q()
             src.cell.forward()

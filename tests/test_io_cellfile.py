@@ -39,11 +39,16 @@ def test_examples_parse_and_sim_hexagon_matches_the_scenario_cameras():
         assert "camera" in describe_cell(read_cell(f))
     cell = read_cell(EXAMPLES / "sim-hexagon.toml")
     # the scenario's cameras, by their definition: centres and the point they look at
-    for cam, eye in zip(cell.cameras, ([1.75, -0.95, 1.5], [-0.75, 1.85, 1.5]), strict=True):
+    for cam, eye in zip(cell.cameras, ([2.0, -1.09, 1.5], [-0.75, 1.85, 1.5]), strict=True):
         c = cam.build()
         np.testing.assert_allclose(c.position, eye, atol=1e-12)
         px = c.project(np.array([[0.0, 0.0, 0.45]]))[0]
         np.testing.assert_allclose(px[:2], [c.cx, c.cy], atol=1e-9)
+    # the principal camera upright (its image rows horizontal), the second one on its side (its columns
+    # horizontal) with its image's top towards +x, away from the principal camera's side of the room
+    principal, second = (c.build() for c in cell.cameras)
+    assert abs(principal.R[0, 2]) < 1e-12 and abs(second.R[1, 2]) < 1e-12
+    assert -second.R[1] @ np.array([1.0, 0.0, 0.0]) > 0.9
 
 
 def test_minimal_file_defaults(tmp_path):

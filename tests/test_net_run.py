@@ -248,11 +248,11 @@ def test_camera_node_moves_a_carried_camera_with_its_link(tmp_path):
 
     model = load_lwr4()
     q = np.array([0.4, 0.5, 0.0, -0.8, 0.0, 0.6, 0.0])
-    R_w, t_w = look_at(np.array([1.75, -0.95, 1.5]), np.array([0.0, 0.0, 0.45]))  # the world pose at q
+    R_w, t_w = look_at(np.array([2.0, -1.09, 1.5]), np.array([0.0, 0.0, 0.45]))  # the world pose at q
     R_l, p_l = model.frame_pose(q, "lwr_link_3")
     R_loc, t_loc = R_w @ R_l, t_w + R_w @ p_l  # P_C = R_w (R_l P_L + p_l) + t_w
     text = CELL.read_text().replace(
-        "eye = [1.75, -0.95, 1.5]\ntarget = [0.0, 0.0, 0.45]",
+        "eye = [2.0, -1.09, 1.5]\ntarget = [0.0, 0.0, 0.45]",
         f'parent = "lwr_link_3"\nR = {R_loc.tolist()}\nt = {t_loc.tolist()}',
         1,
     )

@@ -1,6 +1,7 @@
 """``depthguard run``: the same chain on the simulated cell and on ROS 2 bags, deterministic replay, bags written
 by ``rosbags`` itself, and bad bags that give clear errors."""
 
+import itertools
 import json
 import tomllib
 from pathlib import Path
@@ -420,7 +421,8 @@ def test_run_chain_corrects_for_the_robots_interior():
     """``run`` (and the distance node) apply the robot-interior corrections of the depth grid, as the
     simulated scenarios do (docs/phantom-zero.md): with the joint state, the cells right behind the arm
     are not unseen space. On the first frames of the simulated ``ral-hexagon`` cell every distance is at
-    least the uncorrected one and some are larger (without them, at 640x480 the end effector read 0)."""
+    least the uncorrected one and some are larger (with the "ral" cameras, before the second one was rolled,
+    the end effector read 0 without them at 640x480; with the rolled one the gain is 1-3 mm)."""
     from depthguard.io.cellfile import read_cell
     from depthguard.runner import open_source
     from depthguard.runner.chain import Chain, load_cell_robot
@@ -428,17 +430,19 @@ def test_run_chain_corrects_for_the_robots_interior():
     cell = read_cell(HEX_CELL)
     model = load_cell_robot(cell)
     src = open_source("sim:ral-hexagon", cell, model.joint_names, quick=True)
+    gain = []
     try:
-        tick = next(t for t in src.ticks() if t.frames is not None)
         chain = Chain(cell, src.cameras, model)
-        chain.on_frames(tick.frames, tick.q, tick.t)
-        corrected = np.asarray(chain.query(tick.t, tick.q).distance)
-        chain.stage.update(tick.frames, chain.masks)  # without the joint state: no correction
-        plain = np.asarray(chain.query(tick.t, tick.q).distance)
+        for tick in itertools.islice((t for t in src.ticks() if t.frames is not None), 12):
+            chain.on_frames(tick.frames, tick.q, tick.t)
+            corrected = np.asarray(chain.query(tick.t, tick.q).distance)
+            chain.stage.update(tick.frames, chain.masks)  # without the joint state: no correction
+            plain = np.asarray(chain.query(tick.t, tick.q).distance)
+            assert np.all(corrected >= plain - 1e-9)
+            gain.append(np.max(np.where(np.isfinite(corrected), corrected, 1.0) - np.where(np.isfinite(plain), plain, 1.0)))
     finally:
         src.close()
-    assert np.all(corrected >= plain - 1e-9)
-    assert np.any(corrected > plain + 0.005)
+    assert max(gain) > 0.001, gain  # without the corrections both are the same, bit for bit
 
 
 def _wall_and_post(cam):

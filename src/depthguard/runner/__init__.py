@@ -51,7 +51,8 @@ def open_source(
 
         try:  # as many of the scenario's cameras as the cell file has ("ral": a third one for 3)
             dt = 1.0 / float(cell.controller["rate"])
-            src = SimSource(arg, quick=quick, control_dt=dt, cameras=len(cell.cameras), people=people)
+            ssm = bool(cell.controller.get("ssm", False))
+            src = SimSource(arg, quick=quick, control_dt=dt, cameras=len(cell.cameras), people=people, ssm=ssm)
         except ValueError as exc:
             if "cameras must be" not in str(exc):
                 raise

@@ -66,6 +66,8 @@ class SimSource:
             third one for 3, :func:`depthguard.sim.scenario_setup.build_scenario_cell`).
         people: False: the scenario's cell without its people (its ``remove_people`` variant: the empty cell
             of ``depthguard commission``).
+        ssm: the cell runs speed and separation monitoring: the scenario's ``ssm_cameras`` placement where it
+            has one (as ``depthguard scenario --ssm``).
     """
 
     def __init__(
@@ -78,6 +80,7 @@ class SimSource:
         seed: int = 0,
         cameras: int | None = None,
         people: bool = True,
+        ssm: bool = False,
     ) -> None:
         from depthguard.sim.depthcam import KinectSim
         from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task
@@ -86,6 +89,8 @@ class SimSource:
         self.sc = load_scenario(scenario)
         if not people:
             self.sc["people"] = []
+        if ssm and "ssm_cameras" in self.sc:
+            self.sc["cameras"] = self.sc["ssm_cameras"]
         self.cell, self.kin, ee0 = build_scenario_cell(self.sc, quick=quick, cameras=cameras)
         self.task = scenario_task(self.sc, ee0)
         self.cams = [KinectSim(self.cell.model, c, i, seed=seed + i) for i, c in enumerate(self.cell.cameras)]

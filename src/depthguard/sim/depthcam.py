@@ -316,6 +316,7 @@ class KinectSim:
 
 
 PLACEMENTS = ("icra", "icra-ssm", "ral", "ral3", "ral-rolled", "ral-rolled-far")
+RAL_TWO = ("ral", "ral-rolled", "ral-rolled-far")  # two-camera placements that take ral3's third camera for 3
 
 
 def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:

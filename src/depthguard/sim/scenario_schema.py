@@ -132,7 +132,7 @@ TOP_LEVEL: dict[str, Any] = {
     "cameras": (_choice("icra", "ral", "ral3", "ral-rolled", "ral-rolled-far", "platform"), True),
     "camera_count": (_int_range(1, 8), False),
     "ssm_camera_count": (_int_range(1, 8), False),
-    "ssm_cameras": (_choice("icra-ssm"), False),
+    "ssm_cameras": (_choice("icra-ssm", "ral"), False),
     "resolution": (_size, False),
     "quick_resolution": (_size, False),
     "demo_resolution": (_size, False),
@@ -202,10 +202,12 @@ def _check_cross(data: dict[str, Any], source: str) -> None:
     task = data["task"]
     if task.get("kind", "points") != "hold" and "waypoints" not in task:
         raise _fail(source, "field 'task.waypoints'", 'is missing (needed unless task.kind = "hold")')
-    n_placed = {"icra": 1, "ral": 2, "ral3": 3, "ral-rolled": 2, "ral-rolled-far": 2, "platform": 2}[data["cameras"]]
+    placed = {"icra": 1, "icra-ssm": 1, "ral": 2, "ral3": 3, "ral-rolled": 2, "ral-rolled-far": 2, "platform": 2}
+    n_placed = placed[data["cameras"]]
     if data.get("camera_count", 1) > n_placed:
         raise _fail(source, "field 'camera_count'", f"must be 1..{n_placed} for cameras = {data['cameras']!r}")
-    n_ssm = n_placed + (data["cameras"] == "ral")  # (the "ral" cell has an optional third camera)
+    ssm_placed = data.get("ssm_cameras", data["cameras"])  # (two-camera "ral" cells have an optional third one)
+    n_ssm = placed[ssm_placed] + (ssm_placed in ("ral", "ral-rolled", "ral-rolled-far"))
     if data.get("ssm_camera_count", 1) > n_ssm:
         raise _fail(source, "field 'ssm_camera_count'", f"must be 1..{n_ssm} for cameras = {data['cameras']!r}")
     movable = {b["name"] for b in data.get("boxes", []) if b.get("movable", False)}

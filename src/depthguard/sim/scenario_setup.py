@@ -14,7 +14,7 @@ def build_scenario_cell(sc: dict, *, quick: bool, cameras: int | None, demo: boo
     ``quick`` or ``demo`` form; the first ``cameras`` of the placement), robot, boxes and people. Returns
     ``(cell, kinematics, end-effector start (3,) m)``."""
     from depthguard.sim.cell import BoxSpec, CellSpec, build_cell
-    from depthguard.sim.depthcam import placement
+    from depthguard.sim.depthcam import RAL_TWO, placement
     from depthguard.sim.people import Keyframe, PersonScript
     from depthguard.sim.pipeline import Kinematics
 
@@ -22,8 +22,8 @@ def build_scenario_cell(sc: dict, *, quick: bool, cameras: int | None, demo: boo
     if demo:
         res = sc.get("demo_resolution", res)
     cams = placement(sc["cameras"], int(res[0]), int(res[1]))
-    if sc["cameras"] == "ral" and cameras is not None and cameras > len(cams):
-        cams = placement("ral3", int(res[0]), int(res[1]))  # the third camera (docs/phantom-zero.md)
+    if sc["cameras"] in RAL_TWO and cameras is not None and cameras > len(cams):
+        cams = cams + placement("ral3", int(res[0]), int(res[1]))[2:]  # the third camera (docs/phantom-zero.md)
     n_cams = cameras if cameras is not None else sc.get("camera_count", len(cams))
     if n_cams < 1 or n_cams > len(cams):
         raise ValueError(f"scenario {sc['name']}: cameras must be 1..{len(cams)} for placement {sc['cameras']!r}")
