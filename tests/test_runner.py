@@ -439,7 +439,9 @@ def test_run_chain_corrects_for_the_robots_interior():
             chain.stage.update(tick.frames, chain.masks)  # without the joint state: no correction
             plain = np.asarray(chain.query(tick.t, tick.q).distance)
             assert np.all(corrected >= plain - 1e-9)
-            gain.append(np.max(np.where(np.isfinite(corrected), corrected, 1.0) - np.where(np.isfinite(plain), plain, 1.0)))
+            gain.append(
+                np.max(np.where(np.isfinite(corrected), corrected, 1.0) - np.where(np.isfinite(plain), plain, 1.0))
+            )
     finally:
         src.close()
     assert max(gain) > 0.001, gain  # without the corrections both are the same, bit for bit
