@@ -85,24 +85,27 @@ def test_point_clearance_matches_the_analytic_primitives():
 
 @pytest.mark.slow
 def test_quick_ral_hexagon_has_no_phantom_contact():
-    """No control point may be evaluated at zero (<= 5 mm) while its true clearance exceeds 5 cm; the
-    evaluation may not exceed the truth by more than its declared tolerance. With three cameras: two
-    Kinects leave rays that neither measures next to the arm (the second camera's projector shadow of the
-    table's corner runs behind the shoulder in the principal view; docs/phantom-zero.md), so with two the
-    shoulder sphere still reads zero for about 1-2 s of the quick run (as it must: that space is unseen)."""
+    """Two cameras, the quick form: no control point may be evaluated at zero (<= 5 mm) while its true
+    clearance exceeds 5 cm; the evaluation may not exceed the truth by more than its declared tolerance nor
+    by 3 cm, and the median under-report stays within 3 cm (the accuracy issue's targets). With the upright
+    "ral" pair the shoulder sphere read zero for 0.2-1.8 s (the second camera's projector shadow of the
+    table's corner runs behind the shoulder in the principal view) and the median was 6 cm; the scenario's
+    "ral-rolled-far" placement turns the second camera on its side (docs/phantom-zero.md)."""
     from depthguard.sim.scenarios import run_scenario
 
-    r = run_scenario("ral-hexagon", quick=True, cameras=3, variants=False)
+    r = run_scenario("ral-hexagon", quick=True, cameras=2, variants=False)
+    assert r["placement"] == "ral-rolled-far"
     assert r["accuracy_samples"] > 1000
     assert r["time_at_zero_s"] == 0.0, r["accuracy_per_point"]
     assert r["over_report_within_tolerance"], r
     assert r["max_over_report"] <= 0.03
+    assert r["median_under_report"] <= 0.03
 
 
 def test_principal_camera_sees_the_space_of_interest():
-    """RA-L'16 §I, assumption 1: the principal camera of the "ral" placement sees the space within ρ of
-    every control point along the ral scenarios' task (above 0.35 m; below, a sliver of space low in front
-    of the camera near the end effector's lowest waypoints lies under the image's bottom edge, see
+    """RA-L'16 §I, assumption 1: the principal camera of each ral scenario's placement sees the space within ρ
+    of every control point along the ral scenarios' task (above 0.35 m; below, a sliver of space low in
+    front of the camera near the end effector's lowest waypoints lies under the image's bottom edge, see
     docs/phantom-zero.md). Aimed at 0.35 m, the space above the arm was cut by the top edge."""
     from depthguard.sim import scenario_setup as setup
     from depthguard.sim import scenarios as S
@@ -131,8 +134,9 @@ def test_principal_camera_sees_the_space_of_interest():
         v = cam.fy * pc[:, 1] / pc[:, 2] + cam.cy
         return ~((pc[:, 2] > cam.min_depth) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height))
 
+    for name in ("ral", "ral-rolled", "ral-rolled-far"):
+        assert not outside(placement(name, 160, 120)[0]).any(), name
     principal = placement("ral", 160, 120)[0]
-    assert not outside(principal).any()
     old = kinect_camera(principal.position, (0.0, 0.0, 0.35), width=160, height=120)
     assert outside(old).any()  # the old aim did not (the test can fail)
 

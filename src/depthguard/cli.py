@@ -191,8 +191,9 @@ def _add_scenario(sub) -> None:
         "--placement",
         choices=["icra", "icra-ssm", "ral", "ral3", "ral-rolled", "ral-rolled-far"],
         default=None,
-        help="camera placement instead of the scenario file's (ral-rolled: the second camera on its side; "
-        "docs/phantom-zero.md, fourth round)",
+        help="camera placement instead of the scenario file's (ral-rolled: the second camera on its side, "
+        "ral-shadow's and ral-hidden's; ral-rolled-far: and the principal farther back, ral-hexagon's; ral: the "
+        "upright pair of before; docs/phantom-zero.md)",
     )
     p.add_argument(
         "--backend", choices=["depthspace", "octree"], default=None, help="distance backend (default depthspace)"

@@ -338,11 +338,14 @@ def placement(name: str, width: int = 640, height: int = 480) -> list[Camera]:
       scenario uses it.
     * ``"ral-rolled"``: the ``"ral"`` cameras with the second one on its side (rolled by -90 degrees, its
       projector above the lens), so that its projector shadows no longer cross the space that the arm and
-      the panel hide from the principal camera (docs/phantom-zero.md, fourth round).
+      the panel hide from the principal camera (docs/phantom-zero.md, fourth round); ``ral-shadow`` and
+      ``ral-hidden`` use it.
     * ``"ral-rolled-far"``: ``"ral-rolled"`` with the principal camera 0.29 m farther back along its own
       horizontal direction, at (2.0, -1.09, 1.5), so that the end effector pushed towards it stays in its
-      view (it changes the one-camera premise of ``ral-hidden``: the arm no longer hits the hidden box).
-    Select one with ``depthguard scenario NAME --placement NAME``.
+      view (it changes the one-camera premise of ``ral-hidden``: the arm no longer hits the hidden box);
+      ``ral-hexagon`` uses it.
+    A scenario file names its placement (``cameras``); ``depthguard scenario NAME --placement NAME`` overrides
+    it. The two-camera ``"ral"`` placements take ``"ral3"``'s third camera for ``--cameras 3``.
     """
     target = (0.0, 0.0, 0.35)
     if name == "icra":
