@@ -183,13 +183,14 @@ def test_capsule_boxes_hold_every_pixel_whose_ray_meets_the_capsule(pa, pb, z, r
                 assert u0 <= u <= u1 and v0 <= v <= v1, (u, v, (u0, u1, v0, v1))
 
 
-@pytest.mark.parametrize("name", ["lwr4", "panda", "ur5"])
+@pytest.mark.parametrize("name", ["lwr4", "panda", "ur5", "xarm7"])
 def test_interior_capsules_lie_in_the_self_filter_geometry(name):
     """The corrections skip or clear space inside these capsules inflated by the margin: it must lie within
     the margin of the robot's collision geometry (coal). The chain capsules of a mesh robot
-    (``link_capsules``, r = 0.05 m) do not: up to 4 cm more (measured), so a mesh link gets none."""
+    (``link_capsules``, r = 0.05 m) do not: up to 4 cm more (measured); a mesh link gets the capsule
+    inscribed in its own closed mesh instead."""
     pytest.importorskip("coal")
-    from depthguard.bench.meshtruth import distance_to_robot
+    from depthguard.bench.meshtruth import MeshRobotTruth, distance_to_robot
     from depthguard.robot.interior import interior_capsules
     from depthguard.robot.robots import load_robot
 
@@ -199,7 +200,12 @@ def test_interior_capsules_lie_in_the_self_filter_geometry(name):
             lo, hi = np.minimum(a[k], b[k]) - r[k] - MARGIN, np.maximum(a[k], b[k]) + r[k] + MARGIN
             p = rng.uniform(lo, hi, (n, 3))
             pts.append(p[_inside(p, a[k], b[k], r[k] + MARGIN)])
-        return distance_to_robot(str(model.urdf_path), q, np.vstack(pts)).max()
+        pts = np.vstack(pts)
+        d = distance_to_robot(str(model.urdf_path), q, pts)  # to the surface, unsigned
+        far = d > MARGIN
+        if far.any():  # deep inside a link is fine: MuJoCo's ray parity on the URDF's own meshes
+            d[far] = np.where(MeshRobotTruth(str(model.urdf_path), q).inside(pts[far]), 0.0, d[far])
+        return d.max()
 
     model = load_robot(name)
     rng = np.random.default_rng(7)
@@ -270,3 +276,37 @@ def test_robot_windows_join_chords_met_out_of_order():
     # the centre pixel's window spans all three: from the near capsule's front to the far one's back
     assert lo[18, 24] == pytest.approx(2.0 - 0.2 - 0.13, abs=0.01)
     assert hi[18, 24] == pytest.approx(2.0 + 0.2 + 0.13, abs=0.01)
+
+
+def test_capsule_inscribed_in_a_mesh_lies_inside_it():
+    """A box mesh 0.1 x 0.2 x 0.4 m: the capsule runs along its long axis, every point of it lies inside the
+    box (analytic test), and it is not much thinner than the largest one (radius 0.05 m); an L-shaped
+    (non-convex) mesh gets one inside it too; an open mesh gets none."""
+    trimesh = pytest.importorskip("trimesh")
+    from depthguard.robot.geometry import _inscribed_mesh_capsule
+
+    box = trimesh.creation.box((0.1, 0.2, 0.4))
+    a, b, r = _inscribed_mesh_capsule(np.asarray(box.vertices), np.asarray(box.faces))
+    assert 0.040 <= r < 0.05 and abs((b - a)[2]) > 0.2
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.2, 0.2, (20000, 3))
+    p = p[_inside(p, a, b, r)]
+    assert len(p) > 300 and np.all(np.abs(p) <= [0.05, 0.1, 0.2])
+    open_mesh = box.faces[:-2]
+    assert _inscribed_mesh_capsule(np.asarray(box.vertices), np.asarray(open_mesh)) is None
+
+
+def test_capsule_inscribed_in_a_non_convex_mesh_lies_inside_it():
+    """An L-shaped mesh (two 6 cm bars, trimesh's boolean union): a capsule is found and lies inside it."""
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("manifold3d", reason="trimesh's boolean union needs manifold3d")
+    from depthguard.robot.geometry import _inscribed_mesh_capsule
+
+    rng = np.random.default_rng(4)
+    ell = trimesh.boolean.union([trimesh.creation.box((0.3, 0.06, 0.06)), trimesh.creation.box((0.06, 0.3, 0.06))])
+    a, b, r = _inscribed_mesh_capsule(np.asarray(ell.vertices), np.asarray(ell.faces))
+    assert r >= 0.01
+    p = rng.uniform(-0.2, 0.2, (50000, 3))
+    p = p[_inside(p, a, b, r)]
+    in_bar = (np.abs(p[:, 1]) <= 0.03) | (np.abs(p[:, 0]) <= 0.03)
+    assert len(p) > 30 and np.all(in_bar & (np.abs(p[:, 2]) <= 0.03) & (np.abs(p[:, :2]) <= 0.15).all(axis=1))

@@ -87,6 +87,35 @@ class MeshRobotTruth:
     def robot_depth(self, camera) -> np.ndarray:
         return self.depth(camera, (0, 1, 0, 0, 0, 0))
 
+    def inside(self, points: np.ndarray) -> np.ndarray:
+        """(P,) bool: world points (P, 3) inside the robot's closed collision geometry, by the parity of the
+        surfaces of each geom that MuJoCo's rays (``mj_ray``, which meets triangles from either side) cross
+        along five fixed directions (per geom: the links' meshes overlap at the joints); a point counts as
+        inside when, along most directions, some geom is crossed an odd number of times (a ray through an
+        edge or a vertex may count a crossing twice)."""
+        import mujoco
+
+        group = np.array([0, 1, 0, 0, 0, 0], np.uint8)
+        gid = np.zeros(1, np.int32)
+        dirs = np.array(
+            [[0.31, 0.52, 0.79], [-0.67, 0.23, -0.41], [0.12, -0.93, 0.35], [0.58, 0.11, -0.81], [-0.44, -0.61, 0.66]]
+        )
+        dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+        out = np.zeros(len(points), bool)
+        for k, p in enumerate(np.asarray(points, float)):
+            odd = 0
+            for u in dirs:
+                o, hits = p.copy(), np.zeros(self.mj.ngeom, np.int64)
+                for _ in range(1000):
+                    d = mujoco.mj_ray(self.mj, self.md, o, u, group, 1, -1, gid)
+                    if d < 0:
+                        break
+                    hits[gid[0]] += 1
+                    o = o + (d + 1e-7) * u
+                odd += bool(np.any(hits % 2 == 1))
+            out[k] = odd >= 3
+        return out
+
 
 def distance_to_robot(urdf: str, q: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(P,) distance (m) of world points (P, 3) to the robot's collision geometry at ``q`` (coal)."""

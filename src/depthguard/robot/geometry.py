@@ -153,6 +153,44 @@ def _inscribed_capsules(shape: Shape) -> list[tuple[np.ndarray, np.ndarray, floa
     return [(Rs @ a + ps, Rs @ b + ps, radius) for a, b in ends]
 
 
+def _inscribed_mesh_capsule(v: np.ndarray, f: np.ndarray, step: float = 0.002) -> tuple | None:
+    """A capsule inside the closed mesh ``v`` (V, 3), ``f`` (F, 3) (link frame, m): ends ``a``, ``b`` (3,) and
+    radius (m), or None (an open mesh, or no capsule of radius >= 5 mm found).
+
+    Its axis is the principal axis of the mesh's surface points, centred on their extent along it; of the
+    segments 0-90 % of that extent long, the one whose capsule has the largest volume is kept. The axis is
+    sampled at most ``step`` apart; a segment counts only if its samples all lie inside the mesh (trimesh's
+    ray test), and its radius is their smallest distance to the surface (coal) less half the sample spacing
+    (the distance to the surface is 1-Lipschitz along the segment) and 1 mm, so it does not reach the surface.
+    """
+    if not is_closed(f):
+        return None
+    import trimesh
+
+    pts = surface_points(v, f, 0.01)
+    c = pts.mean(axis=0)
+    axis = np.linalg.svd(pts - c, full_matrices=False)[2][0]
+    along = (pts - c) @ axis
+    mid, half = c + axis * 0.5 * (along.max() + along.min()), 0.5 * float(along.max() - along.min())
+    n = 2 * int(np.ceil(0.9 * half / step)) + 1  # odd: a sample at the middle
+    t = np.linspace(-0.9 * half, 0.9 * half, n)
+    spacing = t[1] - t[0] if n > 1 else 0.0
+    samples = mid + t[:, None] * axis
+    inside = trimesh.Trimesh(vertices=v, faces=f, process=False).contains(samples)
+    dist = _point_distances(v, f, samples)
+    best, best_volume = None, 0.0
+    for frac in np.linspace(0.0, 0.9, 10):
+        sub = np.abs(t) <= frac * half + 1e-12
+        if not inside[sub].all():
+            break  # (the segments are nested: a longer one is not inside either)
+        r = float(dist[sub].min()) - 0.5 * spacing - 0.001
+        length = float(t[sub].max() - t[sub].min())
+        volume = np.pi * r * r * length + 4.0 / 3.0 * np.pi * r**3
+        if r >= 0.005 and volume > best_volume:
+            best, best_volume = (mid + t[sub].min() * axis, mid + t[sub].max() * axis, r), volume
+    return best
+
+
 def _face_planes(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     """(F, 4) outward unit normal (right-handed winding) and offset of each face; zeros for a degenerate one."""
     tri = v[f]
@@ -196,6 +234,7 @@ class RobotGeometry:
                 cb.append(Rl @ g.b + pl)
                 cr.append(g.radius)
                 continue
+            g.inscribed = _inscribed_mesh_capsule(g.vertices, g.faces) if g.shape.kind == "mesh" else None
             v, o, f, is_shut = _filter_mesh(g, max_triangles)
             closed.append(is_shut)
             mj.append(int(frame.parentJoint))
@@ -224,10 +263,13 @@ class RobotGeometry:
         self.face_planes = _face_planes(self.V, self.F)
         self.closed = np.array(closed, dtype=np.bool_)
         ij, ia, ib, ir = [], [], [], []
-        for g in self.geoms:  # capsules inscribed in the mesh-rendered boxes and cylinders
+        for g in self.geoms:  # capsules inscribed in the mesh-rendered boxes, cylinders and meshes
             frame = model.model.frames[model.frame_id(g.shape.link)]
             Rl, pl = np.array(frame.placement.rotation), np.array(frame.placement.translation)
-            for a, b, r in _inscribed_capsules(g.shape) if g.is_mesh else []:
+            inner = _inscribed_capsules(g.shape) if g.is_mesh else []
+            if g.inscribed is not None:  # (computed on the original, undecimated mesh)
+                inner = [g.inscribed]
+            for a, b, r in inner:
                 ij.append(int(frame.parentJoint))
                 ia.append(Rl @ a + pl)
                 ib.append(Rl @ b + pl)
@@ -239,8 +281,9 @@ class RobotGeometry:
 
     def inner_capsules(self, R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Capsules that lie inside the collision geometry, world frame, from joint poses ``R`` (J+1, 3, 3),
-        ``p`` (J+1, 3): the analytic capsules themselves and one capsule inscribed in every box and
-        cylinder (:func:`_inscribed_capsules`); none for meshes. ``a``, ``b`` (C, 3) m, ``radius`` (C,) m."""
+        ``p`` (J+1, 3): the analytic capsules themselves and one capsule inscribed in every box, cylinder
+        (:func:`_inscribed_capsules`) and closed mesh (:func:`_inscribed_mesh_capsule`). ``a``, ``b`` (C, 3)
+        m, ``radius`` (C,) m."""
         a, b, r = self.world_capsules(R, p)
         Rj, pj = R[self.inscribed_joint], p[self.inscribed_joint]
         ai = np.matmul(Rj, self.inscribed_a[:, :, None])[:, :, 0] + pj

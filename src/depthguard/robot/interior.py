@@ -41,11 +41,11 @@ def interior_capsules(model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     they are sound only where that space lies within the self-filter's own geometry inflated by the same
     margin (where it already removes every measured point). That holds for capsules *inside* the robot's
     collision geometry (:meth:`RobotGeometry.inner_capsules`: the analytic capsules and spheres, which the
-    self-filter renders exactly, and a capsule inscribed in every box and cylinder), and not for
+    self-filter renders exactly, and a capsule inscribed in every box, cylinder and closed mesh), and not for
     :meth:`RobotModel.link_capsules`: for a mesh robot those are a coarse fallback along the kinematic chain,
     r = 0.05 m, and up to 4 cm of them (plus the margin) lies outside a Panda's, a UR5's or an xArm's
     collision meshes (measured with coal; ``tests/test_robot_interior.py``); a URDF cylinder becomes a
-    capsule there, whose end caps stick out of it. A mesh link gets no correction: conservative, as if
+    capsule there, whose end caps stick out of it. An open mesh gets no correction: conservative, as if
     these corrections did not exist there.
 
     Args:

@@ -99,6 +99,8 @@ class ShapeGeometry:
     excess: float = 0.0  # how far ``vertices``' surface may lie outside the original surface (decimation), m
     # boxes: the self-filter's mesh with explicit inflation offsets (inflation.rounded_offset_mesh)
     filter_mesh: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    # a closed mesh: a capsule inside it (a, b, radius; link frame, m) for the robot-interior corrections
+    inscribed: tuple[np.ndarray, np.ndarray, float] | None = None
 
     @property
     def is_mesh(self) -> bool:
