@@ -496,3 +496,38 @@ def _near_faces(pts, edge, box, mask):
             if np.all((i >= 0) & (i < np.array(box.shape))):
                 out[tuple(i)] = True
     return out & mask
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    h=st.integers(1, 40),
+    w=st.integers(1, 40),
+    seed=st.integers(0, 2**31),
+    holes=st.sampled_from([0.0, 0.02, 0.3, 0.9]),
+    radius=st.integers(0, 5),
+    conservative=st.booleans(),
+)
+def test_camera_pyramids_equal_the_filled_depths_pyramids(h, w, seed, holes, radius, conservative):
+    """The one-pass camera pyramids against their definition: the depth space's missing-depth policy
+    (``fill_missing_depth``: sparse and dense holes, radius 0, both policies), the robot's blocking depth,
+    and the min / negated-max pyramids of those images."""
+    from depthguard.depthspace import fill_missing_depth
+    from depthguard.octree.fusion import robot_blocking_depth
+    from depthguard.octree.pyramids import camera_pyramids, min_negmax_pyramids, min_pyramid
+
+    rng = np.random.default_rng(seed)
+    cam = Camera.kinect_v1(np.eye(3), np.zeros(3), width=w, height=h, fx=50.0, fy=50.0, cx=w / 2, cy=h / 2)
+    depth = rng.uniform(0.2, 5.0, (h, w)).astype(np.float32)
+    bad = rng.random((h, w)) < holes
+    depth[bad] = rng.choice(np.array([0.0, np.nan, np.inf, -np.inf, -1.0], np.float32), int(bad.sum()))
+    robot = rng.random((h, w)) < 0.2
+    policy = "conservative" if conservative else "ignore"
+    f = fill_missing_depth(cam, depth, robot, invalid=policy, fill_radius=radius)
+    near = np.float32(cam.min_depth)
+    lo, neg, rob, offs, hs, ws = camera_pyramids(depth, robot, radius, near, conservative)
+    ref_lo, ref_neg, *layout = min_negmax_pyramids(f.obstacle_depth)
+    ref_rob = min_pyramid(robot_blocking_depth(f.robot, f.missing, f.depth, near))[0]
+    for got, ref in ((lo, ref_lo), (neg, ref_neg), (rob, ref_rob)):
+        assert np.array_equal(got, ref)
+    for got, ref in zip((offs, hs, ws), layout, strict=True):
+        assert np.array_equal(got, ref)

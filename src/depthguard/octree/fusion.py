@@ -32,14 +32,15 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthspace import fill_missing_depth
+from depthguard.depthspace import check_depth_policy
 from depthguard.octree.grid import VoxelBox
+from depthguard.octree.pyramids import camera_pyramids
 from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points
 from depthguard.octree.sets import (
     F,
     bin_depth_points,
     bin_points,
-    camera_sets,
+    camera_sets_from_pyramids,
     combine,
     mark_overlaps,
     mask_pyramid,
@@ -121,10 +122,15 @@ def sensor_sets(
     ``box``); ``mp`` is the mask's :func:`~depthguard.octree.sets.mask_pyramid` (computed when None)."""
     if isinstance(obs, CameraObservation):
         cam = obs.camera
-        f = fill_missing_depth(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
-        robot = robot_blocking_depth(f.robot, f.missing, f.depth, np.float32(cam.min_depth))
-        flags = camera_sets(mask, box, cam, f.obstacle_depth, robot, mp)
-        bin_depth_points(cam, f.depth, f.robot, box, mask, flags)
+        d, robot = check_depth_policy(cam, obs.depth, obs.mask, invalid, fill_radius)
+        d = np.ascontiguousarray(d)
+        robot = np.zeros(cam.shape, bool) if robot is None else np.ascontiguousarray(robot, dtype=bool)
+        # fill_missing_depth and robot_blocking_depth straight into the pyramids that camera_sets builds
+        lo, neg, rob, *layout = camera_pyramids(
+            d, robot, int(fill_radius), np.float32(cam.min_depth), invalid == "conservative"
+        )
+        flags = camera_sets_from_pyramids(mask, box, cam, (lo, *layout), neg, rob, mp)
+        bin_depth_points(cam, d, robot, box, mask, flags)
         return flags
     if isinstance(obs, ScanObservation):
         sc = obs.scanner

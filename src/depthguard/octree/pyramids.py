@@ -2,6 +2,7 @@
 
 * :func:`min_pyramid` / :func:`max_pyramid`: per 2^l x 2^l pixel block the minimum (maximum) of a depth
   image, all levels in one flat array; :func:`min_negmax_pyramids`: both at once (the maximum negated);
+* :func:`camera_pyramids`: a camera frame's missing-depth policy, robot depth and their pyramids in one pass;
 * :func:`any_le`: whether some pixel of a rectangle is <= a threshold, descending the min-pyramid only into
   blocks that can hold one;
 * :func:`mask_pyramid`: the any-True pyramid of a 3-D node mask (the octree's inner nodes).
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["min_pyramid", "min_negmax_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
+__all__ = ["min_pyramid", "min_negmax_pyramids", "camera_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -80,6 +81,102 @@ def min_negmax_pyramids(img):
     _reduce_levels(lo, offs, hs, ws)
     _reduce_levels(neg, offs, hs, ws)
     return lo, neg, offs, hs, ws
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _window_min(val, W, H, v, u, r):
+    """Minimum of the flat (H * W) image ``val`` over the (2 r + 1)^2 window about (v, u), clipped."""
+    best = np.float32(np.inf)
+    for vv in range(max(0, v - r), min(H, v + r + 1)):
+        row = vv * W
+        for uu in range(max(0, u - r), min(W, u + r + 1)):
+            best = min(best, val[row + uu])
+    return best
+
+
+@nb.njit(cache=True, nogil=True)
+def _fill_holes(lo, robot, nh, r, near):
+    """Fill the ``nh`` holes of level 0 of ``lo`` (inf on missing and robot pixels): each takes the minimum of
+    its (2 r + 1)^2 window, else ``near``; sparse holes read their windows, dense ones (more than one pixel
+    in 2 r + 1 a hole) one column of the rows' running minima."""
+    H, W = robot.shape
+    inf = np.float32(np.inf)
+    holes = np.empty(nh, np.int64)
+    h = 0
+    for v in range(H):
+        for u in range(W):
+            if lo[v * W + u] == inf and not robot[v, u]:  # inf: missing or robot
+                holes[h] = v * W + u
+                h += 1
+    fill = np.empty(nh, np.float32)
+    if nh * (2 * r + 1) > H * W:
+        rowmin = np.empty(H * W, np.float32)
+        for v in range(H):
+            for u in range(W):
+                rowmin[v * W + u] = _row_min(lo, W, v, u, r)
+        for h in range(nh):
+            v, u = holes[h] // W, holes[h] % W
+            best = inf
+            for vv in range(max(0, v - r), min(H, v + r + 1)):
+                best = min(best, rowmin[vv * W + u])
+            fill[h] = best
+    else:
+        for h in range(nh):
+            fill[h] = _window_min(lo, W, H, holes[h] // W, holes[h] % W, r)
+    for h in range(nh):  # after all windows are read: a filled hole is no source
+        lo[holes[h]] = fill[h] if fill[h] < inf else near
+
+
+@nb.njit(cache=True, nogil=True)
+def camera_pyramids(depth, robot, fill_radius, near, conservative):
+    """One camera frame's obstacle and robot depths, straight into their pyramids, in one pass over the image.
+
+    The same values as :func:`depthguard.depthspace.fill_missing_depth` (missing: 0, NaN or +-inf; a missing
+    non-robot pixel takes the minimum valid non-robot depth of its (2 r + 1)^2 window, else ``near`` when
+    ``conservative``, else inf; robot pixels inf) and
+    :func:`depthguard.octree.fusion.robot_blocking_depth` (the robot pixels' reading, ``near`` where missing,
+    inf elsewhere), without the intermediate images.
+
+    Args:
+        depth: (H, W) float32 metres; robot: (H, W) bool robot pixels; fill_radius: r >= 0, pixels;
+        near: float32 near limit (``camera.min_depth``); conservative: the ``"conservative"`` policy.
+    Returns:
+        (obstacle min data, its negation's min data, robot min data, offsets, heights, widths): the layout of
+        :func:`min_negmax_pyramids`, level 0 the (H, W) images row-major.
+    """
+    H, W = depth.shape
+    offs, hs, ws, tot = _layout(H, W)
+    lo = np.empty(tot, np.float32)
+    neg = np.empty(tot, np.float32)
+    rob = np.empty(tot, np.float32)
+    nh = 0
+    inf = np.float32(np.inf)
+    for v in range(H):  # branch-free (it vectorises); the holes are listed after
+        for u in range(W):
+            d = depth[v, u]
+            ms = not (d > 0.0 and d < inf)  # 0, negative, NaN, +-inf: no reading
+            rb = robot[v, u]
+            i = v * W + u
+            lo[i] = inf if rb or ms else d  # the valid non-robot depth: the holes' source, then patched
+            rob[i] = (near if ms else d) if rb else inf
+            nh += ms and not rb
+    if conservative and nh > 0:  # otherwise the holes stay inf (free)
+        _fill_holes(lo, robot, nh, fill_radius, near)
+    for i in range(H * W):
+        neg[i] = -lo[i]
+    _reduce_levels(lo, offs, hs, ws)
+    _reduce_levels(neg, offs, hs, ws)
+    _reduce_levels(rob, offs, hs, ws)
+    return lo, neg, rob, offs, hs, ws
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_min(val, W, v, u, r):
+    """Minimum of row ``v`` of the flat image ``val`` (width W) over columns u - r .. u + r, clipped."""
+    best = np.float32(np.inf)
+    for uu in range(max(0, u - r), min(W, u + r + 1)):
+        best = min(best, val[v * W + uu])
+    return best
 
 
 @nb.njit(cache=True, nogil=True)

@@ -28,7 +28,8 @@ import numpy as np
 from depthguard.octree.pyramids import any_le, mask_pyramid, max_pyramid, min_negmax_pyramids, min_pyramid
 
 __all__ = [
-    "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "scanner_sets",
+    "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "camera_sets_from_pyramids",
+    "scanner_sets",
     "bin_points", "bin_depth_points", "combine", "mark_overlaps",
 ]  # fmt: skip
 
@@ -53,11 +54,12 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
 
 
 @nb.njit(cache=True, nogil=True)
-def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, opyr, omax, rob, rpyr, flags, stats):
-    # omax: the min-pyramid of -obs (a negated max-pyramid), same layout as opyr
+def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats):
+    # opyr: the obstacle depth's min-pyramid (level 0 the image); omax: the min-pyramid of its negation (a
+    # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout
     fx, fy, cx, cy = intr
     od, oo, oh, ow = opyr
-    rd = rpyr[0]
+    obs, rob = od, rd  # any_le's image argument (unused: level 0 of the pyramids is the image)
     shp = mp[2]
     stack = np.empty((64 * (top + 1) * 8, 5), np.int64)
     work = np.empty((4 * 64 + 64, 3), np.int64)
@@ -118,7 +120,7 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     no_r = (state & 4) != 0
                     if lv > 0:
                         if not (no_o or all_o):  # exact decisions through the pyramids
-                            mid = obs[(v0 + v1) >> 1, (u0 + u1) >> 1]  # one read answers most "some"
+                            mid = od[((v0 + v1) >> 1) * W + ((u0 + u1) >> 1)]  # one read answers most "some"
                             no_o = not (mid <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work))
                             if not no_o:  # every ray blocked before the block (no pixel beyond z_lo): occluded
                                 all_o = not any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
@@ -150,10 +152,10 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     fl = 0
                     vc, uc = (v0 + v1) >> 1, (u0 + u1) >> 1  # the middle pixel first: one read answers most "yes"
                     if not no_o and (
-                        all_o or obs[vc, uc] <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                        all_o or od[vc * W + uc] <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
                     ):
                         fl |= 4
-                    if not no_r and (rob[vc, uc] <= zhi or any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
+                    if not no_r and (rd[vc * W + uc] <= zhi or any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
                         fl |= 8
                     if in_fov:
                         fl |= 1
@@ -182,21 +184,35 @@ def camera_sets(
         stats: optional (32,) int64 counters: visits per level [0:8], blocks decided per level [8:16],
             undecided blocks by (no O, all O, no R, in view) [16:32].
     """
+    obs = np.ascontiguousarray(obstacle_depth, dtype=np.float32)
+    rob = np.ascontiguousarray(robot_depth, dtype=np.float32)
+    lo, neg, *layout = min_negmax_pyramids(obs)
+    return camera_sets_from_pyramids(mask, box, camera, (lo, *layout), neg, min_pyramid(rob)[0], mp, stats)
+
+
+def camera_sets_from_pyramids(
+    mask: np.ndarray, box, camera, opyr, neg: np.ndarray, rob: np.ndarray, mp=None, stats=None
+) -> np.ndarray:
+    """:func:`camera_sets` from the depths' pyramids (e.g. :func:`~depthguard.octree.pyramids.camera_pyramids`).
+
+    Args:
+        opyr: the obstacle depth's :func:`~depthguard.octree.pyramids.min_pyramid` (data, offsets, heights,
+            widths; level 0 the (H, W) image row-major).
+        neg: (n,) float32 data of the min-pyramid of the negated obstacle depth, the same layout.
+        rob: (n,) float32 data of the robot depth's min-pyramid, the same layout.
+        mp, stats: as :func:`camera_sets`.
+    """
     flags = np.zeros(box.shape, np.uint8)
     top = _levels(box.shape)
     if mp is None:
         mp = mask_pyramid(mask, top)
-    obs = np.ascontiguousarray(obstacle_depth, dtype=np.float32)
-    rob = np.ascontiguousarray(robot_depth, dtype=np.float32)
-    lo, neg, *layout = min_negmax_pyramids(obs)
-    opyr = (lo, *layout)
     if stats is None:
         stats = np.zeros(32, np.int64)
     _camera_kernel(
         mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
         np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
         (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
-        (camera.min_depth, camera.max_depth), obs, opyr, neg, rob, min_pyramid(rob), flags, stats,
+        (camera.min_depth, camera.max_depth), opyr, neg, rob, flags, stats,
     )  # fmt: skip
     return flags
 
