@@ -531,3 +531,26 @@ def test_camera_pyramids_equal_the_filled_depths_pyramids(h, w, seed, holes, rad
         assert np.array_equal(got, ref)
     for got, ref in zip((offs, hs, ws), layout, strict=True):
         assert np.array_equal(got, ref)
+
+
+@settings(max_examples=30, deadline=None)
+@given(h=st.integers(1, 90), w=st.integers(1, 90), seed=st.integers(0, 2**31))
+def test_any_le_is_the_rectangle_minimum_test(h, w, seed):
+    """``any_le`` (the camera sets' pyramid search) against the brute-force minimum of random rectangles, with
+    thresholds just below, at and above the rectangle's minimum and the minimum of its surroundings."""
+    from depthguard.octree.pyramids import any_le, min_pyramid
+
+    rng = np.random.default_rng(seed)
+    img = rng.uniform(0.5, 4.0, (h, w)).astype(np.float32)
+    img[rng.random((h, w)) < 0.3] = np.inf
+    data, offs, hs, ws = min_pyramid(img)
+    work = np.empty((4 * 64 + 64, 3), np.int64)
+    for _ in range(40):
+        v0, v1 = np.sort(rng.integers(0, h, 2))
+        u0, u1 = np.sort(rng.integers(0, w, 2))
+        m = float(img[v0 : v1 + 1, u0 : u1 + 1].min())
+        finite = img[np.isfinite(img)]
+        near = [float(finite.min())] if finite.size else []
+        for thr in [m, np.nextafter(np.float32(m), np.float32(-np.inf)), m + 1e-3, *near, 0.0, 5.0]:
+            thr = float(thr)
+            assert any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, work) == (m <= thr)

@@ -182,33 +182,45 @@ def _row_min(val, W, v, u, r):
 @nb.njit(cache=True, nogil=True)
 def any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, stack):
     """Whether some pixel of img[v0:v1+1, u0:u1+1] is <= thr: descends the min-pyramid only into blocks
-    whose minimum is <= thr, so a negative answer costs a few lookups, not a scan."""
+    whose minimum is <= thr, so a negative answer costs a few lookups, not a scan.
+
+    ``img`` is not read (level 0 of ``data`` is the image); ``stack`` is an (n, 3) int64 work buffer. The
+    blocks of the top level (at least a quarter of the rectangle's longer side) are read in place and a
+    block's children are tested before they are pushed, so only blocks that cross the rectangle's border
+    and may hold a pixel <= thr go on the stack."""
     span = max(u1 - u0 + 1, v1 - v0 + 1)
     top = 0
     while (4 << top) < span and top + 1 < offs.size:
         top += 1
     n = 0
+    base, w = offs[top], ws[top]
     for bv in range(v0 >> top, (v1 >> top) + 1):
+        row = base + bv * w
+        rows_in = (bv << top) >= v0 and ((bv + 1) << top) - 1 <= v1
         for bu in range(u0 >> top, (u1 >> top) + 1):
+            if data[row + bu] > thr:
+                continue
+            if rows_in and (bu << top) >= u0 and ((bu + 1) << top) - 1 <= u1:
+                return True  # the block lies inside the rectangle and holds a pixel <= thr
             stack[n, 0], stack[n, 1], stack[n, 2] = top, bv, bu
             n += 1
-    while n > 0:
+    while n > 0:  # a block on the stack holds a pixel <= thr and crosses the border (level >= 1)
         n -= 1
         lv, bv, bu = stack[n, 0], stack[n, 1], stack[n, 2]
-        if data[offs[lv] + bv * ws[lv] + bu] > thr:
-            continue
-        pv0, pu0 = bv << lv, bu << lv
-        pv1, pu1 = ((bv + 1) << lv) - 1, ((bu + 1) << lv) - 1
-        if pv0 >= v0 and pv1 <= v1 and pu0 >= u0 and pu1 <= u1:
-            return True  # the block lies inside the rectangle and holds a pixel <= thr
-        if lv == 0:
-            continue  # a single pixel outside the rectangle
+        c_lv = lv - 1
+        base, w = offs[c_lv], ws[c_lv]
         for c in range(4):
             cv, cu = 2 * bv + (c >> 1), 2 * bu + (c & 1)
-            if cv < hs[lv - 1] and cu < ws[lv - 1] and (cv << (lv - 1)) <= v1 and ((cv + 1) << (lv - 1)) - 1 >= v0 \
-                    and (cu << (lv - 1)) <= u1 and ((cu + 1) << (lv - 1)) - 1 >= u0:  # fmt: skip
-                stack[n, 0], stack[n, 1], stack[n, 2] = lv - 1, cv, cu
-                n += 1
+            pv0, pu0 = cv << c_lv, cu << c_lv
+            pv1, pu1 = ((cv + 1) << c_lv) - 1, ((cu + 1) << c_lv) - 1
+            if cv >= hs[c_lv] or cu >= w or pv0 > v1 or pv1 < v0 or pu0 > u1 or pu1 < u0:
+                continue  # outside the image or the rectangle
+            if data[base + cv * w + cu] > thr:
+                continue
+            if pv0 >= v0 and pv1 <= v1 and pu0 >= u0 and pu1 <= u1:
+                return True  # the block lies inside the rectangle and holds a pixel <= thr
+            stack[n, 0], stack[n, 1], stack[n, 2] = c_lv, cv, cu  # level >= 1: a pixel is inside or outside
+            n += 1
     return False
 
 
