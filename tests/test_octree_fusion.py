@@ -554,3 +554,26 @@ def test_any_le_is_the_rectangle_minimum_test(h, w, seed):
         for thr in [m, np.nextafter(np.float32(m), np.float32(-np.inf)), m + 1e-3, *near, 0.0, 5.0]:
             thr = float(thr)
             assert any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, work) == (m <= thr)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31), res=st.sampled_from([0.0625, 0.125]))
+def test_level_scanner_on_a_node_face_cuts_two_layers_by_definition(seed, res):
+    """A level scan plane on a face between two node layers cuts both alike (the kernel computes each
+    centre in the plane once per column): the sets against their ``arctan2`` definition. The lattice is
+    binary (exact), so that the face is one in floating point too."""
+    from depthguard.octree.sets import scanner_sets
+
+    rng = np.random.default_rng(seed)
+    n = int(round(1.5 / res))
+    box = VoxelBox(np.array([-0.75, -0.75, -0.5]), res, (n, n, n))
+    yaw = rng.uniform(-np.pi, np.pi)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    R_ws = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    pos = np.array([*rng.uniform(-0.4, 0.4, 2), box.origin[2] + 6 * res])  # on the face of layers 5 and 6
+    sc = LaserScanner(R_ws.T, -R_ws.T @ pos, n_rays=541)
+    obstacle = np.where(rng.random(541) < 0.3, np.inf, rng.uniform(0.05, 1.5, 541))
+    robot = np.where(rng.random(541) < 0.1, rng.uniform(0.1, 0.8, 541), np.inf)
+    got = scanner_sets(np.ones(box.shape, bool), box, sc, obstacle, robot)
+    assert got[:, :, 5].any() and np.array_equal(got[:, :, 5], got[:, :, 6])
+    assert np.array_equal(got, _scanner_sets_by_definition(box, sc, obstacle, robot))
