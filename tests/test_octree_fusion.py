@@ -577,3 +577,35 @@ def test_level_scanner_on_a_node_face_cuts_two_layers_by_definition(seed, res):
     got = scanner_sets(np.ones(box.shape, bool), box, sc, obstacle, robot)
     assert got[:, :, 5].any() and np.array_equal(got[:, :, 5], got[:, :, 6])
     assert np.array_equal(got, _scanner_sets_by_definition(box, sc, obstacle, robot))
+
+
+def test_a_future_of_a_reachability_grid_is_taken_as_its_mask(scene):
+    """``OctreeBackend.update`` with a Future of a reachability grid (its node mask made on the thread that
+    completes it): the same frame as with the grid given at once, done or not yet done when the update
+    starts; the future's exception reaches the caller."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from depthguard.octree.backend import OctreeBackend
+    from depthguard.octree.reach import ReachabilityGrid
+
+    _, obs, _ = scene
+    coarse = VoxelBox(BOX.origin - 0.03, 0.09, (24, 24, 18))
+    t = np.where(np.random.default_rng(3).random(coarse.shape) < 0.6, 0.2, np.inf).astype(np.float32)
+    grid = ReachabilityGrid(coarse, t, 0.5, 0.0)
+    be = OctreeBackend(BOX, mode="conservative")
+    ref = be.update(obs, grid)
+    assert 0 < ref.mask.sum() < ref.mask.size
+    gate = threading.Event()
+    with ThreadPoolExecutor(1) as pool:
+        done = pool.submit(lambda: grid)
+        done.result()
+        slow = pool.submit(lambda: (gate.wait(), grid)[1])
+        threading.Timer(0.05, gate.set).start()
+        for pending in (done, slow):
+            got = be.update(obs, pending)
+            assert np.array_equal(got.mask, ref.mask) and np.array_equal(got.kind, ref.kind)
+            assert np.array_equal(got.flags, ref.flags)
+        with pytest.raises(ZeroDivisionError):
+            be.update(obs, pool.submit(lambda: 1 / 0))
+    assert not be.ready
