@@ -609,3 +609,24 @@ def test_a_future_of_a_reachability_grid_is_taken_as_its_mask(scene):
         with pytest.raises(ZeroDivisionError):
             be.update(obs, pool.submit(lambda: 1 / 0))
     assert not be.ready
+
+
+def test_measured_points_into_arrays_of_any_layout():
+    """The P bits are the same when the flags and the mask are not C-contiguous (the kernel marks flat
+    node indices, so it works on contiguous copies then)."""
+    from depthguard.octree.sets import bin_depth_points
+
+    rng = np.random.default_rng(5)
+    cam = CAMS[0]
+    depth = rng.uniform(0.3, 3.0, cam.shape).astype(np.float32)
+    robot = rng.random(cam.shape) < 0.2
+    mask = rng.random(BOX.shape) < 0.8
+    ref = np.zeros(BOX.shape, np.uint8)
+    bin_depth_points(cam, depth, robot, BOX, mask, ref)
+    assert (ref & P).any()
+    got = np.zeros(BOX.shape, np.uint8, order="F")
+    bin_depth_points(cam, depth, robot, BOX, np.asfortranarray(mask), got)
+    assert np.array_equal(got, ref)
+    both = np.zeros((2, *BOX.shape), np.uint8)
+    bin_depth_points(cam, depth, robot, BOX, mask, both[1])
+    assert np.array_equal(both[1], ref) and not both[0].any()

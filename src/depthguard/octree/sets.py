@@ -355,13 +355,14 @@ def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
     H, W = depth.shape
     nx, ny, nz = mask.shape
     inv = 1.0 / res
-    # a pixel's point in node units is d (a (u + 1/2 - cx) + b_v) + e: affine in u along a row, so the
-    # coordinates of a row are computed in a loop without branches (which vectorises), then binned
+    # a pixel's point in node units is d (a (u + 1/2 - cx) + b_v) + e: affine in u along a row, so a row's
+    # nodes (flat index, -1 for none) are computed in a loop without branches (which vectorises), then
+    # marked; mask and flags are C-contiguous (their flat views are the arrays)
     ax, ay, az = Rt[0, 0] * inv / fx, Rt[1, 0] * inv / fx, Rt[2, 0] * inv / fx
     e0, e1, e2 = (pos[0] - origin[0]) * inv, (pos[1] - origin[1]) * inv, (pos[2] - origin[2]) * inv
-    fi = np.empty(W)
-    fj = np.empty(W)
-    fk = np.empty(W)
+    node = np.empty(W, np.int64)
+    mflat = mask.ravel()
+    fflat = flags.ravel()
     for v in range(H):
         yv = (v + 0.5 - cy) / fy
         bx = (Rt[0, 1] * yv + Rt[0, 2]) * inv
@@ -370,28 +371,30 @@ def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
         for u in range(W):
             d = depth[v, u]
             xu = u + 0.5 - cx
-            fi[u] = d * (ax * xu + bx) + e0
-            fj[u] = d * (ay * xu + by) + e1
-            fk[u] = d * (az * xu + bz) + e2
+            a = d * (ax * xu + bx) + e0
+            b = d * (ay * xu + by) + e1
+            c = d * (az * xu + bz) + e2
+            # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
+            ok = not robot[v, u] and d >= zlim[0] and d <= zlim[1]
+            ok = ok and a >= 0.0 and b >= 0.0 and c >= 0.0 and a < nx and b < ny and c < nz
+            node[u] = (int(a) * ny + int(b)) * nz + int(c) if ok else -1
         for u in range(W):
-            d = depth[v, u]
-            if robot[v, u] or not (d >= zlim[0] and d <= zlim[1]):
-                continue  # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
-            a, b, c = fi[u], fj[u], fk[u]
-            if a >= 0.0 and b >= 0.0 and c >= 0.0 and a < nx and b < ny and c < nz:
-                i, j, k = int(a), int(b), int(c)
-                if mask[i, j, k]:
-                    flags[i, j, k] |= 2
+            m = node[u]
+            if m >= 0 and mflat[m]:
+                fflat[m] |= 2
 
 
 def bin_depth_points(camera, depth: np.ndarray, robot: np.ndarray, box, mask: np.ndarray, flags: np.ndarray) -> None:
     """Set the P bit of the nodes of ``mask`` holding a measured, non-robot pixel of ``depth`` (H, W) metres."""
+    out = flags if flags.flags.c_contiguous else np.ascontiguousarray(flags)
     _bin_depth(
         np.ascontiguousarray(depth, dtype=np.float32), np.ascontiguousarray(robot, dtype=np.bool_),
         (camera.min_depth, camera.max_depth), (camera.fx, camera.fy, camera.cx, camera.cy),
         np.ascontiguousarray(camera.R.T), np.ascontiguousarray(camera.position), np.ascontiguousarray(box.origin),
-        float(box.res), mask, flags,
+        float(box.res), np.ascontiguousarray(mask, dtype=np.bool_), out,
     )  # fmt: skip
+    if out is not flags:
+        flags[...] = out
 
 
 @nb.njit(cache=True, nogil=True)
