@@ -53,7 +53,7 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
                     flags[i, j, k] |= val
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, error_model="numpy")
 def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats):
     # opyr: the obstacle depth's min-pyramid (level 0 the image); omax: the min-pyramid of its negation (a
     # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout
@@ -93,9 +93,9 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, o
                         zc = zb + Rc[2, 0] * a + Rc[2, 1] * b + Rc[2, 2] * e
                         zlo = min(zlo, zc)
                         zhi = max(zhi, zc)
-                        if zc <= 1e-6:
-                            behind = True
-                            continue
+                        # no branch: a corner behind the camera discards the rectangle (and divides by zero
+                        # without raising)
+                        behind = behind or zc <= 1e-6
                         iz = 1.0 / zc
                         px = fx * xc * iz + cx
                         py = fy * yc * iz + cy
