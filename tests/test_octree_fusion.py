@@ -630,3 +630,27 @@ def test_measured_points_into_arrays_of_any_layout():
     both = np.zeros((2, *BOX.shape), np.uint8)
     bin_depth_points(cam, depth, robot, BOX, mask, both[1])
     assert np.array_equal(both[1], ref) and not both[0].any()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_sensors=st.integers(1, 5), conservative=st.booleans(), clear=st.booleans())
+def test_combine_cleared_is_the_edits_then_combine(seed, n_sensors, conservative, clear):
+    """``combine_cleared`` (the fusion's last pass) against its definition: the flags zeroed outside the
+    mask (``clear``) and the chosen sensors' F bits dropped, then ``combine``; the same flags and kinds."""
+    from depthguard.octree.fusion import clear_outside
+    from depthguard.octree.sets import combine, combine_cleared
+
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(x) for x in rng.integers(1, 9, 3))
+    flags = rng.integers(0, 32, (n_sensors, *shape)).astype(np.uint8)
+    mask = rng.random(shape) < 0.7
+    drop_f = rng.random(n_sensors) < 0.5
+    ref = flags.copy()
+    if clear:
+        clear_outside(ref, mask)
+    ref[drop_f] &= np.uint8(~F & 0xFF)
+    want = np.empty(shape, np.uint8)
+    combine(ref, mask, conservative, want)
+    got = np.empty(shape, np.uint8)
+    combine_cleared(flags, mask, conservative, got, clear, drop_f)
+    assert np.array_equal(flags, ref) and np.array_equal(got, want)

@@ -36,17 +36,16 @@ from depthguard.depthspace import check_depth_policy
 from depthguard.octree.grid import VoxelBox
 from depthguard.octree.pyramids import camera_pyramids
 from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points
+from depthguard.octree.sets import _levels as _mask_levels
 from depthguard.octree.sets import (
-    F,
     bin_depth_points,
     bin_points,
     camera_sets_from_pyramids,
-    combine,
+    combine_cleared,
     mark_overlaps,
     mask_pyramid,
     scanner_sets,
 )
-from depthguard.octree.sets import _levels as _mask_levels
 
 __all__ = ["MODES", "CameraObservation", "ScanObservation", "OctreeFrame", "sensor_sets", "fuse", "reach_mask"]
 
@@ -228,17 +227,15 @@ def fuse(
 
     parts = list(_pool(n_work).map(sets, observations)) if n_work > 1 else [sets(o) for o in observations]
     flags = np.stack([f for f, _ in parts])
+    clear = False
     if later is not None:
         got = later()
         mask = _whole_box(box.shape)[0] if got is None else _reach_array(got, box.shape)
-        if got is not None:
-            clear_outside(flags, mask)
-    if mode == "conservative":  # a 2-D scan never sees a node's whole volume free
-        for s, (_, scan) in enumerate(parts):
-            if scan:
-                flags[s] &= np.uint8(~F & 0xFF)
+        clear = got is not None  # the sets were computed over the whole box: zero them outside C(t)
+    # conservative mode: a 2-D scan never sees a node's whole volume free (its F bits dropped)
+    drop_f = np.array([scan and mode == "conservative" for _, scan in parts], dtype=bool)
     kind = np.empty(box.shape, np.uint8)
-    combine(flags, mask, mode == "conservative", kind)
+    combine_cleared(flags, mask, mode == "conservative", kind, clear, drop_f)
     return OctreeFrame(box, kind != FREE, kind, mask, flags, mode)
 
 

@@ -30,7 +30,7 @@ from depthguard.octree.pyramids import any_le, mask_pyramid, max_pyramid, min_ne
 __all__ = [
     "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "camera_sets_from_pyramids",
     "scanner_sets",
-    "bin_points", "bin_depth_points", "combine", "mark_overlaps",
+    "bin_points", "bin_depth_points", "combine", "combine_cleared", "mark_overlaps",
 ]  # fmt: skip
 
 V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
@@ -417,6 +417,36 @@ def combine(flags, mask, conservative, kind):
                     f = flags[s, i, j, k]
                     bits[i, j, k] |= f
                     nf[i, j, k] += (f >> 4) & 1
+    _decide(flags, mask, bits, nf, conservative, kind)
+
+
+@nb.njit(cache=True, nogil=True)
+def combine_cleared(flags, mask, conservative, kind, clear, drop_f):
+    """:func:`combine`, editing ``flags`` in its first pass: zero outside ``mask`` when ``clear``, and the F
+    bit cleared for the sensors ``s`` with ``drop_f[s]`` ((S,) bool: a 2-D scan in conservative mode)."""
+    S = flags.shape[0]
+    nx, ny, nz = mask.shape
+    bits = np.zeros((nx, ny, nz), np.uint8)
+    nf = np.zeros((nx, ny, nz), np.uint8)
+    for s in range(S):
+        keep = np.uint8(~F & 0xFF) if drop_f[s] else np.uint8(0xFF)
+        for i in range(nx):
+            for j in range(ny):
+                for k in range(nz):
+                    f = flags[s, i, j, k] & keep
+                    if clear and not mask[i, j, k]:
+                        f = np.uint8(0)
+                    flags[s, i, j, k] = f
+                    bits[i, j, k] |= f
+                    nf[i, j, k] += (f >> 4) & 1
+    _decide(flags, mask, bits, nf, conservative, kind)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _decide(flags, mask, bits, nf, conservative, kind):
+    """:func:`combine`'s second pass: each node's kind from its ORed bits and its number of F bits."""
+    S = flags.shape[0]
+    nx, ny, nz = mask.shape
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):
