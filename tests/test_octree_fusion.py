@@ -496,3 +496,161 @@ def _near_faces(pts, edge, box, mask):
             if np.all((i >= 0) & (i < np.array(box.shape))):
                 out[tuple(i)] = True
     return out & mask
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    h=st.integers(1, 40),
+    w=st.integers(1, 40),
+    seed=st.integers(0, 2**31),
+    holes=st.sampled_from([0.0, 0.02, 0.3, 0.9]),
+    radius=st.integers(0, 5),
+    conservative=st.booleans(),
+)
+def test_camera_pyramids_equal_the_filled_depths_pyramids(h, w, seed, holes, radius, conservative):
+    """The one-pass camera pyramids against their definition: the depth space's missing-depth policy
+    (``fill_missing_depth``: sparse and dense holes, radius 0, both policies), the robot's blocking depth,
+    and the min / negated-max pyramids of those images."""
+    from depthguard.depthspace import fill_missing_depth
+    from depthguard.octree.fusion import robot_blocking_depth
+    from depthguard.octree.pyramids import camera_pyramids, min_negmax_pyramids, min_pyramid
+
+    rng = np.random.default_rng(seed)
+    cam = Camera.kinect_v1(np.eye(3), np.zeros(3), width=w, height=h, fx=50.0, fy=50.0, cx=w / 2, cy=h / 2)
+    depth = rng.uniform(0.2, 5.0, (h, w)).astype(np.float32)
+    bad = rng.random((h, w)) < holes
+    depth[bad] = rng.choice(np.array([0.0, np.nan, np.inf, -np.inf, -1.0], np.float32), int(bad.sum()))
+    robot = rng.random((h, w)) < 0.2
+    policy = "conservative" if conservative else "ignore"
+    f = fill_missing_depth(cam, depth, robot, invalid=policy, fill_radius=radius)
+    near = np.float32(cam.min_depth)
+    lo, neg, rob, offs, hs, ws = camera_pyramids(depth, robot, radius, near, conservative)
+    ref_lo, ref_neg, *layout = min_negmax_pyramids(f.obstacle_depth)
+    ref_rob = min_pyramid(robot_blocking_depth(f.robot, f.missing, f.depth, near))[0]
+    for got, ref in ((lo, ref_lo), (neg, ref_neg), (rob, ref_rob)):
+        assert np.array_equal(got, ref)
+    for got, ref in zip((offs, hs, ws), layout, strict=True):
+        assert np.array_equal(got, ref)
+
+
+@settings(max_examples=30, deadline=None)
+@given(h=st.integers(1, 90), w=st.integers(1, 90), seed=st.integers(0, 2**31))
+def test_any_le_is_the_rectangle_minimum_test(h, w, seed):
+    """``any_le`` (the camera sets' pyramid search) against the brute-force minimum of random rectangles, with
+    thresholds just below, at and above the rectangle's minimum and the minimum of its surroundings."""
+    from depthguard.octree.pyramids import any_le, min_pyramid
+
+    rng = np.random.default_rng(seed)
+    img = rng.uniform(0.5, 4.0, (h, w)).astype(np.float32)
+    img[rng.random((h, w)) < 0.3] = np.inf
+    data, offs, hs, ws = min_pyramid(img)
+    work = np.empty((4 * 64 + 64, 3), np.int64)
+    for _ in range(40):
+        v0, v1 = np.sort(rng.integers(0, h, 2))
+        u0, u1 = np.sort(rng.integers(0, w, 2))
+        m = float(img[v0 : v1 + 1, u0 : u1 + 1].min())
+        finite = img[np.isfinite(img)]
+        near = [float(finite.min())] if finite.size else []
+        for thr in [m, np.nextafter(np.float32(m), np.float32(-np.inf)), m + 1e-3, *near, 0.0, 5.0]:
+            thr = float(thr)
+            assert any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, work) == (m <= thr)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**31), res=st.sampled_from([0.0625, 0.125]))
+def test_level_scanner_on_a_node_face_cuts_two_layers_by_definition(seed, res):
+    """A level scan plane on a face between two node layers cuts both alike (the kernel computes each
+    centre in the plane once per column): the sets against their ``arctan2`` definition. The lattice is
+    binary (exact), so that the face is one in floating point too."""
+    from depthguard.octree.sets import scanner_sets
+
+    rng = np.random.default_rng(seed)
+    n = int(round(1.5 / res))
+    box = VoxelBox(np.array([-0.75, -0.75, -0.5]), res, (n, n, n))
+    yaw = rng.uniform(-np.pi, np.pi)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    R_ws = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    pos = np.array([*rng.uniform(-0.4, 0.4, 2), box.origin[2] + 6 * res])  # on the face of layers 5 and 6
+    sc = LaserScanner(R_ws.T, -R_ws.T @ pos, n_rays=541)
+    obstacle = np.where(rng.random(541) < 0.3, np.inf, rng.uniform(0.05, 1.5, 541))
+    robot = np.where(rng.random(541) < 0.1, rng.uniform(0.1, 0.8, 541), np.inf)
+    got = scanner_sets(np.ones(box.shape, bool), box, sc, obstacle, robot)
+    assert got[:, :, 5].any() and np.array_equal(got[:, :, 5], got[:, :, 6])
+    assert np.array_equal(got, _scanner_sets_by_definition(box, sc, obstacle, robot))
+
+
+def test_a_future_of_a_reachability_grid_is_taken_as_its_mask(scene):
+    """``OctreeBackend.update`` with a Future of a reachability grid (its node mask made on the thread that
+    completes it): the same frame as with the grid given at once, done or not yet done when the update
+    starts; the future's exception reaches the caller."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from depthguard.octree.backend import OctreeBackend
+    from depthguard.octree.reach import ReachabilityGrid
+
+    _, obs, _ = scene
+    coarse = VoxelBox(BOX.origin - 0.03, 0.09, (24, 24, 18))
+    t = np.where(np.random.default_rng(3).random(coarse.shape) < 0.6, 0.2, np.inf).astype(np.float32)
+    grid = ReachabilityGrid(coarse, t, 0.5, 0.0)
+    be = OctreeBackend(BOX, mode="conservative")
+    ref = be.update(obs, grid)
+    assert 0 < ref.mask.sum() < ref.mask.size
+    gate = threading.Event()
+    with ThreadPoolExecutor(1) as pool:
+        done = pool.submit(lambda: grid)
+        done.result()
+        slow = pool.submit(lambda: (gate.wait(), grid)[1])
+        threading.Timer(0.05, gate.set).start()
+        for pending in (done, slow):
+            got = be.update(obs, pending)
+            assert np.array_equal(got.mask, ref.mask) and np.array_equal(got.kind, ref.kind)
+            assert np.array_equal(got.flags, ref.flags)
+        with pytest.raises(ZeroDivisionError):
+            be.update(obs, pool.submit(lambda: 1 / 0))
+    assert not be.ready
+
+
+def test_measured_points_into_arrays_of_any_layout():
+    """The P bits are the same when the flags and the mask are not C-contiguous (the kernel marks flat
+    node indices, so it works on contiguous copies then)."""
+    from depthguard.octree.sets import bin_depth_points
+
+    rng = np.random.default_rng(5)
+    cam = CAMS[0]
+    depth = rng.uniform(0.3, 3.0, cam.shape).astype(np.float32)
+    robot = rng.random(cam.shape) < 0.2
+    mask = rng.random(BOX.shape) < 0.8
+    ref = np.zeros(BOX.shape, np.uint8)
+    bin_depth_points(cam, depth, robot, BOX, mask, ref)
+    assert (ref & P).any()
+    got = np.zeros(BOX.shape, np.uint8, order="F")
+    bin_depth_points(cam, depth, robot, BOX, np.asfortranarray(mask), got)
+    assert np.array_equal(got, ref)
+    both = np.zeros((2, *BOX.shape), np.uint8)
+    bin_depth_points(cam, depth, robot, BOX, mask, both[1])
+    assert np.array_equal(both[1], ref) and not both[0].any()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_sensors=st.integers(1, 5), conservative=st.booleans(), clear=st.booleans())
+def test_combine_cleared_is_the_edits_then_combine(seed, n_sensors, conservative, clear):
+    """``combine_cleared`` (the fusion's last pass) against its definition: the flags zeroed outside the
+    mask (``clear``) and the chosen sensors' F bits dropped, then ``combine``; the same flags and kinds."""
+    from depthguard.octree.fusion import clear_outside
+    from depthguard.octree.sets import combine, combine_cleared
+
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(x) for x in rng.integers(1, 9, 3))
+    flags = rng.integers(0, 32, (n_sensors, *shape)).astype(np.uint8)
+    mask = rng.random(shape) < 0.7
+    drop_f = rng.random(n_sensors) < 0.5
+    ref = flags.copy()
+    if clear:
+        clear_outside(ref, mask)
+    ref[drop_f] &= np.uint8(~F & 0xFF)
+    want = np.empty(shape, np.uint8)
+    combine(ref, mask, conservative, want)
+    got = np.empty(shape, np.uint8)
+    combine_cleared(flags, mask, conservative, got, clear, drop_f)
+    assert np.array_equal(flags, ref) and np.array_equal(got, want)

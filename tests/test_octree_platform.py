@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points, scan_robot_rays
 from depthguard.robot.platform import platform_sensors
@@ -53,3 +55,42 @@ def test_scan_self_filter_marks_rays_that_hit_the_robot():
     rob = scan_robot_rays(sc, ranges, np.array([[1.05, 0.0, -1.0]]), np.array([[1.05, 0.0, 1.0]]), np.array([0.05]))
     assert rob[90] and rob.sum() == 1
     assert np.allclose(d[90], [1.0, 0.0, 0.0])
+
+
+def _robot_rays_by_numpy(sc, ranges, a, b, radius, margin):
+    """The scan self-filter's formula in numpy: each valid hit point's distance to each capsule axis."""
+    r = np.asarray(ranges, float)
+    ok = np.isfinite(r) & (r > 0)
+    p = sc.position + sc.directions()[ok] * r[ok, None]
+    ab = b - a
+    L2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18)
+    s = np.clip(np.einsum("kij,ij->ki", p[:, None, :] - a[None], ab) / L2, 0.0, 1.0)
+    d = np.linalg.norm(p[:, None, :] - (a[None] + s[..., None] * ab[None]), axis=-1)
+    return ok, d - (radius[None] + margin)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), n_caps=st.integers(1, 12), margin=st.sampled_from([0.0, 0.03]))
+def test_scan_self_filter_is_the_capsule_distance_test(seed, n_caps, margin):
+    """The compiled scan self-filter against the numpy formula on random scans and capsules (some of zero
+    length): the same rays, except that a ray within 1e-12 m of a capsule's limit may stay an obstacle
+    (never the other way)."""
+    rng = np.random.default_rng(seed)
+    yaw = rng.uniform(-np.pi, np.pi)
+    R_ws = np.array([[math.cos(yaw), -math.sin(yaw), 0.0], [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    pos = rng.uniform(-0.5, 0.5, 3)
+    sc = LaserScanner(R_ws.T, -R_ws.T @ pos, n_rays=181)
+    ranges = rng.uniform(0.05, 2.0, sc.n_rays)
+    ranges[rng.random(sc.n_rays) < 0.1] = np.nan
+    ranges[rng.random(sc.n_rays) < 0.05] = np.inf
+    a = rng.uniform(-1.0, 1.0, (n_caps, 3))
+    b = np.where(rng.random((n_caps, 1)) < 0.2, a, a + rng.normal(0.0, 0.4, (n_caps, 3)))
+    radius = rng.uniform(0.02, 0.3, n_caps)
+    got = scan_robot_rays(sc, ranges, a, b, radius, margin)
+    ok, excess = _robot_rays_by_numpy(sc, ranges, a, b, radius, margin)
+    ref = np.zeros(sc.n_rays, bool)
+    ref[ok] = (excess <= 0.0).any(axis=1)
+    sure = np.zeros(sc.n_rays, bool)
+    sure[ok] = (excess <= -1e-11).any(axis=1)
+    assert not (got & ~ref).any()  # never a robot ray that the formula calls an obstacle
+    assert not (sure & ~got).any()  # every ray clearly inside a capsule's limit is the robot's

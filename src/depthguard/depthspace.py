@@ -230,6 +230,19 @@ class FilledDepth(NamedTuple):
     unknown_pixels: int
 
 
+def check_depth_policy(
+    camera: Camera, depth: np.ndarray, mask: np.ndarray | None, invalid: str, fill_radius: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The checks of :func:`fill_missing_depth`'s arguments: ``ValueError`` naming the bad one, else the (H, W)
+    float32 depth and the mask as given (an (H, W) array, not copied) or None."""
+    if invalid not in INVALID_POLICIES:
+        raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
+    if isinstance(fill_radius, bool) or not isinstance(fill_radius, int | np.integer) or fill_radius < 0:
+        raise ValueError(f"fill_radius must be an integer >= 0, got {fill_radius!r}")
+    d = np.asarray(camera.check_image(depth, "depth"), dtype=np.float32)
+    return d, None if mask is None else np.asarray(camera.check_image(mask, "mask"))
+
+
 def fill_missing_depth(
     camera: Camera,
     depth: np.ndarray,
@@ -239,16 +252,9 @@ def fill_missing_depth(
 ) -> FilledDepth:
     """The robot mask and the missing-depth policy of :func:`prepare_frame` (same arguments), without the
     depth space's tile minima: what other backends (the octree) start from. Returns a :class:`FilledDepth`."""
-    if invalid not in INVALID_POLICIES:
-        raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
-    if isinstance(fill_radius, bool) or not isinstance(fill_radius, int | np.integer) or fill_radius < 0:
-        raise ValueError(f"fill_radius must be an integer >= 0, got {fill_radius!r}")
-    d = np.asarray(camera.check_image(depth, "depth"), dtype=np.float32)
+    d, robot = check_depth_policy(camera, depth, mask, invalid, fill_radius)
     missing = ~np.isfinite(d) | (d <= 0)
-    if mask is None:
-        robot = np.zeros(camera.shape, dtype=bool)
-    else:
-        robot = np.asarray(camera.check_image(mask, "mask")).astype(bool)
+    robot = np.zeros(camera.shape, dtype=bool) if robot is None else robot.astype(bool)
     obs = np.empty(camera.shape, dtype=np.float32)
     filled, unknown = _fill_holes(
         d, missing, robot, int(fill_radius), np.float32(camera.min_depth), invalid == "conservative", obs

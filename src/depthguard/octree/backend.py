@@ -47,13 +47,33 @@ class OctreeBackend:
         """Fuse one frame. ``reach``: a :class:`~depthguard.octree.reach.ReachabilityGrid` (C(t)), a bool mask
         over :attr:`box`, None (the whole box counts), or a :class:`concurrent.futures.Future` of one of
         these or a callable that returns one: the sensors' sets are then computed while it completes
-        (:func:`~depthguard.octree.fusion.fuse`). ``observations`` may hold tasks, as in ``fuse``.
+        (:func:`~depthguard.octree.fusion.fuse`). A future's grid becomes the node mask on the thread that
+        completes it (:meth:`_mask_when_done`). ``observations`` may hold tasks, as in ``fuse``.
         """
-        later = reach.result if isinstance(reach, Future) else reach if callable(reach) else None
-        reach = (lambda: self._mask(later())) if later is not None else self._mask(reach)
+        if isinstance(reach, Future):
+            later = self._mask_when_done(reach).result
+            reach = later
+        else:
+            later = reach if callable(reach) else None
+            reach = (lambda: self._mask(later())) if later is not None else self._mask(reach)
         self.frame = None  # a failed update leaves no answer
         self.frame = fuse(self.box, observations, reach, self.mode, self.invalid, self.fill_radius)
         return self.frame
+
+    def _mask_when_done(self, pending: Future) -> Future:
+        """A future of :meth:`_mask` of ``pending``'s result, computed by ``pending``'s own thread as it
+        completes (or here, if it is done), beside the sensors' sets rather than after them; ``pending``'s
+        exception, or one of the mask's, is re-raised by its ``result``."""
+        out: Future = Future()
+
+        def convert(done: Future) -> None:
+            try:
+                out.set_result(self._mask(done.result()))
+            except BaseException as exc:  # handed to the caller through the future
+                out.set_exception(exc)
+
+        pending.add_done_callback(convert)
+        return out
 
     def _mask(self, reach) -> np.ndarray | None:
         return reach if reach is None or isinstance(reach, np.ndarray) else reach_mask(self.box, reach)

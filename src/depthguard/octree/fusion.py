@@ -32,20 +32,20 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthspace import fill_missing_depth
+from depthguard.depthspace import check_depth_policy
 from depthguard.octree.grid import VoxelBox
+from depthguard.octree.pyramids import camera_pyramids
 from depthguard.octree.scanner import LaserScanner, scan_obstacle_ranges, scan_points
+from depthguard.octree.sets import _levels as _mask_levels
 from depthguard.octree.sets import (
-    F,
     bin_depth_points,
     bin_points,
-    camera_sets,
-    combine,
+    camera_sets_from_pyramids,
+    combine_cleared,
     mark_overlaps,
     mask_pyramid,
     scanner_sets,
 )
-from depthguard.octree.sets import _levels as _mask_levels
 
 __all__ = ["MODES", "CameraObservation", "ScanObservation", "OctreeFrame", "sensor_sets", "fuse", "reach_mask"]
 
@@ -121,10 +121,15 @@ def sensor_sets(
     ``box``); ``mp`` is the mask's :func:`~depthguard.octree.sets.mask_pyramid` (computed when None)."""
     if isinstance(obs, CameraObservation):
         cam = obs.camera
-        f = fill_missing_depth(cam, obs.depth, obs.mask, invalid=invalid, fill_radius=fill_radius)
-        robot = robot_blocking_depth(f.robot, f.missing, f.depth, np.float32(cam.min_depth))
-        flags = camera_sets(mask, box, cam, f.obstacle_depth, robot, mp)
-        bin_depth_points(cam, f.depth, f.robot, box, mask, flags)
+        d, robot = check_depth_policy(cam, obs.depth, obs.mask, invalid, fill_radius)
+        d = np.ascontiguousarray(d)
+        robot = np.zeros(cam.shape, bool) if robot is None else np.ascontiguousarray(robot, dtype=bool)
+        # fill_missing_depth and robot_blocking_depth straight into the pyramids that camera_sets builds
+        lo, neg, rob, *layout = camera_pyramids(
+            d, robot, int(fill_radius), np.float32(cam.min_depth), invalid == "conservative"
+        )
+        flags = camera_sets_from_pyramids(mask, box, cam, (lo, *layout), neg, rob, mp)
+        bin_depth_points(cam, d, robot, box, mask, flags)
         return flags
     if isinstance(obs, ScanObservation):
         sc = obs.scanner
@@ -222,17 +227,15 @@ def fuse(
 
     parts = list(_pool(n_work).map(sets, observations)) if n_work > 1 else [sets(o) for o in observations]
     flags = np.stack([f for f, _ in parts])
+    clear = False
     if later is not None:
         got = later()
         mask = _whole_box(box.shape)[0] if got is None else _reach_array(got, box.shape)
-        if got is not None:
-            clear_outside(flags, mask)
-    if mode == "conservative":  # a 2-D scan never sees a node's whole volume free
-        for s, (_, scan) in enumerate(parts):
-            if scan:
-                flags[s] &= np.uint8(~F & 0xFF)
+        clear = got is not None  # the sets were computed over the whole box: zero them outside C(t)
+    # conservative mode: a 2-D scan never sees a node's whole volume free (its F bits dropped)
+    drop_f = np.array([scan and mode == "conservative" for _, scan in parts], dtype=bool)
     kind = np.empty(box.shape, np.uint8)
-    combine(flags, mask, mode == "conservative", kind)
+    combine_cleared(flags, mask, mode == "conservative", kind, clear, drop_f)
     return OctreeFrame(box, kind != FREE, kind, mask, flags, mode)
 
 

@@ -2,6 +2,7 @@
 
 * :func:`min_pyramid` / :func:`max_pyramid`: per 2^l x 2^l pixel block the minimum (maximum) of a depth
   image, all levels in one flat array; :func:`min_negmax_pyramids`: both at once (the maximum negated);
+* :func:`camera_pyramids`: a camera frame's missing-depth policy, robot depth and their pyramids in one pass;
 * :func:`any_le`: whether some pixel of a rectangle is <= a threshold, descending the min-pyramid only into
   blocks that can hold one;
 * :func:`mask_pyramid`: the any-True pyramid of a 3-D node mask (the octree's inner nodes).
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["min_pyramid", "min_negmax_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
+__all__ = ["min_pyramid", "min_negmax_pyramids", "camera_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -82,36 +83,144 @@ def min_negmax_pyramids(img):
     return lo, neg, offs, hs, ws
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _window_min(val, W, H, v, u, r):
+    """Minimum of the flat (H * W) image ``val`` over the (2 r + 1)^2 window about (v, u), clipped."""
+    best = np.float32(np.inf)
+    for vv in range(max(0, v - r), min(H, v + r + 1)):
+        row = vv * W
+        for uu in range(max(0, u - r), min(W, u + r + 1)):
+            best = min(best, val[row + uu])
+    return best
+
+
+@nb.njit(cache=True, nogil=True)
+def _fill_holes(lo, robot, nh, r, near):
+    """Fill the ``nh`` holes of level 0 of ``lo`` (inf on missing and robot pixels): each takes the minimum of
+    its (2 r + 1)^2 window, else ``near``; sparse holes read their windows, dense ones (more than one pixel
+    in 2 r + 1 a hole) one column of the rows' running minima."""
+    H, W = robot.shape
+    inf = np.float32(np.inf)
+    holes = np.empty(nh, np.int64)
+    h = 0
+    for v in range(H):
+        for u in range(W):
+            if lo[v * W + u] == inf and not robot[v, u]:  # inf: missing or robot
+                holes[h] = v * W + u
+                h += 1
+    fill = np.empty(nh, np.float32)
+    if nh * (2 * r + 1) > H * W:
+        rowmin = np.empty(H * W, np.float32)
+        for v in range(H):
+            for u in range(W):
+                rowmin[v * W + u] = _row_min(lo, W, v, u, r)
+        for h in range(nh):
+            v, u = holes[h] // W, holes[h] % W
+            best = inf
+            for vv in range(max(0, v - r), min(H, v + r + 1)):
+                best = min(best, rowmin[vv * W + u])
+            fill[h] = best
+    else:
+        for h in range(nh):
+            fill[h] = _window_min(lo, W, H, holes[h] // W, holes[h] % W, r)
+    for h in range(nh):  # after all windows are read: a filled hole is no source
+        lo[holes[h]] = fill[h] if fill[h] < inf else near
+
+
+@nb.njit(cache=True, nogil=True)
+def camera_pyramids(depth, robot, fill_radius, near, conservative):
+    """One camera frame's obstacle and robot depths, straight into their pyramids, in one pass over the image.
+
+    The same values as :func:`depthguard.depthspace.fill_missing_depth` (missing: 0, NaN or +-inf; a missing
+    non-robot pixel takes the minimum valid non-robot depth of its (2 r + 1)^2 window, else ``near`` when
+    ``conservative``, else inf; robot pixels inf) and
+    :func:`depthguard.octree.fusion.robot_blocking_depth` (the robot pixels' reading, ``near`` where missing,
+    inf elsewhere), without the intermediate images.
+
+    Args:
+        depth: (H, W) float32 metres; robot: (H, W) bool robot pixels; fill_radius: r >= 0, pixels;
+        near: float32 near limit (``camera.min_depth``); conservative: the ``"conservative"`` policy.
+    Returns:
+        (obstacle min data, its negation's min data, robot min data, offsets, heights, widths): the layout of
+        :func:`min_negmax_pyramids`, level 0 the (H, W) images row-major.
+    """
+    H, W = depth.shape
+    offs, hs, ws, tot = _layout(H, W)
+    lo = np.empty(tot, np.float32)
+    neg = np.empty(tot, np.float32)
+    rob = np.empty(tot, np.float32)
+    nh = 0
+    inf = np.float32(np.inf)
+    for v in range(H):  # branch-free (it vectorises); the holes are listed after
+        for u in range(W):
+            d = depth[v, u]
+            ms = not (d > 0.0 and d < inf)  # 0, negative, NaN, +-inf: no reading
+            rb = robot[v, u]
+            i = v * W + u
+            lo[i] = inf if rb or ms else d  # the valid non-robot depth: the holes' source, then patched
+            rob[i] = (near if ms else d) if rb else inf
+            nh += ms and not rb
+    if conservative and nh > 0:  # otherwise the holes stay inf (free)
+        _fill_holes(lo, robot, nh, fill_radius, near)
+    for i in range(H * W):
+        neg[i] = -lo[i]
+    _reduce_levels(lo, offs, hs, ws)
+    _reduce_levels(neg, offs, hs, ws)
+    _reduce_levels(rob, offs, hs, ws)
+    return lo, neg, rob, offs, hs, ws
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_min(val, W, v, u, r):
+    """Minimum of row ``v`` of the flat image ``val`` (width W) over columns u - r .. u + r, clipped."""
+    best = np.float32(np.inf)
+    for uu in range(max(0, u - r), min(W, u + r + 1)):
+        best = min(best, val[v * W + uu])
+    return best
+
+
 @nb.njit(cache=True, nogil=True)
 def any_le(img, data, offs, hs, ws, u0, v0, u1, v1, thr, stack):
     """Whether some pixel of img[v0:v1+1, u0:u1+1] is <= thr: descends the min-pyramid only into blocks
-    whose minimum is <= thr, so a negative answer costs a few lookups, not a scan."""
+    whose minimum is <= thr, so a negative answer costs a few lookups, not a scan.
+
+    ``img`` is not read (level 0 of ``data`` is the image); ``stack`` is an (n, 3) int64 work buffer. The
+    blocks of the top level (at least a quarter of the rectangle's longer side) are read in place and a
+    block's children are tested before they are pushed, so only blocks that cross the rectangle's border
+    and may hold a pixel <= thr go on the stack."""
     span = max(u1 - u0 + 1, v1 - v0 + 1)
     top = 0
     while (4 << top) < span and top + 1 < offs.size:
         top += 1
     n = 0
+    base, w = offs[top], ws[top]
     for bv in range(v0 >> top, (v1 >> top) + 1):
+        row = base + bv * w
+        rows_in = (bv << top) >= v0 and ((bv + 1) << top) - 1 <= v1
         for bu in range(u0 >> top, (u1 >> top) + 1):
+            if data[row + bu] > thr:
+                continue
+            if rows_in and (bu << top) >= u0 and ((bu + 1) << top) - 1 <= u1:
+                return True  # the block lies inside the rectangle and holds a pixel <= thr
             stack[n, 0], stack[n, 1], stack[n, 2] = top, bv, bu
             n += 1
-    while n > 0:
+    while n > 0:  # a block on the stack holds a pixel <= thr and crosses the border (level >= 1)
         n -= 1
         lv, bv, bu = stack[n, 0], stack[n, 1], stack[n, 2]
-        if data[offs[lv] + bv * ws[lv] + bu] > thr:
-            continue
-        pv0, pu0 = bv << lv, bu << lv
-        pv1, pu1 = ((bv + 1) << lv) - 1, ((bu + 1) << lv) - 1
-        if pv0 >= v0 and pv1 <= v1 and pu0 >= u0 and pu1 <= u1:
-            return True  # the block lies inside the rectangle and holds a pixel <= thr
-        if lv == 0:
-            continue  # a single pixel outside the rectangle
+        c_lv = lv - 1
+        base, w = offs[c_lv], ws[c_lv]
         for c in range(4):
             cv, cu = 2 * bv + (c >> 1), 2 * bu + (c & 1)
-            if cv < hs[lv - 1] and cu < ws[lv - 1] and (cv << (lv - 1)) <= v1 and ((cv + 1) << (lv - 1)) - 1 >= v0 \
-                    and (cu << (lv - 1)) <= u1 and ((cu + 1) << (lv - 1)) - 1 >= u0:  # fmt: skip
-                stack[n, 0], stack[n, 1], stack[n, 2] = lv - 1, cv, cu
-                n += 1
+            pv0, pu0 = cv << c_lv, cu << c_lv
+            pv1, pu1 = ((cv + 1) << c_lv) - 1, ((cu + 1) << c_lv) - 1
+            if cv >= hs[c_lv] or cu >= w or pv0 > v1 or pv1 < v0 or pu0 > u1 or pu1 < u0:
+                continue  # outside the image or the rectangle
+            if data[base + cv * w + cu] > thr:
+                continue
+            if pv0 >= v0 and pv1 <= v1 and pu0 >= u0 and pu1 <= u1:
+                return True  # the block lies inside the rectangle and holds a pixel <= thr
+            stack[n, 0], stack[n, 1], stack[n, 2] = c_lv, cv, cu  # level >= 1: a pixel is inside or outside
+            n += 1
     return False
 
 

@@ -293,20 +293,20 @@ def finite_bounds(grid):
     for i in range(nx):
         for j in range(ny):
             row = grid[i, j]
-            first = -1
-            last = -1
-            for k in range(nz):
-                if row[k] < np.inf:
-                    if first < 0:
-                        first = k
-                    last = k
-            if first >= 0:
-                lo[0] = min(lo[0], i)
-                hi[0] = max(hi[0], i + 1)
-                lo[1] = min(lo[1], j)
-                hi[1] = max(hi[1], j + 1)
-                lo[2] = min(lo[2], first)
-                hi[2] = max(hi[2], last + 1)
+            first = 0  # the first finite cell from the front, then the last from the back
+            while first < nz and not row[first] < np.inf:
+                first += 1
+            if first == nz:
+                continue
+            last = nz - 1
+            while not row[last] < np.inf:
+                last -= 1
+            lo[0] = min(lo[0], i)
+            hi[0] = max(hi[0], i + 1)
+            lo[1] = min(lo[1], j)
+            hi[1] = max(hi[1], j + 1)
+            lo[2] = min(lo[2], first)
+            hi[2] = max(hi[2], last + 1)
     if hi[0] == 0:
         lo[:] = 0
     return lo, hi

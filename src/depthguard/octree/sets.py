@@ -28,8 +28,9 @@ import numpy as np
 from depthguard.octree.pyramids import any_le, mask_pyramid, max_pyramid, min_negmax_pyramids, min_pyramid
 
 __all__ = [
-    "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "scanner_sets",
-    "bin_points", "bin_depth_points", "combine", "mark_overlaps",
+    "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "camera_sets_from_pyramids",
+    "scanner_sets",
+    "bin_points", "bin_depth_points", "combine", "combine_cleared", "mark_overlaps",
 ]  # fmt: skip
 
 V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
@@ -52,12 +53,13 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
                     flags[i, j, k] |= val
 
 
-@nb.njit(cache=True, nogil=True)
-def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, opyr, omax, rob, rpyr, flags, stats):
-    # omax: the min-pyramid of -obs (a negated max-pyramid), same layout as opyr
+@nb.njit(cache=True, nogil=True, error_model="numpy")
+def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats):
+    # opyr: the obstacle depth's min-pyramid (level 0 the image); omax: the min-pyramid of its negation (a
+    # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout
     fx, fy, cx, cy = intr
     od, oo, oh, ow = opyr
-    rd = rpyr[0]
+    obs, rob = od, rd  # any_le's image argument (unused: level 0 of the pyramids is the image)
     shp = mp[2]
     stack = np.empty((64 * (top + 1) * 8, 5), np.int64)
     work = np.empty((4 * 64 + 64, 3), np.int64)
@@ -91,9 +93,9 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                         zc = zb + Rc[2, 0] * a + Rc[2, 1] * b + Rc[2, 2] * e
                         zlo = min(zlo, zc)
                         zhi = max(zhi, zc)
-                        if zc <= 1e-6:
-                            behind = True
-                            continue
+                        # no branch: a corner behind the camera discards the rectangle (and divides by zero
+                        # without raising)
+                        behind = behind or zc <= 1e-6
                         iz = 1.0 / zc
                         px = fx * xc * iz + cx
                         py = fy * yc * iz + cy
@@ -118,7 +120,7 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     no_r = (state & 4) != 0
                     if lv > 0:
                         if not (no_o or all_o):  # exact decisions through the pyramids
-                            mid = obs[(v0 + v1) >> 1, (u0 + u1) >> 1]  # one read answers most "some"
+                            mid = od[((v0 + v1) >> 1) * W + ((u0 + u1) >> 1)]  # one read answers most "some"
                             no_o = not (mid <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work))
                             if not no_o:  # every ray blocked before the block (no pixel beyond z_lo): occluded
                                 all_o = not any_le(obs, omax, oo, oh, ow, u0, v0, u1, v1, -zlo - 1e-6, work)
@@ -150,10 +152,10 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, obs, op
                     fl = 0
                     vc, uc = (v0 + v1) >> 1, (u0 + u1) >> 1  # the middle pixel first: one read answers most "yes"
                     if not no_o and (
-                        all_o or obs[vc, uc] <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
+                        all_o or od[vc * W + uc] <= zhi or any_le(obs, od, oo, oh, ow, u0, v0, u1, v1, zhi, work)
                     ):
                         fl |= 4
-                    if not no_r and (rob[vc, uc] <= zhi or any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
+                    if not no_r and (rd[vc * W + uc] <= zhi or any_le(rob, rd, oo, oh, ow, u0, v0, u1, v1, zhi, work)):
                         fl |= 8
                     if in_fov:
                         fl |= 1
@@ -182,23 +184,85 @@ def camera_sets(
         stats: optional (32,) int64 counters: visits per level [0:8], blocks decided per level [8:16],
             undecided blocks by (no O, all O, no R, in view) [16:32].
     """
+    obs = np.ascontiguousarray(obstacle_depth, dtype=np.float32)
+    rob = np.ascontiguousarray(robot_depth, dtype=np.float32)
+    lo, neg, *layout = min_negmax_pyramids(obs)
+    return camera_sets_from_pyramids(mask, box, camera, (lo, *layout), neg, min_pyramid(rob)[0], mp, stats)
+
+
+def camera_sets_from_pyramids(
+    mask: np.ndarray, box, camera, opyr, neg: np.ndarray, rob: np.ndarray, mp=None, stats=None
+) -> np.ndarray:
+    """:func:`camera_sets` from the depths' pyramids (e.g. :func:`~depthguard.octree.pyramids.camera_pyramids`).
+
+    Args:
+        opyr: the obstacle depth's :func:`~depthguard.octree.pyramids.min_pyramid` (data, offsets, heights,
+            widths; level 0 the (H, W) image row-major).
+        neg: (n,) float32 data of the min-pyramid of the negated obstacle depth, the same layout.
+        rob: (n,) float32 data of the robot depth's min-pyramid, the same layout.
+        mp, stats: as :func:`camera_sets`.
+    """
     flags = np.zeros(box.shape, np.uint8)
     top = _levels(box.shape)
     if mp is None:
         mp = mask_pyramid(mask, top)
-    obs = np.ascontiguousarray(obstacle_depth, dtype=np.float32)
-    rob = np.ascontiguousarray(robot_depth, dtype=np.float32)
-    lo, neg, *layout = min_negmax_pyramids(obs)
-    opyr = (lo, *layout)
     if stats is None:
         stats = np.zeros(32, np.int64)
     _camera_kernel(
         mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
         np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
         (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
-        (camera.min_depth, camera.max_depth), obs, opyr, neg, rob, min_pyramid(rob), flags, stats,
+        (camera.min_depth, camera.max_depth), opyr, neg, rob, flags, stats,
     )  # fmt: skip
     return flags
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _scan_node(xc, yc, ex, ey, nc, h, a0, inc, n, rlim, obs, rob):
+    """Flags V, O, R, F of a node cut by the scan plane: its centre (xc, yc) in the plane (scanner frame, m),
+    its corners at offsets (ex, ey)[:nc], ``h`` its half diagonal; 0 when no ray meets it."""
+    rc2 = xc * xc + yc * yc
+    r2hi = 0.0
+    tlo, thi = 0.0, 0.0  # tangents of the corners' angles from the centre's direction
+    for c in range(nc):
+        px = xc + ex[c]
+        py = yc + ey[c]
+        r2hi = max(r2hi, px * px + py * py)
+        # within h < rc of the centre, every corner lies within 90 degrees of its direction
+        # (dot > rc (rc - h) > 0), where the tangent of the angle grows with the angle
+        dot = xc * px + yc * py
+        if dot > 0.0:
+            tc = (xc * py - yc * px) / dot
+            tlo, thi = min(tlo, tc), max(thi, tc)
+    rhi = math.sqrt(r2hi)
+    rc = math.sqrt(rc2)
+    rlo = max(0.0, rc - h)
+    if rc <= h:  # the node holds the scanner: every ray may meet it
+        i0, i1 = 0, n - 1
+        in_fov = False
+    else:
+        phic = math.atan2(yc, xc)
+        lo_rel, hi_rel = math.atan(tlo), math.atan(thi)
+        i0 = int(math.ceil((phic + lo_rel - a0 - 0.5 * inc) / inc))
+        i1 = int(math.floor((phic + hi_rel - a0 + 0.5 * inc) / inc))
+        if i1 < 0:  # the angle wrapped past -pi
+            i0 += int(round(2 * math.pi / inc))
+            i1 += int(round(2 * math.pi / inc))
+        in_fov = i0 >= 0 and i1 < n and rlo >= rlim[0] and rhi <= rlim[1]
+        i0, i1 = max(i0, 0), min(i1, n - 1)
+        if i0 > i1:
+            return 0
+    fl = 0
+    for r in range(i0, i1 + 1):
+        if obs[r] <= rhi:
+            fl |= 4
+        if rob[r] <= rhi:
+            fl |= 8
+    if in_fov:
+        fl |= 1
+        if fl == 1:
+            fl |= 16
+    return fl
 
 
 @nb.njit(cache=True, nogil=True)
@@ -208,12 +272,19 @@ def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob
     ez = 0.5 * res * (abs(Rs[2, 0]) + abs(Rs[2, 1]) + abs(Rs[2, 2]))
     ex = np.empty(8)  # the corners' offsets from the node's centre, in the scan plane's x and y
     ey = np.empty(8)
+    nc = 0  # distinct offsets only (a level scanner projects the top and bottom corners alike)
     for c in range(8):
         dx = ((c & 1) - 0.5) * res
         dy = (((c >> 1) & 1) - 0.5) * res
         dz = (((c >> 2) & 1) - 0.5) * res
-        ex[c] = Rs[0, 0] * dx + Rs[0, 1] * dy + Rs[0, 2] * dz
-        ey[c] = Rs[1, 0] * dx + Rs[1, 1] * dy + Rs[1, 2] * dz
+        x = Rs[0, 0] * dx + Rs[0, 1] * dy + Rs[0, 2] * dz
+        y = Rs[1, 0] * dx + Rs[1, 1] * dy + Rs[1, 2] * dz
+        seen = False
+        for m in range(nc):  # equal and nonzero: the same bits
+            seen = seen or (ex[m] == x and ey[m] == y and x != 0.0 and y != 0.0)
+        if not seen:
+            ex[nc], ey[nc] = x, y
+            nc += 1
     # the nodes that the plane z_S = 0 can cut: restrict the k range when the plane is horizontal enough
     for i in range(nx):
         for j in range(ny):
@@ -226,6 +297,7 @@ def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob
                 zb = (ez - zs0) / Rs[2, 2]
                 kmin = max(0, int(math.floor((min(za, zb) - origin[2]) / res - 0.5)) - 1)
                 kmax = min(nz - 1, int(math.ceil((max(za, zb) - origin[2]) / res - 0.5)) + 1)
+            pxc, pyc, fl = np.nan, np.nan, 0  # the last node's centre in the scan plane and its flags
             for k in range(kmin, kmax + 1):
                 if not mask[i, j, k]:
                     continue
@@ -235,47 +307,10 @@ def _scanner_kernel(mask, shape, origin, res, Rs, ts, a0, inc, n, rlim, obs, rob
                 zc = Rs[2, 0] * x + Rs[2, 1] * y + Rs[2, 2] * z + ts[2]
                 if abs(zc) > ez:
                     continue  # the scan plane misses the node
-                rc2 = xc * xc + yc * yc
-                r2hi = 0.0
-                tlo, thi = 0.0, 0.0  # tangents of the corners' angles from the centre's direction
-                for c in range(8):
-                    px = xc + ex[c]
-                    py = yc + ey[c]
-                    r2hi = max(r2hi, px * px + py * py)
-                    # within h < rc of the centre, every corner lies within 90 degrees of its direction
-                    # (dot > rc (rc - h) > 0), where the tangent of the angle grows with the angle
-                    dot = xc * px + yc * py
-                    if dot > 0.0:
-                        tc = (xc * py - yc * px) / dot
-                        tlo, thi = min(tlo, tc), max(thi, tc)
-                rhi = math.sqrt(r2hi)
-                rc = math.sqrt(rc2)
-                rlo = max(0.0, rc - h)
-                if rc <= h:  # the node holds the scanner: every ray may meet it
-                    i0, i1 = 0, n - 1
-                    in_fov = False
-                else:
-                    phic = math.atan2(yc, xc)
-                    lo_rel, hi_rel = math.atan(tlo), math.atan(thi)
-                    i0 = int(math.ceil((phic + lo_rel - a0 - 0.5 * inc) / inc))
-                    i1 = int(math.floor((phic + hi_rel - a0 + 0.5 * inc) / inc))
-                    if i1 < 0:  # the angle wrapped past -pi
-                        i0 += int(round(2 * math.pi / inc))
-                        i1 += int(round(2 * math.pi / inc))
-                    in_fov = i0 >= 0 and i1 < n and rlo >= rlim[0] and rhi <= rlim[1]
-                    i0, i1 = max(i0, 0), min(i1, n - 1)
-                    if i0 > i1:
-                        continue
-                fl = 0
-                for r in range(i0, i1 + 1):
-                    if obs[r] <= rhi:
-                        fl |= 4
-                    if rob[r] <= rhi:
-                        fl |= 8
-                if in_fov:
-                    fl |= 1
-                    if fl == 1:
-                        fl |= 16
+                if not (xc == pxc and yc == pyc and xc != 0.0 and yc != 0.0):
+                    # a new centre (a level scan plane on a node face cuts two nodes of each column alike)
+                    fl = _scan_node(xc, yc, ex, ey, nc, h, a0, inc, n, rlim, obs, rob)
+                    pxc, pyc = xc, yc
                 flags[i, j, k] |= fl
 
 
@@ -320,13 +355,14 @@ def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
     H, W = depth.shape
     nx, ny, nz = mask.shape
     inv = 1.0 / res
-    # a pixel's point in node units is d (a (u + 1/2 - cx) + b_v) + e: affine in u along a row, so the
-    # coordinates of a row are computed in a loop without branches (which vectorises), then binned
+    # a pixel's point in node units is d (a (u + 1/2 - cx) + b_v) + e: affine in u along a row, so a row's
+    # nodes (flat index, -1 for none) are computed in a loop without branches (which vectorises), then
+    # marked; mask and flags are C-contiguous (their flat views are the arrays)
     ax, ay, az = Rt[0, 0] * inv / fx, Rt[1, 0] * inv / fx, Rt[2, 0] * inv / fx
     e0, e1, e2 = (pos[0] - origin[0]) * inv, (pos[1] - origin[1]) * inv, (pos[2] - origin[2]) * inv
-    fi = np.empty(W)
-    fj = np.empty(W)
-    fk = np.empty(W)
+    node = np.empty(W, np.int64)
+    mflat = mask.ravel()
+    fflat = flags.ravel()
     for v in range(H):
         yv = (v + 0.5 - cy) / fy
         bx = (Rt[0, 1] * yv + Rt[0, 2]) * inv
@@ -335,28 +371,30 @@ def _bin_depth(depth, robot, zlim, intr, Rt, pos, origin, res, mask, flags):
         for u in range(W):
             d = depth[v, u]
             xu = u + 0.5 - cx
-            fi[u] = d * (ax * xu + bx) + e0
-            fj[u] = d * (ay * xu + by) + e1
-            fk[u] = d * (az * xu + bz) + e2
+            a = d * (ax * xu + bx) + e0
+            b = d * (ay * xu + by) + e1
+            c = d * (az * xu + bz) + e2
+            # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
+            ok = not robot[v, u] and d >= zlim[0] and d <= zlim[1]
+            ok = ok and a >= 0.0 and b >= 0.0 and c >= 0.0 and a < nx and b < ny and c < nz
+            node[u] = (int(a) * ny + int(b)) * nz + int(c) if ok else -1
         for u in range(W):
-            d = depth[v, u]
-            if robot[v, u] or not (d >= zlim[0] and d <= zlim[1]):
-                continue  # robot, missing (0, NaN, inf) or out of range: not a measured obstacle point
-            a, b, c = fi[u], fj[u], fk[u]
-            if a >= 0.0 and b >= 0.0 and c >= 0.0 and a < nx and b < ny and c < nz:
-                i, j, k = int(a), int(b), int(c)
-                if mask[i, j, k]:
-                    flags[i, j, k] |= 2
+            m = node[u]
+            if m >= 0 and mflat[m]:
+                fflat[m] |= 2
 
 
 def bin_depth_points(camera, depth: np.ndarray, robot: np.ndarray, box, mask: np.ndarray, flags: np.ndarray) -> None:
     """Set the P bit of the nodes of ``mask`` holding a measured, non-robot pixel of ``depth`` (H, W) metres."""
+    out = flags if flags.flags.c_contiguous else np.ascontiguousarray(flags)
     _bin_depth(
         np.ascontiguousarray(depth, dtype=np.float32), np.ascontiguousarray(robot, dtype=np.bool_),
         (camera.min_depth, camera.max_depth), (camera.fx, camera.fy, camera.cx, camera.cy),
         np.ascontiguousarray(camera.R.T), np.ascontiguousarray(camera.position), np.ascontiguousarray(box.origin),
-        float(box.res), mask, flags,
+        float(box.res), np.ascontiguousarray(mask, dtype=np.bool_), out,
     )  # fmt: skip
+    if out is not flags:
+        flags[...] = out
 
 
 @nb.njit(cache=True, nogil=True)
@@ -379,6 +417,36 @@ def combine(flags, mask, conservative, kind):
                     f = flags[s, i, j, k]
                     bits[i, j, k] |= f
                     nf[i, j, k] += (f >> 4) & 1
+    _decide(flags, mask, bits, nf, conservative, kind)
+
+
+@nb.njit(cache=True, nogil=True)
+def combine_cleared(flags, mask, conservative, kind, clear, drop_f):
+    """:func:`combine`, editing ``flags`` in its first pass: zero outside ``mask`` when ``clear``, and the F
+    bit cleared for the sensors ``s`` with ``drop_f[s]`` ((S,) bool: a 2-D scan in conservative mode)."""
+    S = flags.shape[0]
+    nx, ny, nz = mask.shape
+    bits = np.zeros((nx, ny, nz), np.uint8)
+    nf = np.zeros((nx, ny, nz), np.uint8)
+    for s in range(S):
+        keep = np.uint8(~F & 0xFF) if drop_f[s] else np.uint8(0xFF)
+        for i in range(nx):
+            for j in range(ny):
+                for k in range(nz):
+                    f = flags[s, i, j, k] & keep
+                    if clear and not mask[i, j, k]:
+                        f = np.uint8(0)
+                    flags[s, i, j, k] = f
+                    bits[i, j, k] |= f
+                    nf[i, j, k] += (f >> 4) & 1
+    _decide(flags, mask, bits, nf, conservative, kind)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _decide(flags, mask, bits, nf, conservative, kind):
+    """:func:`combine`'s second pass: each node's kind from its ORed bits and its number of F bits."""
+    S = flags.shape[0]
+    nx, ny, nz = mask.shape
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):

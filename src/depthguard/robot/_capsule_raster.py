@@ -106,19 +106,23 @@ def _point_in_capsule(px: float, py: float, pz: float, c: np.ndarray, r: float) 
     return ex * ex + ey * ey + ez * ez <= r * r
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sphere_span(x: float, z: float, r: float, f: float, cc: float) -> tuple[float, float]:
+    """Exact pixel span (lo, hi) along one image axis of a sphere of radius ``r`` fully in front of the
+    camera, its centre at ``x`` along that axis and depth ``z`` (camera frame, m)."""
+    den = z * z - r * r
+    root = np.sqrt(max(x * x + z * z - r * r, 0.0))
+    lo = (x * z - r * root) / den
+    hi = (x * z + r * root) / den
+    return f * lo + cc, f * hi + cc
+
+
 @njit(cache=True, nogil=True)
 def _sphere_bbox(c: np.ndarray, r: float, fx: float, fy: float, cx: float, cy: float) -> tuple[float, ...]:
     """Exact image bounding box (pixel coordinates) of a sphere fully in front of the camera."""
-    out = np.empty(4)
-    for k, (f, cc, x) in enumerate(((fx, cx, c[0]), (fy, cy, c[1]))):
-        z = c[2]
-        den = z * z - r * r
-        root = np.sqrt(max(x * x + z * z - r * r, 0.0))
-        lo = (x * z - r * root) / den
-        hi = (x * z + r * root) / den
-        out[2 * k] = f * lo + cc
-        out[2 * k + 1] = f * hi + cc
-    return out[0], out[1], out[2], out[3]
+    u_lo, u_hi = _sphere_span(c[0], c[2], r, fx, cx)
+    v_lo, v_hi = _sphere_span(c[1], c[2], r, fy, cy)
+    return u_lo, u_hi, v_lo, v_hi
 
 
 @njit(cache=True, nogil=True)
@@ -184,12 +188,15 @@ def capsule_kernel(
                     continue
                 if ta > tb:
                     continue
-                pa = A[k] + ta * (B[k] - A[k])
-                pb = A[k] + tb * (B[k] - A[k])
-                if pa[2] - ri <= 1e-6 or pb[2] - ri <= 1e-6:
+                # the part's ends pa, pb (x and z only: the row span), in scalars (no arrays per row)
+                pax = A[k, 0] + ta * (B[k, 0] - A[k, 0])
+                paz = A[k, 2] + ta * (B[k, 2] - A[k, 2])
+                pbx = A[k, 0] + tb * (B[k, 0] - A[k, 0])
+                pbz = A[k, 2] + tb * (B[k, 2] - A[k, 2])
+                if paz - ri <= 1e-6 or pbz - ri <= 1e-6:
                     continue  # cannot happen when both end balls are in front; kept for safety
-                e0, e1, _, _ = _sphere_bbox(pa, ri, fx, fy, cx, cy)
-                g0, g1, _, _ = _sphere_bbox(pb, ri, fx, fy, cx, cy)
+                e0, e1 = _sphere_span(pax, paz, ri, fx, cx)
+                g0, g1 = _sphere_span(pbx, pbz, ri, fx, cx)
                 r0 = max(int(np.floor(min(e0, g0))) - 1, x0)
                 r1 = min(int(np.floor(max(e1, g1))) + 1, x1)
             for u in range(r0, r1 + 1):
