@@ -266,9 +266,8 @@ class RobotGeometry:
         for g in self.geoms:  # capsules inscribed in the mesh-rendered boxes, cylinders and meshes
             frame = model.model.frames[model.frame_id(g.shape.link)]
             Rl, pl = np.array(frame.placement.rotation), np.array(frame.placement.translation)
-            inner = _inscribed_capsules(g.shape) if g.is_mesh else []
-            if g.inscribed is not None:  # (computed on the original, undecimated mesh)
-                inner = [g.inscribed]
+            # (a mesh's was computed on the original, undecimated mesh)
+            inner = [g.inscribed] if g.inscribed is not None else _inscribed_capsules(g.shape) if g.is_mesh else []
             for a, b, r in inner:
                 ij.append(int(frame.parentJoint))
                 ia.append(Rl @ a + pl)

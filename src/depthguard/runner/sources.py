@@ -83,14 +83,13 @@ class SimSource:
         ssm: bool = False,
     ) -> None:
         from depthguard.sim.depthcam import KinectSim
-        from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task
+        from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task, with_ssm_cameras
         from depthguard.sim.scenarios import load_scenario
 
         self.sc = load_scenario(scenario)
         if not people:
             self.sc["people"] = []
-        if ssm and "ssm_cameras" in self.sc:
-            self.sc["cameras"] = self.sc["ssm_cameras"]
+        self.sc = with_ssm_cameras(self.sc, ssm)
         self.cell, self.kin, ee0 = build_scenario_cell(self.sc, quick=quick, cameras=cameras)
         self.task = scenario_task(self.sc, ee0)
         self.cams = [KinectSim(self.cell.model, c, i, seed=seed + i) for i, c in enumerate(self.cell.cameras)]

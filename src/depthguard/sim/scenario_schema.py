@@ -207,7 +207,9 @@ def _check_cross(data: dict[str, Any], source: str) -> None:
     if data.get("camera_count", 1) > n_placed:
         raise _fail(source, "field 'camera_count'", f"must be 1..{n_placed} for cameras = {data['cameras']!r}")
     ssm_placed = data.get("ssm_cameras", data["cameras"])  # (two-camera "ral" cells have an optional third one)
-    n_ssm = placed[ssm_placed] + (ssm_placed in ("ral", "ral-rolled", "ral-rolled-far"))
+    from depthguard.sim.depthcam import RAL_TWO
+
+    n_ssm = placed[ssm_placed] + (ssm_placed in RAL_TWO)
     if data.get("ssm_camera_count", 1) > n_ssm:
         raise _fail(source, "field 'ssm_camera_count'", f"must be 1..{n_ssm} for cameras = {data['cameras']!r}")
     movable = {b["name"] for b in data.get("boxes", []) if b.get("movable", False)}

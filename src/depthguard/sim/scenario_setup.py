@@ -9,6 +9,12 @@ import numpy as np
 __all__ = ["build_scenario_cell", "solve_ik", "scenario_task"]
 
 
+def with_ssm_cameras(sc: dict, ssm: bool) -> dict:
+    """Scenario ``sc`` as run with speed and separation monitoring (``ssm``): its ``ssm_cameras`` placement,
+    where it has one, whose views hold the protective zone (docs/ssm.md); ``sc`` itself otherwise."""
+    return {**sc, "cameras": sc["ssm_cameras"]} if ssm and "ssm_cameras" in sc else sc
+
+
 def build_scenario_cell(sc: dict, *, quick: bool, cameras: int | None, demo: bool = False):
     """The simulated cell of scenario ``sc`` (a loaded scenario dict): its cameras (resolution of the full,
     ``quick`` or ``demo`` form; the first ``cameras`` of the placement), robot, boxes and people. Returns

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from depthguard.sim.accuracy import accuracy_metrics
-from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task
+from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task, with_ssm_cameras
 
 __all__ = ["list_scenarios", "load_scenario", "run_scenario", "compute_metrics"]
 
@@ -172,8 +172,7 @@ def _run_one(
 
     if ssm and cameras is None:  # SSM needs a cell without blind pockets near the robot (docs/ssm.md)
         cameras = sc.get("ssm_camera_count")
-    if ssm and "ssm_cameras" in sc:  # ... and cameras whose views hold the protective zone
-        sc = {**sc, "cameras": sc["ssm_cameras"]}
+    sc = with_ssm_cameras(sc, ssm)  # ... and cameras whose views hold the protective zone
     cell, kin, ee0 = build_scenario_cell(sc, quick=quick, cameras=cameras, demo=demo)
     if setup is not None:  # e.g. reactive people (depthguard.sim.ssm_approach)
         setup(cell)
