@@ -310,3 +310,43 @@ def test_capsule_inscribed_in_a_non_convex_mesh_lies_inside_it():
     p = p[_inside(p, a, b, r)]
     in_bar = (np.abs(p[:, 1]) <= 0.03) | (np.abs(p[:, 0]) <= 0.03)
     assert len(p) > 30 and np.all(in_bar & (np.abs(p[:, 2]) <= 0.03) & (np.abs(p[:, :2]) <= 0.15).all(axis=1))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    size=st.tuples(*[st.floats(0.02, 0.4)] * 3),
+    angles=st.tuples(*[st.floats(-np.pi, np.pi)] * 3),
+    shift=st.tuples(*[st.floats(-0.3, 0.3)] * 3),
+    cylinder=st.booleans(),
+)
+def test_property_inscribed_mesh_capsule_never_leaves_the_solid(size, angles, shift, cylinder):
+    """Random boxes and cylinders (meshes, posed anywhere): every point sampled in the inscribed capsule lies
+    inside the solid, by the analytic test in the solid's own frame; a capsule is found once the solid's
+    thinnest dimension leaves room for a 5 mm radius."""
+    trimesh = pytest.importorskip("trimesh")
+    from scipy.spatial.transform import Rotation
+
+    from depthguard.robot.geometry import _inscribed_mesh_capsule
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", angles).as_matrix()
+    T[:3, 3] = shift
+    if cylinder:
+        solid = trimesh.creation.cylinder(radius=size[0] / 2, height=size[2], sections=48, transform=T)
+    else:
+        solid = trimesh.creation.box(size, transform=T)
+    got = _inscribed_mesh_capsule(np.asarray(solid.vertices), np.asarray(solid.faces))
+    if got is None:
+        assert min(size[0], size[2] if cylinder else min(size)) < 0.04
+        return
+    a, b, r = got
+    rng = np.random.default_rng(0)
+    lo, hi = np.minimum(a, b) - r, np.maximum(a, b) + r
+    p = rng.uniform(lo, hi, (4000, 3))
+    p = p[_inside(p, a, b, r)]
+    local = (p - T[:3, 3]) @ T[:3, :3]  # into the solid's frame
+    if cylinder:
+        ok = (np.hypot(local[:, 0], local[:, 1]) <= size[0] / 2) & (np.abs(local[:, 2]) <= size[2] / 2)
+    else:
+        ok = np.all(np.abs(local) <= 0.5 * np.asarray(size), axis=1)
+    assert ok.all()
