@@ -654,3 +654,75 @@ def test_combine_cleared_is_the_edits_then_combine(seed, n_sensors, conservative
     got = np.empty(shape, np.uint8)
     combine_cleared(flags, mask, conservative, got, clear, drop_f)
     assert np.array_equal(flags, ref) and np.array_equal(got, want)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31), n_sensors=st.integers(1, 4), conservative=st.booleans(), clear=st.booleans())
+def test_combine_in_row_ranges_is_the_whole_combine(seed, n_sensors, conservative, clear):
+    """``combine_cleared_rows`` over a split of the x range (as the fusion runs it on two threads) gives
+    the flags and kinds of ``combine_cleared`` over the whole box, for any split point."""
+    from depthguard.octree.sets import combine_cleared, combine_cleared_rows
+
+    rng = np.random.default_rng(seed)
+    shape = tuple(int(x) for x in rng.integers(1, 9, 3))
+    flags = rng.integers(0, 32, (n_sensors, *shape)).astype(np.uint8)
+    mask = rng.random(shape) < 0.7
+    drop_f = rng.random(n_sensors) < 0.5
+    want_flags, want = flags.copy(), np.empty(shape, np.uint8)
+    combine_cleared(want_flags, mask, conservative, want, clear, drop_f)
+    split = int(rng.integers(0, shape[0] + 1))
+    got = np.full(shape, 99, np.uint8)
+    for i0, i1 in ((split, shape[0]), (0, split)):
+        combine_cleared_rows(flags, mask, conservative, got, clear, drop_f, i0, i1)
+    assert np.array_equal(flags, want_flags) and np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("parts", [2, 3, 7])
+def test_camera_visit_in_parts_writes_disjoint_nodes_that_make_the_whole(scene, parts):
+    """A camera's node visit split into parts (the fusion runs them on different threads): each part
+    writes only nodes that no other part writes, and together they give the one-part flags."""
+    from depthguard.octree.pyramids import camera_pyramids
+    from depthguard.octree.sets import camera_sets_from_pyramids, mask_pyramid
+
+    depths, _, _ = scene
+    mask = np.random.default_rng(1).random(BOX.shape) < 0.9
+    mp = mask_pyramid(mask, 4)
+    for cam, depth in zip(CAMS, depths, strict=True):
+        lo, neg, rob, *layout = camera_pyramids(
+            depth, np.zeros(cam.shape, bool), 4, np.float32(cam.min_depth), True
+        )  # fmt: skip
+        whole = camera_sets_from_pyramids(mask, BOX, cam, (lo, *layout), neg, rob, mp)
+        assert whole.any()
+        each = [
+            camera_sets_from_pyramids(mask, BOX, cam, (lo, *layout), neg, rob, mp, part=i, parts=parts)
+            for i in range(parts)
+        ]
+        written = np.sum([e != 0 for e in each], axis=0)
+        assert written.max() <= 1 and np.array_equal(np.bitwise_or.reduce(each), whole)
+        shared = np.zeros(BOX.shape, np.uint8)
+        for i in reversed(range(parts)):
+            camera_sets_from_pyramids(mask, BOX, cam, (lo, *layout), neg, rob, mp, flags=shared, part=i, parts=parts)
+        assert np.array_equal(shared, whole)
+    with pytest.raises(ValueError, match="part"):
+        camera_sets_from_pyramids(mask, BOX, CAMS[0], (lo, *layout), neg, rob, mp, part=2, parts=2)
+    with pytest.raises(ValueError, match="flags"):
+        camera_sets_from_pyramids(mask, BOX, CAMS[0], (lo, *layout), neg, rob, mp, flags=np.zeros(3, np.uint8))
+
+
+def test_reachability_submitted_to_the_fusion_threads_gives_the_same_frame(scene):
+    """The cycle's arrangement: the reachability grid submitted to the fusion's own threads
+    (``OctreeBackend.submit``) ahead of the sensors, its future given to ``update``: the frame of the grid
+    given at once, with one worker thread or several."""
+    from depthguard.octree.backend import OctreeBackend
+    from depthguard.octree.reach import ReachabilityGrid
+
+    _, obs, _ = scene
+    coarse = VoxelBox(BOX.origin - 0.03, 0.09, (24, 24, 18))
+    t = np.where(np.random.default_rng(4).random(coarse.shape) < 0.6, 0.2, np.inf).astype(np.float32)
+    grid = ReachabilityGrid(coarse, t, 0.5, 0.0)
+    be = OctreeBackend(BOX, mode="saphari")
+    ref = be.update(obs, grid)
+    for _ in range(3):
+        got = be.update(obs + [lambda: obs[0]], be.submit(lambda: grid))
+        assert np.array_equal(got.mask, ref.mask) and np.array_equal(got.kind, ref.kind)
+        assert np.array_equal(got.flags[:2], ref.flags) and np.array_equal(got.flags[2], ref.flags[0])

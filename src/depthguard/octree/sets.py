@@ -32,7 +32,7 @@ from depthguard.octree.scan_sets import scanner_sets
 __all__ = [
     "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "camera_sets_from_pyramids",
     "scanner_sets",
-    "bin_points", "bin_depth_points", "combine", "combine_cleared", "mark_overlaps",
+    "bin_points", "bin_depth_points", "combine", "combine_cleared", "combine_cleared_rows", "mark_overlaps",
 ]  # fmt: skip
 
 V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
@@ -56,9 +56,10 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats):
+def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats, part, parts):
     # opyr: the obstacle depth's min-pyramid (level 0 the image); omax: the min-pyramid of its negation (a
-    # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout
+    # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout; only the top blocks
+    # whose row-major number is part modulo parts (disjoint nodes, so parts may run on different threads)
     fx, fy, cx, cy = intr
     od, oo, oh, ow = opyr
     obs, rob = od, rd  # any_le's image argument (unused: level 0 of the pyramids is the image)
@@ -69,6 +70,8 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, o
     for ti in range(shp[top, 0]):
         for tj in range(shp[top, 1]):
             for tk in range(shp[top, 2]):
+                if ((ti * shp[top, 1] + tj) * shp[top, 2] + tk) % parts != part:
+                    continue
                 if not _block_any(mp, top, ti, tj, tk):
                     continue
                 n = 1
@@ -193,7 +196,17 @@ def camera_sets(
 
 
 def camera_sets_from_pyramids(
-    mask: np.ndarray, box, camera, opyr, neg: np.ndarray, rob: np.ndarray, mp=None, stats=None
+    mask: np.ndarray,
+    box,
+    camera,
+    opyr,
+    neg: np.ndarray,
+    rob: np.ndarray,
+    mp=None,
+    stats=None,
+    flags: np.ndarray | None = None,
+    part: int = 0,
+    parts: int = 1,
 ) -> np.ndarray:
     """:func:`camera_sets` from the depths' pyramids (e.g. :func:`~depthguard.octree.pyramids.camera_pyramids`).
 
@@ -202,9 +215,20 @@ def camera_sets_from_pyramids(
             widths; level 0 the (H, W) image row-major).
         neg: (n,) float32 data of the min-pyramid of the negated obstacle depth, the same layout.
         rob: (n,) float32 data of the robot depth's min-pyramid, the same layout.
-        mp, stats: as :func:`camera_sets`.
+        mp, stats: as :func:`camera_sets` (give each part its own ``stats``).
+        flags: (nx, ny, nz) C-contiguous uint8 to OR the flags into (default: new zeros).
+        part, parts: only the top-level blocks (up to 16^3 nodes) whose row-major number is ``part`` modulo
+            ``parts``. The parts write disjoint nodes, so they may run on different threads into one
+            ``flags``; all ``parts`` of them give the whole answer.
+    Returns:
+        ``flags``.
     """
-    flags = np.zeros(box.shape, np.uint8)
+    if flags is None:
+        flags = np.zeros(box.shape, np.uint8)
+    elif flags.shape != tuple(box.shape) or flags.dtype != np.uint8 or not flags.flags.c_contiguous:
+        raise ValueError(f"flags must be a C-contiguous uint8 array of the box's shape {tuple(box.shape)}")
+    if not 0 <= part < parts:
+        raise ValueError(f"part must be in [0, parts), got part={part}, parts={parts}")
     top = _levels(box.shape)
     if mp is None:
         mp = mask_pyramid(mask, top)
@@ -214,7 +238,7 @@ def camera_sets_from_pyramids(
         mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
         np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
         (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
-        (camera.min_depth, camera.max_depth), opyr, neg, rob, flags, stats,
+        (camera.min_depth, camera.max_depth), opyr, neg, rob, flags, stats, int(part), int(parts),
     )  # fmt: skip
     return flags
 
@@ -239,41 +263,49 @@ def combine(flags, mask, conservative, kind):
                     f = flags[s, i, j, k]
                     bits[i, j, k] |= f
                     nf[i, j, k] += (f >> 4) & 1
-    _decide(flags, mask, bits, nf, conservative, kind)
+    _decide(flags, mask, bits, nf, conservative, kind, 0, nx)
 
 
 @nb.njit(cache=True, nogil=True)
 def combine_cleared(flags, mask, conservative, kind, clear, drop_f):
     """:func:`combine`, editing ``flags`` in its first pass: zero outside ``mask`` when ``clear``, and the F
     bit cleared for the sensors ``s`` with ``drop_f[s]`` ((S,) bool: a 2-D scan in conservative mode)."""
+    combine_cleared_rows(flags, mask, conservative, kind, clear, drop_f, 0, mask.shape[0])
+
+
+@nb.njit(cache=True, nogil=True)
+def combine_cleared_rows(flags, mask, conservative, kind, clear, drop_f, i0, i1):
+    """:func:`combine_cleared` for the nodes of x index ``i0 <= i < i1`` only: disjoint ranges may run on
+    different threads."""
     S = flags.shape[0]
-    nx, ny, nz = mask.shape
-    bits = np.zeros((nx, ny, nz), np.uint8)
-    nf = np.zeros((nx, ny, nz), np.uint8)
+    _, ny, nz = mask.shape
+    bits = np.zeros((i1 - i0, ny, nz), np.uint8)
+    nf = np.zeros((i1 - i0, ny, nz), np.uint8)
     for s in range(S):
         keep = np.uint8(~F & 0xFF) if drop_f[s] else np.uint8(0xFF)
-        for i in range(nx):
+        for i in range(i0, i1):
             for j in range(ny):
                 for k in range(nz):
                     f = flags[s, i, j, k] & keep
                     if clear and not mask[i, j, k]:
                         f = np.uint8(0)
                     flags[s, i, j, k] = f
-                    bits[i, j, k] |= f
-                    nf[i, j, k] += (f >> 4) & 1
-    _decide(flags, mask, bits, nf, conservative, kind)
+                    bits[i - i0, j, k] |= f
+                    nf[i - i0, j, k] += (f >> 4) & 1
+    _decide(flags, mask, bits, nf, conservative, kind, i0, i1)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _decide(flags, mask, bits, nf, conservative, kind):
-    """:func:`combine`'s second pass: each node's kind from its ORed bits and its number of F bits."""
+def _decide(flags, mask, bits, nf, conservative, kind, i0, i1):
+    """:func:`combine`'s second pass over x indices ``i0 <= i < i1`` (``bits`` and ``nf`` hold those rows):
+    each node's kind from its ORed bits and its number of F bits."""
     S = flags.shape[0]
-    nx, ny, nz = mask.shape
-    for i in range(nx):
+    _, ny, nz = mask.shape
+    for i in range(i0, i1):
         for j in range(ny):
             for k in range(nz):
-                b = bits[i, j, k]
-                n = nf[i, j, k]
+                b = bits[i - i0, j, k]
+                n = nf[i - i0, j, k]
                 if not mask[i, j, k]:
                     kind[i, j, k] = 0
                 elif b & 2:
