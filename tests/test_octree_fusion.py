@@ -656,27 +656,6 @@ def test_combine_cleared_is_the_edits_then_combine(seed, n_sensors, conservative
     assert np.array_equal(flags, ref) and np.array_equal(got, want)
 
 
-@settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 2**31), n_sensors=st.integers(1, 4), conservative=st.booleans(), clear=st.booleans())
-def test_combine_in_row_ranges_is_the_whole_combine(seed, n_sensors, conservative, clear):
-    """``combine_cleared_rows`` over a split of the x range (as the fusion runs it on two threads) gives
-    the flags and kinds of ``combine_cleared`` over the whole box, for any split point."""
-    from depthguard.octree.sets import combine_cleared, combine_cleared_rows
-
-    rng = np.random.default_rng(seed)
-    shape = tuple(int(x) for x in rng.integers(1, 9, 3))
-    flags = rng.integers(0, 32, (n_sensors, *shape)).astype(np.uint8)
-    mask = rng.random(shape) < 0.7
-    drop_f = rng.random(n_sensors) < 0.5
-    want_flags, want = flags.copy(), np.empty(shape, np.uint8)
-    combine_cleared(want_flags, mask, conservative, want, clear, drop_f)
-    split = int(rng.integers(0, shape[0] + 1))
-    got = np.full(shape, 99, np.uint8)
-    for i0, i1 in ((split, shape[0]), (0, split)):
-        combine_cleared_rows(flags, mask, conservative, got, clear, drop_f, i0, i1)
-    assert np.array_equal(flags, want_flags) and np.array_equal(got, want)
-
-
 @pytest.mark.parametrize("parts", [2, 3, 7])
 def test_camera_visit_in_parts_writes_disjoint_nodes_that_make_the_whole(scene, parts):
     """A camera's node visit split into parts (the fusion runs them on different threads): each part

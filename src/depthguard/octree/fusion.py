@@ -43,7 +43,6 @@ from depthguard.octree.sets import (
     bin_points,
     camera_sets_from_pyramids,
     combine_cleared,
-    combine_cleared_rows,
     mark_overlaps,
     mask_pyramid,
     scanner_sets,
@@ -262,14 +261,7 @@ def fuse(
     # conservative mode: a 2-D scan never sees a node's whole volume free (its F bits dropped)
     drop_f = np.array([scan and mode == "conservative" for _, scan in parts], dtype=bool)
     kind = np.empty(box.shape, np.uint8)
-    args = (flags, mask, mode == "conservative", kind, clear, drop_f)
-    if pool is None:
-        combine_cleared(*args)
-    else:  # the last pass in two halves of the x range, one of them here
-        half = box.shape[0] // 2
-        other = pool.submit(combine_cleared_rows, *args, half, box.shape[0])
-        combine_cleared_rows(*args, 0, half)
-        other.result()
+    combine_cleared(flags, mask, mode == "conservative", kind, clear, drop_f)
     return OctreeFrame(box, kind != FREE, kind, mask, flags, mode)
 
 

@@ -32,7 +32,7 @@ from depthguard.octree.scan_sets import scanner_sets
 __all__ = [
     "V", "P", "O", "R", "F", "min_pyramid", "max_pyramid", "mask_pyramid", "camera_sets", "camera_sets_from_pyramids",
     "scanner_sets",
-    "bin_points", "bin_depth_points", "combine", "combine_cleared", "combine_cleared_rows", "mark_overlaps",
+    "bin_points", "bin_depth_points", "combine", "combine_cleared", "mark_overlaps",
 ]  # fmt: skip
 
 V, P, O, R, F = 1, 2, 4, 8, 16  # flag bits
@@ -263,49 +263,41 @@ def combine(flags, mask, conservative, kind):
                     f = flags[s, i, j, k]
                     bits[i, j, k] |= f
                     nf[i, j, k] += (f >> 4) & 1
-    _decide(flags, mask, bits, nf, conservative, kind, 0, nx)
+    _decide(flags, mask, bits, nf, conservative, kind)
 
 
 @nb.njit(cache=True, nogil=True)
 def combine_cleared(flags, mask, conservative, kind, clear, drop_f):
     """:func:`combine`, editing ``flags`` in its first pass: zero outside ``mask`` when ``clear``, and the F
     bit cleared for the sensors ``s`` with ``drop_f[s]`` ((S,) bool: a 2-D scan in conservative mode)."""
-    combine_cleared_rows(flags, mask, conservative, kind, clear, drop_f, 0, mask.shape[0])
-
-
-@nb.njit(cache=True, nogil=True)
-def combine_cleared_rows(flags, mask, conservative, kind, clear, drop_f, i0, i1):
-    """:func:`combine_cleared` for the nodes of x index ``i0 <= i < i1`` only: disjoint ranges may run on
-    different threads."""
     S = flags.shape[0]
-    _, ny, nz = mask.shape
-    bits = np.zeros((i1 - i0, ny, nz), np.uint8)
-    nf = np.zeros((i1 - i0, ny, nz), np.uint8)
+    nx, ny, nz = mask.shape
+    bits = np.zeros((nx, ny, nz), np.uint8)
+    nf = np.zeros((nx, ny, nz), np.uint8)
     for s in range(S):
         keep = np.uint8(~F & 0xFF) if drop_f[s] else np.uint8(0xFF)
-        for i in range(i0, i1):
+        for i in range(nx):
             for j in range(ny):
                 for k in range(nz):
                     f = flags[s, i, j, k] & keep
                     if clear and not mask[i, j, k]:
                         f = np.uint8(0)
                     flags[s, i, j, k] = f
-                    bits[i - i0, j, k] |= f
-                    nf[i - i0, j, k] += (f >> 4) & 1
-    _decide(flags, mask, bits, nf, conservative, kind, i0, i1)
+                    bits[i, j, k] |= f
+                    nf[i, j, k] += (f >> 4) & 1
+    _decide(flags, mask, bits, nf, conservative, kind)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _decide(flags, mask, bits, nf, conservative, kind, i0, i1):
-    """:func:`combine`'s second pass over x indices ``i0 <= i < i1`` (``bits`` and ``nf`` hold those rows):
-    each node's kind from its ORed bits and its number of F bits."""
+def _decide(flags, mask, bits, nf, conservative, kind):
+    """:func:`combine`'s second pass: each node's kind from its ORed bits and its number of F bits."""
     S = flags.shape[0]
-    _, ny, nz = mask.shape
-    for i in range(i0, i1):
+    nx, ny, nz = mask.shape
+    for i in range(nx):
         for j in range(ny):
             for k in range(nz):
-                b = bits[i - i0, j, k]
-                n = nf[i - i0, j, k]
+                b = bits[i, j, k]
+                n = nf[i, j, k]
                 if not mask[i, j, k]:
                     kind[i, j, k] = 0
                 elif b & 2:
