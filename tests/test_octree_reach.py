@@ -339,18 +339,3 @@ def test_one_sweep_keeps_every_offset_within_its_error_no_later(kind, r, lo_mag,
     d = np.linalg.norm(pts[:, None, :] - centres[None], axis=-1)
     ok = (d <= err + np.sqrt(3) / 2 * fine + 1e-9) & (times[None] <= t_true[:, None] + 1e-6)
     assert ok.any(axis=1).all(), f"{(~ok.any(axis=1)).sum()} offsets too far from an early enough sample"
-
-
-def test_serial_sweeps_give_the_parallel_grid():
-    """``parallel=False`` (the cycle's choice beside the sensors) gives the very grid of the two-thread
-    sweeps: each cell takes the minimum over the same samples."""
-    from depthguard.octree.reach import reachability_grid
-
-    model = load_lwr4()
-    for seed in range(3):
-        q = np.random.default_rng(seed).uniform(-1.0, 1.0, 7)
-        ch = chain_sweep(model, q)
-        a = reachability_grid(ch, 0.5, 0.09, parallel=True)
-        b = reachability_grid(ch, 0.5, 0.09, parallel=False)
-        assert a.box.shape == b.box.shape and np.array_equal(a.box.origin, b.box.origin) and a.delta == b.delta
-        assert np.array_equal(a.time, b.time)

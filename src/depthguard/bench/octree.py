@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -228,19 +229,22 @@ def run_octree_benchmark(quick: bool = False) -> dict:
         s = cps.evaluate(q)
         return be.query(s.centres, s.radii, rho=RHO)
 
+    worker = ThreadPoolExecutor(max_workers=1)
+
     def cycle():
-        # the reachability (serial) as the first task of the fusion's threads, queued before the sensors, so
-        # that the longest task starts first and two threads share the two cores; each sensor's self-filter
-        # and sets in one task, which take C(t) only at the end (OctreeBackend.update with a Future); the
-        # model's kinematics stay on this thread
-        pending = be.submit(reachability_grid, chain_sweep(model, q), 0.5, 0.09, parallel=False)
+        # the reachability on its own thread beside everything else; each sensor's self-filter and sets
+        # in one task on the fusion's threads, which take C(t) only at the end (OctreeBackend.update with a
+        # Future); the model's kinematics stay on this thread
+        chain = chain_sweep(model, q)
         tasks = _self_filter_all(model, q, raw_obs, later=True)
+        pending = worker.submit(reachability_grid, chain, 0.5, 0.09)
         be.update(tasks, pending)
         s = cps.evaluate(q)
         return be.query(s.centres, s.radii, rho=RHO)
 
     results.append(_entry("octree-cycle", time_calls(cycle, repeat)))
     results.append(_entry("octree-cycle-serial", time_calls(cycle_serial, repeat)))
+    worker.shutdown()
     clouds = _clouds(obs)
     t0 = time.perf_counter()
     _pyoctomap_insert(clouds, 0.05)  # first call (library warm-up) not counted

@@ -9,7 +9,7 @@ import numpy as np
 
 from depthguard.depthspace import PointDistances
 from depthguard.octree.distance import capsule_distances, sphere_distances
-from depthguard.octree.fusion import MODES, OctreeFrame, fuse, reach_mask, submit
+from depthguard.octree.fusion import MODES, OctreeFrame, fuse, reach_mask
 from depthguard.octree.grid import VoxelBox, check_res
 from depthguard.validation import check_points
 
@@ -59,12 +59,6 @@ class OctreeBackend:
         self.frame = None  # a failed update leaves no answer
         self.frame = fuse(self.box, observations, reach, self.mode, self.invalid, self.fill_radius)
         return self.frame
-
-    def submit(self, fn, *args, **kwargs) -> Future:
-        """Run ``fn(*args, **kwargs)`` on the fusion's own threads, ahead of the next :meth:`update`'s sensors
-        (:func:`depthguard.octree.fusion.submit`): e.g. the reachability grid (serial,
-        ``reachability_grid(..., parallel=False)``), whose future :meth:`update` takes as ``reach``."""
-        return submit(fn, *args, **kwargs)
 
     def _mask_when_done(self, pending: Future) -> Future:
         """A future of :meth:`_mask` of ``pending``'s result, computed by ``pending``'s own thread as it

@@ -21,10 +21,9 @@ missing-depth policy of :func:`depthguard.depthspace.prepare_frame`; scanners: R
 
 from __future__ import annotations
 
-import functools
 import os
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import NamedTuple
@@ -48,9 +47,7 @@ from depthguard.octree.sets import (
     scanner_sets,
 )
 
-__all__ = [
-    "MODES", "CameraObservation", "ScanObservation", "OctreeFrame", "sensor_sets", "fuse", "reach_mask", "submit",
-]  # fmt: skip
+__all__ = ["MODES", "CameraObservation", "ScanObservation", "OctreeFrame", "sensor_sets", "fuse", "reach_mask"]
 
 MODES = ("conservative", "saphari")
 FREE, OCCUPIED, OCCLUDED, UNSEEN = 0, 1, 2, 3  # node kinds of OctreeFrame.kind
@@ -122,16 +119,6 @@ def sensor_sets(
 ) -> np.ndarray:
     """(nx, ny, nz) uint8 flags V, P, O, R, F of one sensor's frame for the nodes of ``mask`` (bool over
     ``box``); ``mp`` is the mask's :func:`~depthguard.octree.sets.mask_pyramid` (computed when None)."""
-    flags, visit = _sensor_start(box, mask, obs, invalid, fill_radius, mp)
-    if visit is not None:
-        visit(part=0, parts=1)
-    return flags
-
-
-def _sensor_start(box, mask, obs, invalid, fill_radius, mp):
-    """One sensor's flags, all but a camera's node visit, which comes back as a callable ``visit(part=,
-    parts=)`` that ORs the V, O, R, F bits of those top-level blocks into the flags (None for a scan): the
-    flags are complete once every part has run. The parts write disjoint nodes, so threads may share them."""
     if isinstance(obs, CameraObservation):
         cam = obs.camera
         d, robot = check_depth_policy(cam, obs.depth, obs.mask, invalid, fill_radius)
@@ -141,12 +128,9 @@ def _sensor_start(box, mask, obs, invalid, fill_radius, mp):
         lo, neg, rob, *layout = camera_pyramids(
             d, robot, int(fill_radius), np.float32(cam.min_depth), invalid == "conservative"
         )
-        if mp is None:
-            mp = mask_pyramid(mask, _mask_levels(box.shape))
-        flags = np.zeros(box.shape, np.uint8)
-        bin_depth_points(cam, d, robot, box, mask, flags)  # the P bits first: the visit only ORs bits in
-        visit = functools.partial(camera_sets_from_pyramids, mask, box, cam, (lo, *layout), neg, rob, mp, None, flags)
-        return flags, visit
+        flags = camera_sets_from_pyramids(mask, box, cam, (lo, *layout), neg, rob, mp)
+        bin_depth_points(cam, d, robot, box, mask, flags)
+        return flags
     if isinstance(obs, ScanObservation):
         sc = obs.scanner
         blocked = scan_obstacle_ranges(sc, obs.ranges)
@@ -161,7 +145,7 @@ def _sensor_start(box, mask, obs, invalid, fill_radius, mp):
         flags = scanner_sets(mask, box, sc, obstacle_range, robot_range)
         pts, idx = scan_points(sc, obs.ranges)
         bin_points(pts[~rob[idx]], box, mask, flags)
-        return flags, None
+        return flags
     raise ValueError(f"observation must be a CameraObservation or a ScanObservation, got {type(obs).__name__}")
 
 
@@ -180,18 +164,6 @@ def robot_blocking_depth(robot, missing, depth, near):
 @lru_cache(maxsize=4)
 def _pool(workers: int) -> ThreadPoolExecutor:
     return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="octree-sensor")
-
-
-def _default_workers() -> int:
-    return os.cpu_count() or 1
-
-
-def submit(fn: Callable, *args, **kwargs) -> Future:
-    """Run ``fn(*args, **kwargs)`` on the threads that :func:`fuse` (default ``workers``) gives the sensors,
-    queued ahead of the next fusion's sensor tasks: e.g. the reachability grid, whose future ``fuse`` then
-    takes as ``reach``. One pool for both keeps the cores from being oversubscribed (on two cores a third
-    thread for the grid made the cycle slower, BENCHMARKS.md)."""
-    return _pool(_default_workers()).submit(fn, *args, **kwargs)
 
 
 @lru_cache(maxsize=8)
@@ -247,11 +219,13 @@ def fuse(
     else:
         mask = _reach_array(reach, box.shape)
         mp = mask_pyramid(mask, _mask_levels(box.shape))
-    pool_size = workers if workers is not None else _default_workers()
-    n_work = min(len(observations), pool_size)
+    n_work = min(len(observations), workers if workers is not None else (os.cpu_count() or 1))
 
-    pool = _pool(pool_size) if n_work > 1 else None
-    parts = _all_sensor_sets(box, mask, mp, observations, invalid, fill_radius, pool)
+    def sets(o) -> tuple[np.ndarray, bool]:
+        o = o() if callable(o) else o
+        return sensor_sets(box, mask, o, invalid, fill_radius, mp), isinstance(o, ScanObservation)
+
+    parts = list(_pool(n_work).map(sets, observations)) if n_work > 1 else [sets(o) for o in observations]
     flags = np.stack([f for f, _ in parts])
     clear = False
     if later is not None:
@@ -263,32 +237,6 @@ def fuse(
     kind = np.empty(box.shape, np.uint8)
     combine_cleared(flags, mask, mode == "conservative", kind, clear, drop_f)
     return OctreeFrame(box, kind != FREE, kind, mask, flags, mode)
-
-
-_VISIT_PARTS = 2  # a camera's node visit in this many tasks (the threads then finish together)
-
-
-def _all_sensor_sets(box, mask, mp, observations, invalid, fill_radius, pool) -> list[tuple[np.ndarray, bool]]:
-    """Every sensor's flags and whether it is a scan, in order; on ``pool``'s threads (or this one if None).
-    Each sensor's preparation is a task, and a camera's node visit (the longest part) is split into
-    ``_VISIT_PARTS`` further tasks, queued as soon as its preparation is done, so that no thread is left
-    with one long task while the others idle."""
-
-    def start(o):
-        o = o() if callable(o) else o
-        flags, visit = _sensor_start(box, mask, o, invalid, fill_radius, mp)
-        pending = []
-        if visit is not None and pool is not None:  # the task only queues the parts: it never waits for them
-            pending = [pool.submit(visit, part=i, parts=_VISIT_PARTS) for i in range(_VISIT_PARTS)]
-        elif visit is not None:
-            visit(part=0, parts=1)
-        return flags, isinstance(o, ScanObservation), pending
-
-    started = list(pool.map(start, observations)) if pool is not None else [start(o) for o in observations]
-    for _, _, pending in started:
-        for f in pending:
-            f.result()
-    return [(flags, scan) for flags, scan, _ in started]
 
 
 @nb.njit(cache=True, nogil=True)

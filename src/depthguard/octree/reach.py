@@ -178,7 +178,6 @@ def reachability_grid(
     res: float = 0.09,
     box: VoxelBox | None = None,
     cells: int = 24,
-    parallel: bool = True,
 ) -> ReachabilityGrid:
     """Minimum-time reachability grid of a serial chain (SAPHARI §3.2, Fig. 1).
 
@@ -188,8 +187,6 @@ def reachability_grid(
         res: output cell size, metres (0.02-0.1).
         box: output cells (default: :func:`chain_box`); its ``res`` overrides ``res``.
         cells: the internal grids' size along the swept set's longest side (>= 8); more is tighter and slower.
-        parallel: the large sweeps on two threads (same grid); False when the other cores are busy anyway,
-            e.g. beside the sensors on the fusion's threads (:meth:`depthguard.octree.backend.OctreeBackend.submit`).
     Returns:
         :class:`ReachabilityGrid` over ``box``.
     Raises:
@@ -200,11 +197,10 @@ def reachability_grid(
     if isinstance(cells, bool) or int(cells) != cells or cells < 8:
         raise ValueError(f"cells must be an integer >= 8, got {cells!r}")
     if box is not None:
-        return _reach(ch, horizon, box, int(cells), strict=True, parallel=bool(parallel))
+        return _reach(ch, horizon, box, int(cells), strict=True)
     res = check_res(res)
     for scale in (1.0, 2.0, 4.0):
-        box = chain_box(ch, horizon, res, margin=2 * res, scale=scale)
-        out = _reach(ch, horizon, box, int(cells), False, parallel=bool(parallel))
+        out = _reach(ch, horizon, chain_box(ch, horizon, res, margin=2 * res, scale=scale), int(cells), False)
         if out is not None:
             return out
     raise ValueError("reachability: the reachable set does not fit in a box 4x the robot's size")
@@ -276,9 +272,7 @@ def _slide_base(ch: ChainSweep, slides: list, lo: np.ndarray, hi: np.ndarray, ou
     return outside, delta
 
 
-def _reach(
-    ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool, parallel: bool = True
-) -> ReachabilityGrid | None:
+def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bool) -> ReachabilityGrid | None:
     """The sweep with adaptive internal grids: ``cells`` cells along the set's longest side, between
     ``res / 8`` and ``res``, so the small distal sets collapse finely (small error) and the large proximal ones
     coarsely (bounded size). The base's lattice-aligned prismatic joints slide exactly on the output cells.
@@ -327,8 +321,7 @@ def _reach(
             )
         else:  # the last sampled sweep writes onto the output cells
             g_origin, g_res, grid = box_origin, res_out, out
-        two = parallel and idx.size >= _PARALLEL_FROM and threads_ok()
-        n_out, err, moved = (sweep_two if two else sweep)(
+        n_out, err, moved = (sweep_two if idx.size >= _PARALLEL_FROM and threads_ok() else sweep)(
             idx, tt, *in_spec, g_origin, g_res, grid, int(ch.kind[jj]), np.ascontiguousarray(ch.axis[jj]),
             np.ascontiguousarray(ch.point[jj]), float(lo[jj]), float(hi[jj]), float(ch.vmax[jj]), 0.5 * g_res,
         )  # fmt: skip

@@ -56,10 +56,9 @@ def _fill_block(flags, mask, lv, bi, bj, bk, val):
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy")
-def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats, part, parts):
+def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, omax, rd, flags, stats):
     # opyr: the obstacle depth's min-pyramid (level 0 the image); omax: the min-pyramid of its negation (a
-    # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout; only the top blocks
-    # whose row-major number is part modulo parts (disjoint nodes, so parts may run on different threads)
+    # negated max-pyramid), rd: the robot depth's min-pyramid, both in opyr's layout
     fx, fy, cx, cy = intr
     od, oo, oh, ow = opyr
     obs, rob = od, rd  # any_le's image argument (unused: level 0 of the pyramids is the image)
@@ -70,8 +69,6 @@ def _camera_kernel(mask, mp, top, origin, res, Rc, tc, intr, W, H, zlim, opyr, o
     for ti in range(shp[top, 0]):
         for tj in range(shp[top, 1]):
             for tk in range(shp[top, 2]):
-                if ((ti * shp[top, 1] + tj) * shp[top, 2] + tk) % parts != part:
-                    continue
                 if not _block_any(mp, top, ti, tj, tk):
                     continue
                 n = 1
@@ -196,17 +193,7 @@ def camera_sets(
 
 
 def camera_sets_from_pyramids(
-    mask: np.ndarray,
-    box,
-    camera,
-    opyr,
-    neg: np.ndarray,
-    rob: np.ndarray,
-    mp=None,
-    stats=None,
-    flags: np.ndarray | None = None,
-    part: int = 0,
-    parts: int = 1,
+    mask: np.ndarray, box, camera, opyr, neg: np.ndarray, rob: np.ndarray, mp=None, stats=None
 ) -> np.ndarray:
     """:func:`camera_sets` from the depths' pyramids (e.g. :func:`~depthguard.octree.pyramids.camera_pyramids`).
 
@@ -215,20 +202,9 @@ def camera_sets_from_pyramids(
             widths; level 0 the (H, W) image row-major).
         neg: (n,) float32 data of the min-pyramid of the negated obstacle depth, the same layout.
         rob: (n,) float32 data of the robot depth's min-pyramid, the same layout.
-        mp, stats: as :func:`camera_sets` (give each part its own ``stats``).
-        flags: (nx, ny, nz) C-contiguous uint8 to OR the flags into (default: new zeros).
-        part, parts: only the top-level blocks (up to 16^3 nodes) whose row-major number is ``part`` modulo
-            ``parts``. The parts write disjoint nodes, so they may run on different threads into one
-            ``flags``; all ``parts`` of them give the whole answer.
-    Returns:
-        ``flags``.
+        mp, stats: as :func:`camera_sets`.
     """
-    if flags is None:
-        flags = np.zeros(box.shape, np.uint8)
-    elif flags.shape != tuple(box.shape) or flags.dtype != np.uint8 or not flags.flags.c_contiguous:
-        raise ValueError(f"flags must be a C-contiguous uint8 array of the box's shape {tuple(box.shape)}")
-    if not 0 <= part < parts:
-        raise ValueError(f"part must be in [0, parts), got part={part}, parts={parts}")
+    flags = np.zeros(box.shape, np.uint8)
     top = _levels(box.shape)
     if mp is None:
         mp = mask_pyramid(mask, top)
@@ -238,7 +214,7 @@ def camera_sets_from_pyramids(
         mask, mp, top, np.ascontiguousarray(box.origin, float), float(box.res),
         np.ascontiguousarray(camera.R), np.ascontiguousarray(camera.t),
         (camera.fx, camera.fy, camera.cx, camera.cy), camera.width, camera.height,
-        (camera.min_depth, camera.max_depth), opyr, neg, rob, flags, stats, int(part), int(parts),
+        (camera.min_depth, camera.max_depth), opyr, neg, rob, flags, stats,
     )  # fmt: skip
     return flags
 

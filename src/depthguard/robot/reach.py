@@ -59,8 +59,6 @@ def robot_reachability(
     box: VoxelBox | None = None,
     cells: int = 24,
     v_max: np.ndarray | None = None,
-    parallel: bool = True,
 ) -> ReachabilityGrid:
     """:func:`~depthguard.octree.reach.reachability_grid` of ``model`` at ``q`` (see there for the arguments)."""
-    ch = chain_sweep(model, q, v_max)
-    return reachability_grid(ch, horizon=horizon, res=res, box=box, cells=cells, parallel=parallel)
+    return reachability_grid(chain_sweep(model, q, v_max), horizon=horizon, res=res, box=box, cells=cells)

@@ -5,6 +5,8 @@ interface as :class:`depthguard.sim.pipeline.DistanceStage` (``update(depths, ma
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
 
 import numpy as np
 
@@ -17,6 +19,13 @@ from depthguard.octree.scanner import scan_robot_rays
 from depthguard.robot.reach import chain_sweep
 
 __all__ = ["OctreeStage"]
+
+
+@lru_cache(maxsize=1)
+def _reach_worker() -> ThreadPoolExecutor:
+    """One thread for the reachability grid, which overlaps the scans and the sensors' sets (its kernels
+    release the GIL)."""
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="octree-reach")
 
 
 class OctreeStage:
@@ -76,7 +85,7 @@ class OctreeStage:
         self.reach: ReachabilityGrid | None = None
 
     def _reachability(self, chain: ChainSweep) -> ReachabilityGrid:
-        g = reachability_grid(chain, horizon=self.horizon, res=self.reach_res, parallel=False)
+        g = reachability_grid(chain, horizon=self.horizon, res=self.reach_res)
         box = VoxelBox(g.box.origin + self.reach_offset, g.box.res, g.box.shape)
         return g._replace(box=box)
 
@@ -96,8 +105,7 @@ class OctreeStage:
                 t = time.perf_counter()
                 return self._reachability(chain), t_chain + time.perf_counter() - t
 
-            # the first task of the fusion's threads, ahead of the sensors' (its kernels release the GIL)
-            pending = self.backend.submit(timed_reach)
+            pending = _reach_worker().submit(timed_reach)
         t1 = time.perf_counter()
         scans = [las.capture(self.cell.data) for las in self.lasers]
         t2 = time.perf_counter()
