@@ -165,3 +165,69 @@ def test_segment_distance_against_dense_sampling():
         brute = np.min(np.sum((P[:, None] - Q[None]) ** 2, axis=2))
         got = _segment_distance2(p0, p1, q0, q1)
         assert got <= brute + 1e-12 and np.sqrt(brute) - np.sqrt(got) < 0.02, (k, got, brute)
+
+
+def test_triangle_distance_against_dense_sampling():
+    """The bound's point-triangle distance (for mesh robots) against the minimum over 20,000 points sampled
+    on the triangle: never above it, and within the sampling's resolution of it; random triangles,
+    including degenerate (zero-area) ones."""
+    from depthguard.sim.measured_bound import _triangle_distance2
+
+    rng = np.random.default_rng(4)
+    for k in range(300):
+        tri = rng.normal(size=(3, 3))
+        if k % 10 == 1:
+            tri[2] = tri[0] + rng.random() * (tri[1] - tri[0])  # zero area
+        if k % 10 == 2:
+            tri[1] = tri[0]  # two vertices the same
+        p = 2.0 * rng.normal(size=3)
+        u = rng.random((20000, 2))
+        flip = u.sum(axis=1) > 1.0
+        u[flip] = 1.0 - u[flip]
+        pts = tri[0] + u[:, :1] * (tri[1] - tri[0]) + u[:, 1:] * (tri[2] - tri[0])
+        brute = np.sqrt(np.min(np.sum((pts - p) ** 2, axis=1)))
+        got = np.sqrt(_triangle_distance2(p, tri))
+        assert got <= brute + 1e-9 and brute - got <= 0.06, (k, got, brute)
+
+
+def _box_mesh(lo, hi):
+    """The 12 triangles of an axis-aligned box, outward-facing, (12, 3, 3)."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return np.array([[c[a], c[b], c[d]] for a, b, cc, d in quads for a, b, d in ((a, b, cc), (a, cc, d))])
+
+
+def test_space_the_self_filter_counts_as_a_mesh_robot_is_not_unseen_space():
+    """A mesh robot: points within the self-filter's inflation of its mesh, or inside it when it is closed,
+    are the robot, not unseen space; with a closed box in a camera that measures nothing, the bound is the
+    distance to the inflated box's surface (the box tested by ray parity inside, by distance outside). With
+    the mesh open (parity off), its inside beyond the inflation is unseen again. Never below the bound
+    without meshes."""
+    from depthguard.sim.measured_bound import RobotMeshes
+
+    cam = _cam()
+    nothing = np.full(cam.shape, np.nan, np.float32)
+    views = measured_views([cam], [nothing], [np.zeros(cam.shape, bool)])
+    tri = _box_mesh([-0.3, -0.3, 1.2], [0.3, 0.3, 1.8])  # a 0.6 m cube about (0, 0, 1.5)
+    infl = 0.05
+    ball = np.column_stack([tri.mean(axis=1), np.linalg.norm(tri - tri.mean(axis=1)[:, None], axis=2).max(1)])
+    box = np.array([[[-0.35, -0.35, 1.15], [0.35, 0.35, 1.85]]])
+
+    def mesh(closed):
+        return RobotMeshes(tri, np.array([[0, 12]]), np.array([infl]), np.array([closed]), box, ball)
+
+    def bound(centre, meshes):
+        c = np.array([centre], float)
+        return float(measured_bound(views, c, np.array([0.05]), 0.5, None, 0.0, H, meshes=meshes)[0])
+
+    # from the box's centre: everything out to the inflated faces (0.35 m) is the robot
+    inside = bound((0.0, 0.0, 1.5), mesh(True))
+    assert 0.35 - 0.05 - HALF - 1e-9 <= inside <= 0.35 - 0.05 + 1e-9
+    assert bound((0.0, 0.0, 1.5), mesh(False)) == pytest.approx(0.0)  # open: the deep inside is unseen
+    assert bound((0.0, 0.0, 1.5), None) == pytest.approx(0.0)
+    # beside the box, 0.2 m off its face: the unseen space starts right there, meshes or not
+    assert bound((0.5, 0.0, 1.5), mesh(True)) == pytest.approx(0.0)
+    # a sphere in the inflation layer: the layer is the robot, beyond it unseen
+    layer = bound((0.0, 0.0, 1.82), mesh(False))
+    assert layer <= 0.03 + 1e-9 and layer >= bound((0.0, 0.0, 1.82), None)

@@ -297,6 +297,15 @@ class RobotGeometry:
         b = np.matmul(Rj, self.cap_b[:, :, None])[:, :, 0] + pj
         return a, b, self.cap_r.copy()
 
+    def world_triangles(self, R: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """(Ft, 3, 3) the self-filter's mesh triangles (:attr:`F`, shape ``s`` at rows ``fr[s]``) in the world
+        frame, from joint poses ``R`` (J+1, 3, 3), ``p`` (J+1, 3), m."""
+        V = np.empty_like(self.V)
+        for s, j in enumerate(self.mesh_joint):
+            a, b = self.vr[s]
+            V[a:b] = self.V[a:b] @ R[j].T + p[j]
+        return V[self.F]
+
     def mesh_transforms(self, R: np.ndarray, p: np.ndarray, Rc: np.ndarray, tc: np.ndarray) -> np.ndarray:
         """(S, 3, 4) camera-from-joint transforms of the meshes; camera pose ``P_C = Rc P_W + tc``."""
         Rj, pj = R[self.mesh_joint], p[self.mesh_joint]

@@ -287,7 +287,7 @@ def _bound_every(cams: list, cfg: LoopConfig) -> int:
 def _log_bound(log: SimLog, cams: list, kin: Kinematics, frame, cp, truth, rho: float) -> None:
     """The measured bound of the spheres whose true clearance is below rho (metrics only)."""
     from depthguard.robot.interior import interior_capsules
-    from depthguard.sim.measured_bound import measured_bound, measured_views
+    from depthguard.sim.measured_bound import measured_bound, measured_views, robot_meshes
 
     depths, masks, margins, q = frame
     truth = np.asarray(truth, float)
@@ -297,7 +297,9 @@ def _log_bound(log: SimLog, cams: list, kin: Kinematics, frame, cp, truth, rho: 
         views = measured_views([c.camera for c in cams], depths, [np.asarray(m, bool) for m in masks])
         caps = interior_capsules(kin.model, q)
         c, r = np.asarray(cp.centres)[near], np.asarray(cp.radii)[near]
-        out[near] = measured_bound(views, c, r, rho, caps, float(max(margins)), spacing=BOUND_SPACING)
+        margin = float(max(margins))
+        meshes = robot_meshes(kin.model, q, margin) if kin.model.geometry.n_triangles else None
+        out[near] = measured_bound(views, c, r, rho, caps, margin, spacing=BOUND_SPACING, meshes=meshes)
     log.bound_row.append(len(log.acc_t) - 1)
     log.bound.append(out)
     log.bound_spacing = BOUND_SPACING

@@ -27,7 +27,10 @@ camera's image with the same rules as the fusion's documented contract (README, 
 * a point that some camera measures (within half the lattice's diagonal, along that camera's ray, of a
   valid non-robot reading) is an obstacle, whatever the other cameras see (a robot pixel of one camera
   does not erase a box that another measures);
-* a point inside the robot's inner capsules inflated by the self-filter margin is the robot, not space.
+* a point inside the robot's inner capsules inflated by the self-filter margin is the robot, not space;
+  so is, for a robot described by meshes, a point that the self-filter itself counts as robot: within its
+  inflation of a filter mesh (the margin, less what decimation moved the surface out; :func:`robot_meshes`)
+  or inside a closed one (ray parity).
 
 The first lattice point seen free by no camera gives the bound, minus half the lattice's diagonal (so
 that a region holding a ball of that radius is not missed); an unmeasured sliver thinner than that can
@@ -37,6 +40,7 @@ be missed, which makes the bound larger, never smaller. Units: metres.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -44,7 +48,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 
 from depthguard.camera import Camera
 
-__all__ = ["MeasuredViews", "measured_views", "measured_bound"]
+__all__ = ["MeasuredViews", "RobotMeshes", "measured_views", "measured_bound", "robot_meshes"]
 
 
 class MeasuredViews:
@@ -237,10 +241,150 @@ def _inside_capsules(p, a, b, cr) -> bool:
     return False
 
 
+class RobotMeshes(NamedTuple):
+    """The self-filter's meshes at one joint state, world frame: ``tri`` (T, 3, 3) m, ``ranges`` (S, 2) rows
+    of ``tri`` per mesh, ``infl`` (S,) m its inflation, ``closed`` (S,) bool, ``box`` (S, 2, 3) its
+    triangles' bounding box grown by ``infl``, ``ball`` (T, 4) each triangle's bounding ball (centroid,
+    radius), m."""
+
+    tri: np.ndarray
+    ranges: np.ndarray
+    infl: np.ndarray
+    closed: np.ndarray
+    box: np.ndarray
+    ball: np.ndarray
+
+
+def robot_meshes(model, q: np.ndarray, margin: float) -> RobotMeshes:
+    """:class:`RobotMeshes` of a :class:`~depthguard.robot.model.RobotModel` at joint positions ``q`` with
+    the self-filter's ``margin`` (m): each mesh inflated as :func:`depthguard.robot.selffilter.self_filter`
+    inflates it, ``max(margin - excess, slack)``."""
+    g = model.geometry
+    H, _ = model.joint_kinematics(model.check_q(q))
+    tri = np.ascontiguousarray(g.world_triangles(H[:, :3, :3], H[:, :3, 3]), float).reshape(-1, 3, 3)
+    infl = np.ascontiguousarray(np.maximum(float(margin) - g.excess, g.slack), float)
+    ranges = np.ascontiguousarray(g.fr, np.int64).reshape(-1, 2)
+    box = np.empty((len(ranges), 2, 3))
+    for s, (a, b) in enumerate(ranges):
+        pts = tri[a:b].reshape(-1, 3)
+        box[s, 0] = pts.min(axis=0) - infl[s] if len(pts) else np.inf
+        box[s, 1] = pts.max(axis=0) + infl[s] if len(pts) else -np.inf
+    centre = tri.mean(axis=1)
+    ball = np.ascontiguousarray(
+        np.column_stack([centre, np.linalg.norm(tri - centre[:, None], axis=2).max(axis=1, initial=0.0)])
+    ).reshape(-1, 4)
+    return RobotMeshes(tri, ranges, infl, np.ascontiguousarray(g.closed, np.bool_), box, ball)
+
+
+_NO_MESHES = RobotMeshes(np.zeros((0, 3, 3)), np.zeros((0, 2), np.int64), np.zeros(0), np.zeros(0, np.bool_),
+                         np.zeros((0, 2, 3)), np.zeros((0, 4)))  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _triangle_distance2(p, tri) -> float:
+    """Squared distance from point ``p`` (3,) to the triangle ``tri`` (3, 3) (its closest point by regions,
+    Ericson, Real-Time Collision Detection §5.1.5)."""
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    abx, aby, abz = tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az
+    acx, acy, acz = tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az
+    nx, ny, nz = aby * acz - abz * acy, abz * acx - abx * acz, abx * acy - aby * acx
+    if nx * nx + ny * ny + nz * nz <= 1e-12 * (abx * abx + aby * aby + abz * abz) * (acx * acx + acy * acy + acz * acz):
+        # a degenerate (zero-area) triangle, the region tests below assume none: its nearest edge
+        return min(
+            _segment_distance2(p, p, tri[0], tri[1]),
+            _segment_distance2(p, p, tri[1], tri[2]),
+            _segment_distance2(p, p, tri[2], tri[0]),
+        )
+    apx, apy, apz = p[0] - ax, p[1] - ay, p[2] - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        s, w = 0.0, 0.0
+    else:
+        bpx, bpy, bpz = p[0] - tri[1, 0], p[1] - tri[1, 1], p[2] - tri[1, 2]
+        d3 = abx * bpx + aby * bpy + abz * bpz
+        d4 = acx * bpx + acy * bpy + acz * bpz
+        cpx, cpy, cpz = p[0] - tri[2, 0], p[1] - tri[2, 1], p[2] - tri[2, 2]
+        d5 = abx * cpx + aby * cpy + abz * cpz
+        d6 = acx * cpx + acy * cpy + acz * cpz
+        vc = d1 * d4 - d3 * d2
+        vb = d5 * d2 - d1 * d6
+        va = d3 * d6 - d5 * d4
+        if d3 >= 0.0 and d4 <= d3:
+            s, w = 1.0, 0.0
+        elif d6 >= 0.0 and d5 <= d6:
+            s, w = 0.0, 1.0
+        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+            s, w = (d1 / (d1 - d3) if d1 - d3 > 0.0 else 0.0), 0.0
+        elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+            s, w = 0.0, (d2 / (d2 - d6) if d2 - d6 > 0.0 else 0.0)
+        elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+            den = (d4 - d3) + (d5 - d6)
+            w = (d4 - d3) / den if den > 0.0 else 0.0
+            s = 1.0 - w
+        else:
+            den = 1.0 / (va + vb + vc)  # = 1 / |ab x ac|^2 > 0
+            s, w = vb * den, vc * den
+    dx = apx - s * abx - w * acx
+    dy = apy - s * aby - w * acy
+    dz = apz - s * abz - w * acz
+    return dx * dx + dy * dy + dz * dz
+
+
+@njit(cache=True, nogil=True)
+def _ray_crossings(p, tri, a, b) -> int:
+    """Triangles ``tri[a:b]`` that the ray from ``p`` along a fixed generic direction crosses (Moller-
+    Trumbore): odd for a point inside a closed mesh."""
+    dx, dy, dz = 0.5235987755982988, 0.6180339887498949, 0.5866068747318506
+    n = 0
+    for f in range(a, b):
+        e1x, e1y, e1z = tri[f, 1, 0] - tri[f, 0, 0], tri[f, 1, 1] - tri[f, 0, 1], tri[f, 1, 2] - tri[f, 0, 2]
+        e2x, e2y, e2z = tri[f, 2, 0] - tri[f, 0, 0], tri[f, 2, 1] - tri[f, 0, 1], tri[f, 2, 2] - tri[f, 0, 2]
+        hx, hy, hz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+        det = e1x * hx + e1y * hy + e1z * hz
+        if abs(det) < 1e-15:
+            continue
+        inv = 1.0 / det
+        sx, sy, sz = p[0] - tri[f, 0, 0], p[1] - tri[f, 0, 1], p[2] - tri[f, 0, 2]
+        u = (sx * hx + sy * hy + sz * hz) * inv
+        if u < 0.0 or u > 1.0:
+            continue
+        qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+        v = (dx * qx + dy * qy + dz * qz) * inv
+        if v < 0.0 or u + v > 1.0:
+            continue
+        if (e2x * qx + e2y * qy + e2z * qz) * inv > 0.0:
+            n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _inside_meshes(p, tri, ranges, infl, closed, box, ball) -> bool:
+    """Whether ``p`` lies within ``infl[s]`` of mesh ``s`` or inside it when it is closed (the robot as the
+    self-filter removes it); a triangle whose bounding ball is farther than ``infl[s]`` is skipped."""
+    for s in range(ranges.shape[0]):
+        if not (box[s, 0, 0] <= p[0] <= box[s, 1, 0] and box[s, 0, 1] <= p[1] <= box[s, 1, 1]
+                and box[s, 0, 2] <= p[2] <= box[s, 1, 2]):  # fmt: skip
+            continue
+        a, b = ranges[s, 0], ranges[s, 1]
+        r2 = infl[s] * infl[s]
+        for f in range(a, b):
+            dx, dy, dz = p[0] - ball[f, 0], p[1] - ball[f, 1], p[2] - ball[f, 2]
+            reach = ball[f, 3] + infl[s]
+            if dx * dx + dy * dy + dz * dz > reach * reach:
+                continue
+            if _triangle_distance2(p, tri[f]) <= r2:
+                return True
+        if closed[s] and _ray_crossings(p, tri, a, b) % 2 == 1:
+            return True
+    return False
+
+
 @njit(cache=True, nogil=True)
 def _bound_kernel(
-    centres, radii, rho, offs, norms, half_diag, R, t, intr, size, depth, robot, measured, edge, a, b, cr, out
-):
+    centres, radii, rho, offs, norms, half_diag, R, t, intr, size, depth, robot, measured, edge, a, b, cr,
+    mtri, mranges, minfl, mclosed, mbox, mball, out,
+):  # fmt: skip
     p = np.empty(3)
     for i in range(centres.shape[0]):
         best = rho
@@ -255,6 +399,8 @@ def _bound_kernel(
                 p, R, t, intr, size, depth, robot, measured, half_diag, edge, a, b, cr
             ):
                 continue
+            if mranges.shape[0] and _inside_meshes(p, mtri, mranges, minfl, mclosed, mbox, mball):
+                continue  # (tested last: the candidates are few)
             best = min(max(dist - half_diag, 0.0), rho)
             break
         out[i] = best
@@ -268,6 +414,7 @@ def measured_bound(
     capsules: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     margin: float = 0.0,
     spacing: float = 0.01,
+    meshes: RobotMeshes | None = None,
 ) -> np.ndarray:
     """(N,) distance (m, from each sphere's surface, capped at ``rho``) to the nearest lattice point that no
     camera sees free and that lies outside the robot's capsules inflated by ``margin``.
@@ -279,6 +426,9 @@ def measured_bound(
         capsules: ``(a (L, 3), b (L, 3), r (L,))`` the robot's inner capsules at the frames' joint state
             (:func:`depthguard.robot.interior.interior_capsules`), or None.
         margin: the self-filter's margin, m.  spacing: lattice spacing ``h``, m.
+        meshes: the self-filter's meshes at the frames' joint state (:func:`robot_meshes`), or None: points
+            that the self-filter counts as robot (within its inflation of them, or inside a closed one) are
+            not space either.
     """
     c = np.ascontiguousarray(centres, float).reshape(-1, 3)
     r = np.ascontiguousarray(radii, float).reshape(-1)
@@ -315,6 +465,7 @@ def measured_bound(
         a,
         b,
         cr,
+        *(meshes if meshes is not None else _NO_MESHES),
         out,
     )
     return out
