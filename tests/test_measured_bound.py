@@ -150,7 +150,7 @@ def test_bad_input_is_refused():
 def test_segment_distance_against_dense_sampling():
     """The bound's segment-segment distance (used by the principal robot-edge rule) against the minimum
     over 400 x 400 sampled point pairs, random segments including degenerate and parallel ones."""
-    from depthguard.sim.measured_bound import _segment_distance2
+    from depthguard.sim.bound_robot import _segment_distance2
 
     rng = np.random.default_rng(3)
     s = np.linspace(0.0, 1.0, 400)
@@ -171,7 +171,7 @@ def test_triangle_distance_against_dense_sampling():
     """The bound's point-triangle distance (for mesh robots) against the minimum over 20,000 points sampled
     on the triangle: never above it, and within the sampling's resolution of it; random triangles,
     including degenerate (zero-area) ones."""
-    from depthguard.sim.measured_bound import _triangle_distance2
+    from depthguard.sim.bound_robot import _triangle_distance2
 
     rng = np.random.default_rng(4)
     for k in range(300):
