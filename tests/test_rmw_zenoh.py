@@ -219,3 +219,38 @@ def test_filter_never_passes_duplicates_reordered_or_stale(samples):
     g = SampleFilter("sensor_msgs/msg/JointState", who=lambda gid: None, allowed={"controller"})
     assert g.accept(rz.encode_attachment(1, 0, b"\x00" * 16), cdr) is None
     assert g.rejected_publishers == {"None"}
+
+
+def test_large_images_cross_in_shared_memory_and_arrive_intact():
+    """Two nodes on one host: Zenoh carries a 640x480 depth image (1.2 MB of CDR) through its shared memory
+    (its default transport optimisation for messages over 3 KB), bit for bit; a joint state (small) goes
+    over the socket. The node latency figures (BENCHMARKS.md) rely on this."""
+    pytest.importorskip("zenoh")
+    from depthguard.io import ros2
+    from depthguard.io.zenoh_transport import ZenohNode
+
+    pa, pb = _ports(2)
+    rx = ZenohNode("rx", domain=11, listen=[f"tcp/127.0.0.1:{pa}"], connect=[f"tcp/127.0.0.1:{pb}"])
+    tx = ZenohNode("tx", domain=11, listen=[f"tcp/127.0.0.1:{pb}"], connect=[f"tcp/127.0.0.1:{pa}"])
+    try:
+        images, joints = [], []
+        sub_i = rx.subscribe("/img", "sensor_msgs/msg/Image", lambda m, a, t: images.append(ros2.image_to_depth(m)))
+        sub_j = rx.subscribe("/js", "sensor_msgs/msg/JointState", lambda m, a, t: joints.append(m))
+        pub_i = tx.publisher("/img", "sensor_msgs/msg/Image")
+        pub_j = tx.publisher("/js", "sensor_msgs/msg/JointState")
+        depth = np.random.default_rng(3).uniform(0.5, 4.5, (480, 640)).astype(np.float32)
+        depth[::7, ::5] = np.nan
+        t_end = time.time() + 8.0
+        k = 0
+        while (len(images) < 4 or len(joints) < 3) and time.time() < t_end:
+            k += 1
+            pub_i.publish(ros2.image_msg(float(k), "cam", depth, "32FC1"))
+            pub_j.publish(ros2.joint_state_msg(float(k), ["a"], [0.0]))
+            time.sleep(0.1)
+        assert len(images) >= 4 and len(joints) >= 3, "nothing arrived over Zenoh"
+        np.testing.assert_array_equal(images[-1], depth)  # NaN where NaN, every other value exact
+        assert sub_i.received - 1 <= sub_i.shm_received  # (the first may precede the lazily created pool)
+        assert sub_j.shm_received == 0
+    finally:
+        tx.close()
+        rx.close()

@@ -9,7 +9,13 @@ time stamps of the rmw_zenoh attachments (publication times, one clock) come fro
   processes, CDR decoding, fusion and queries);
 * ``distances_to_command``: distances published -> the controller node published the first joint command
   that used them; ``frame_to_command``: both;
-* baseline: the distance stage's own compute time (fusion + queries) in the distance node, same run.
+* baseline: the distance stage's own compute time (fusion + queries) in the distance node, same run;
+* ``frame_to_distances_parts``: where the time goes, from the distance node's log: ``transport`` (frame set
+  published -> its last message reaches the node's callback), ``wait`` (CDR decoding, pairing by stamp and
+  the node's thread waking up -> the distance stage starts on it), ``compute`` and ``publish`` (-> the
+  distances published);
+* ``shared_memory``: of the image samples the distance node received, the fraction that came through Zenoh's
+  shared memory (Zenoh puts messages over 3 KB there by default between processes of one host).
 
 The frames come from this process (rendered once from the simulated cell, self-filtered, then published at
 the cameras' rate with fresh stamps), so that the simulator's rendering does not load the machine.
@@ -158,12 +164,29 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
         "distances_to_command": _stats([r["pub"] - r["dist_pub"] for r in cmds]),
         "frame_to_command": _stats(_chain(dist, cmds)),
         "baseline_distance_compute": _stats([r["compute"] for r in dist]),
+        "frame_to_distances_parts": {
+            "transport": _stats([r["recv"] - r["frame_pub"] for r in dist]),
+            "wait": _stats([r["start"] - r["recv"] for r in dist]),
+            "compute": _stats([r["compute"] for r in dist]),
+            "publish": _stats([r["pub"] - r["start"] - r["compute"] for r in dist]),
+        },
+        "shared_memory": _shm_fraction(_read(tmp / "distance.log")),
         "frame_sets": len(dist),
     }
     b = out["baseline_distance_compute"]["median_ms"]
     p = out["frame_to_distances"]["median_ms"]
     out["ratio_frame_to_distances_vs_compute"] = (p / b) if (p and b) else None
     return out
+
+
+def _shm_fraction(log: list[dict]) -> float | None:
+    """Of the image samples (depths and masks) the distance node received, the fraction in shared memory."""
+    summary = [r for r in log if r.get("ev") == "summary"]
+    if not summary:
+        return None
+    got = [v for k, v in summary[-1]["shared_memory_samples"].items() if "joint" not in k]
+    n = sum(v[1] for v in got)
+    return sum(v[0] for v in got) / n if n else None
 
 
 def _chain(dist: list[dict], cmds: list[dict]) -> list[float]:

@@ -23,6 +23,8 @@ from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, c
 
 __all__ = ["run_distance_node", "frame_set_cameras"]
 
+_UNPAIRED_MAX = 32  # frames kept per camera while their depth or mask is missing
+
 
 def _mask_from_msg(msg) -> np.ndarray:
     if str(msg.encoding) != "mono8":
@@ -43,18 +45,22 @@ class _FrameSets:
         self.lock, self.ev = threading.Lock(), threading.Event()
         self.depth: dict[str, dict] = {n: {} for n in names}
         self.mask: dict[str, dict] = {n: {} for n in names}
+        self.recv: dict[str, dict] = {n: {} for n in names}  # stamp -> the later receive time (s) of the pair
         self.ready: dict[str, tuple] = {}
         self.joint: dict = {"q": None}
         self.joints: deque = deque(maxlen=400)  # (stamp s, q): the joint state of each frame set
 
-    def _pair(self, n: str, t: float, pub: float) -> None:
-        depth, mask = self.depth[n], self.mask[n]
+    def _pair(self, n: str, t: float, pub: float, recv_ns: int) -> None:
+        depth, mask, recv = self.depth[n], self.mask[n], self.recv[n]
+        recv[t] = max(recv.get(t, 0.0), recv_ns * 1e-9)
         if t in depth and t in mask:
-            self.ready[n] = (t, depth.pop(t), mask.pop(t), pub)
-            for k in [k for k in depth if k < t]:
-                depth.pop(k)
-            for k in [k for k in mask if k < t]:
-                mask.pop(k)
+            self.ready[n] = (t, depth.pop(t), mask.pop(t), pub, recv.pop(t))
+            for d in (depth, mask, recv):
+                for k in [k for k in d if k < t]:
+                    d.pop(k)
+        for d in (depth, mask, recv):  # a camera whose depths or masks stop coming: keep the newest few
+            while len(d) > _UNPAIRED_MAX:
+                d.pop(min(d))
             if len(self.ready) == len(self.names):
                 self.ev.set()
 
@@ -63,7 +69,7 @@ class _FrameSets:
             t = ros2.to_seconds(msg.header.stamp)
             with self.lock:
                 self.depth[n][t] = ros2.image_to_depth(msg)
-                self._pair(n, t, att.stamp_ns * 1e-9)
+                self._pair(n, t, att.stamp_ns * 1e-9, recv_ns)
 
         return cb
 
@@ -72,7 +78,7 @@ class _FrameSets:
             t = ros2.to_seconds(msg.header.stamp)
             with self.lock:
                 self.mask[n][t] = _mask_from_msg(msg)
-                self._pair(n, t, att.stamp_ns * 1e-9)
+                self._pair(n, t, att.stamp_ns * 1e-9, recv_ns)
 
         return cb
 
@@ -186,6 +192,7 @@ def run_distance_node(
                     stage = None  # no distances from this frame set: they go stale, the controller stops
                     continue
                 stage, stage_sizes = cell_distance_stage(cell, cams), sizes
+            t_start_compute = time.time()
             w0 = time.perf_counter()
             try:
                 cps, res, mres = _frame_set_distances(stage, cell, cams, points, depths, masks, q_frames, q)
@@ -200,9 +207,14 @@ def run_distance_node(
                 rng = getattr(stage.monitor, "ssm_range", None) or rho  # (the monitor's range)
                 pub_mon.publish(ros2.query_msg(t_data, points.names, cps.centres, cps.radii, mres, rho=rng))
             queries += 1
-            jl.write(ev="distances", stamp=t_data, frame_pub=max(s[3] for s in sets), pub=p, compute=w1 - w0)
+            jl.write(
+                ev="distances", stamp=t_data, frame_pub=max(s[3] for s in sets), recv=max(s[4] for s in sets),
+                start=t_start_compute, pub=p, compute=w1 - w0,
+            )  # fmt: skip
     finally:
         out = {"queries": queries, "dropped": {s.topic: dict(s.dropped) for s in subs if s.dropped}}
+        out["shared_memory_samples"] = {s.topic: [s.shm_received, s.received] for s in subs}
+        jl.write(ev="summary", **out)
         node.close()
         jl.close()
     return out
