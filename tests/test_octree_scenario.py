@@ -23,6 +23,7 @@ def test_saphari_octree_quick_run_writes_metrics_plots_octomap_and_recording(tmp
     assert set(out["stage_ms"]) >= {"reachability", "fusion", "distance", "camera_capture", "laser"}
     assert all(np.isfinite(v) and v >= 0 for v in out["stage_ms"].values())
     assert out["octree_nodes_median"]["occupied"] > 0
+    assert 0.0 < out["reachability_reused"] < 1.0  # the first grid is computed, the moving arm needs more
     assert out["sensors"] == {"cameras": 2, "scanners": 2}
     files = out["files"]
     for k in ("reachability_fig1", "octree_fig6", "occupied.bt", "occluded.bt", "octree.ot", "recording"):

@@ -15,7 +15,11 @@ against the machine-speed reference measured at the start of the run, ``referenc
   distance), the reachability on a worker thread beside everything else (each sensor's self-filter and
   sets in one task on the fusion's two threads, which take C(t) only at the end; the scenario's octree
   stage runs it beside the scans and the sets the same way); ``octree-cycle-serial``: the same one stage
-  after the other, on one thread but for the sets' own two workers;
+  after the other, on one thread but for the sets' own two workers; ``octree-cycle-reuse``: the cycle with
+  C(t) reused while it provably covers the state (:mod:`depthguard.octree.reach_reuse`, slack 0.1 s), the
+  reachability's state moving on a random walk at 0.3 x the joint speed limits, one frame every 1/30 s (the
+  sensor frames and their self-filter stay those of the bench's state); ``reach_reuse`` in the JSON gives the
+  fraction of its cycles that reused a grid;
 * ``pyoctomap-insert``: ``OcTree.insertPointCloud`` of the same four point clouds (robot removed) at 0.05 m.
 
 ``comparison``: the same frames through the depth space (camera 1), the depth grid (both cameras) and the
@@ -36,6 +40,7 @@ from depthguard.bench.timing import machine_info, reference_speed, time_calls, w
 from depthguard.octree.backend import OctreeBackend
 from depthguard.octree.fusion import CameraObservation, ScanObservation, reach_mask
 from depthguard.octree.reach import reachability_grid
+from depthguard.octree.reach_reuse import ReachReuse
 from depthguard.octree.scanner import scan_points, scan_robot_rays
 from depthguard.robot.control_points import ControlPointSet
 from depthguard.robot.reach import chain_sweep, robot_reachability
@@ -157,6 +162,46 @@ def _comparison(model, q, obs, depths, cps, box, reach, repeat: int) -> list[dic
     return rows
 
 
+_WALK_SPEED = 0.3  # of the joint speed limits, in the reuse cycle's random walk
+
+
+def _walk(model, q0: np.ndarray, n: int, speed: float = _WALK_SPEED, dt: float = 1 / 30, seed: int = 0) -> list:
+    """``n`` states of a random walk from ``q0``: every joint at ``speed`` x its limit, its sign flipped now and
+    then, clipped to the limits, one state every ``dt`` s."""
+    rng = np.random.default_rng(seed)
+    direction = rng.choice([-1.0, 1.0], model.n_dof)
+    out, qk = [], np.array(q0, float)
+    for _ in range(n):
+        out.append(qk.copy())
+        direction = np.where(rng.random(model.n_dof) < 0.1, -direction, direction)
+        qk = np.clip(qk + direction * speed * model.v_max * dt, model.q_min, model.q_max)
+    return out
+
+
+def _reuse_cycle(model, q, raw_obs, be, cps, worker, repeat: int):
+    """The cycle with C(t) reused (:class:`ReachReuse`, slack 0.1 s) on a random walk of the reachability's
+    state; returns (cycle function, its ReachReuse)."""
+    reuse = ReachReuse.for_model(model, slack=0.1)
+    states = _walk(model, q, 4 * repeat + 8)
+    k = iter(range(len(states)))
+    in_use: list = [None]  # the node mask of the grid in use
+
+    def cycle():
+        qk = states[next(k)]
+        tasks = _self_filter_all(model, q, raw_obs, later=True)
+        if in_use[0] is not None and reuse.covers(qk):
+            be.update(tasks, lambda: in_use[0])
+        else:
+            pending = worker.submit(reachability_grid, chain_sweep(model, qk), reuse.grid_horizon, 0.09)
+            frame = be.update(tasks, pending)
+            reuse.store(qk, pending.result())
+            in_use[0] = frame.mask
+        s = cps.evaluate(q)
+        return be.query(s.centres, s.radii, rho=RHO)
+
+    return cycle, reuse
+
+
 def _reach_tightness(model, q0: np.ndarray, res: float, n_conf: int, seed: int = 0) -> dict:
     """Grid volume against the volume of the cells hit by the link geometry at random configurations of the
     joint box ``|q - q0| <= q̇_max T`` (each reachable at ``t = max |q - q0| / q̇_max`` on a straight line;
@@ -244,6 +289,8 @@ def run_octree_benchmark(quick: bool = False) -> dict:
 
     results.append(_entry("octree-cycle", time_calls(cycle, repeat)))
     results.append(_entry("octree-cycle-serial", time_calls(cycle_serial, repeat)))
+    cycle_reuse, reuse = _reuse_cycle(model, q, raw_obs, be, cps, worker, repeat)
+    results.append(_entry("octree-cycle-reuse", time_calls(cycle_reuse, repeat)))
     worker.shutdown()
     clouds = _clouds(obs)
     t0 = time.perf_counter()
@@ -277,6 +324,11 @@ def run_octree_benchmark(quick: bool = False) -> dict:
             "pyoctomap_over_cycle": by["pyoctomap-insert"]["us_median"] / by["octree-cycle"]["us_median"],
         },
         "octree": {**frame.counts(), "reach_delta_m": grid.delta},
+        "reach_reuse": {
+            "slack_s": reuse.slack,
+            "speed_fraction": _WALK_SPEED,
+            "reused_fraction": reuse.reused / max(1, reuse.reused + reuse.computed),
+        },
         "comparison": _comparison(model, q, obs, depths, cps, box, mask, repeat),
         "reach_tightness": [
             _reach_tightness(m, qq, r, 200 if quick else 3000)

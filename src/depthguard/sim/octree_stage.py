@@ -15,6 +15,7 @@ from depthguard.octree.backend import OctreeBackend
 from depthguard.octree.fusion import CameraObservation, ScanObservation
 from depthguard.octree.grid import VoxelBox
 from depthguard.octree.reach import ChainSweep, ReachabilityGrid, reachability_grid
+from depthguard.octree.reach_reuse import ReachReuse
 from depthguard.octree.scanner import scan_robot_rays
 from depthguard.robot.reach import chain_sweep
 
@@ -44,6 +45,9 @@ class OctreeStage:
         mode: ``"saphari"`` or ``"conservative"``.
         rho, dist_mode, alpha: as :class:`~depthguard.sim.pipeline.DistanceStage`.
         horizon, reach_res: reachability horizon (s) and cell size (m).
+        reach_slack: s; C(t) is computed with ``horizon + reach_slack`` and reused by the next frames while
+            it provably covers them (:mod:`depthguard.octree.reach_reuse`); 0: a new grid every frame
+            unless the robot stands exactly still.
         keep_every: keep a snapshot (octree, reachability) of every ``keep_every``-th frame for the recording.
     """
 
@@ -63,6 +67,7 @@ class OctreeStage:
         alpha: float = 6.0,
         horizon: float = 0.5,
         reach_res: float = 0.09,
+        reach_slack: float = 0.1,
         keep_every: int = 15,
     ) -> None:
         self.cell = cell
@@ -75,6 +80,8 @@ class OctreeStage:
         self.scan_capsules = scan_capsules
         self.rho, self.dist_mode, self.alpha = float(rho), dist_mode, float(alpha)
         self.horizon, self.reach_res = float(horizon), float(reach_res)
+        self.reuse = ReachReuse.for_model(reach_model, horizon, reach_slack) if reach_model is not None else None
+        self._reuse_mask: np.ndarray | None = None  # C(t) on the octree's nodes, of the grid in reuse
         self.keep_every = int(keep_every)
         self.times: dict[str, list[float]] = {k: [] for k in ("reachability", "laser", "scan_filter", "fusion")}
         self.times["distance"] = []
@@ -85,7 +92,7 @@ class OctreeStage:
         self.reach: ReachabilityGrid | None = None
 
     def _reachability(self, chain: ChainSweep) -> ReachabilityGrid:
-        g = reachability_grid(chain, horizon=self.horizon, res=self.reach_res)
+        g = reachability_grid(chain, horizon=self.reuse.grid_horizon, res=self.reach_res)
         box = VoxelBox(g.box.origin + self.reach_offset, g.box.res, g.box.shape)
         return g._replace(box=box)
 
@@ -95,10 +102,12 @@ class OctreeStage:
         q = self.cell.q()
 
         t_start = time.perf_counter()
-        pending = None
-        if self.reach_model is not None:
+        pending, qr = None, None
+        reused = self.reuse is not None and self._reuse_mask is not None and self.reuse.covers(self.reach_q(q))
+        if self.reach_model is not None and not reused:
             t0 = time.perf_counter()
-            chain = chain_sweep(self.reach_model, self.reach_q(q))  # the model's kinematics: this thread only
+            qr = self.reach_q(q)
+            chain = chain_sweep(self.reach_model, qr)  # the model's kinematics: this thread only
             t_chain = time.perf_counter() - t0
 
             def timed_reach():
@@ -115,7 +124,9 @@ class OctreeStage:
             for las, s in zip(self.lasers, scans, strict=True):
                 obs.append(ScanObservation(las.scanner, s, scan_robot_rays(las.scanner, s, a, b, r)))
         t3 = time.perf_counter()
-        self.reach, t_reach = None, 0.0
+        t_reach = 0.0
+        if not reused:
+            self.reach = None
 
         def reach():  # called by the fusion once the sensors' sets are done (they do not need C(t))
             self.reach, t = pending.result()
@@ -123,11 +134,17 @@ class OctreeStage:
             t_reach = t
             return self.reach
 
-        frame = self.backend.update(obs, reach if pending is not None else None)
+        in_use = self._reuse_mask  # (the same path as a fresh grid's: the sets first, C(t) after them)
+        frame = self.backend.update(obs, (lambda: in_use) if reused else (reach if pending is not None else None))
+        if pending is not None:
+            self.reuse.store(qr, self.reach)
+            self._reuse_mask = frame.mask
         t4 = time.perf_counter()
-        # the reachability's own time (it ran beside the scans and the sets), the scans, their filter, the
-        # fusion (and the wait for the reachability, if it took longer)
-        for k, v in zip(self.times, (t_reach, t2 - t1, t3 - t2, t4 - t3), strict=False):
+        # the reachability's own time (it ran beside the scans and the sets; frames that reuse a grid take
+        # none and are not counted), the scans, their filter, the fusion (and the wait for the reachability)
+        if pending is not None:
+            self.times["reachability"].append(t_reach)
+        for k, v in (("laser", t2 - t1), ("scan_filter", t3 - t2), ("fusion", t4 - t3)):
             self.times[k].append(v)
         self.update_wall.append(t4 - t_start)
         self.counts.append(frame.counts())

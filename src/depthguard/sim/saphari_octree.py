@@ -4,7 +4,8 @@ the occlusion-aware obstacle octree as the distance backend.
 ``depthguard scenario saphari-octree [--quick] [--octree-res 0.05] [--out DIR] --json``. The run uses SAPHARI's
 semantics (unobserved space is free; the sensors do not cover all around the platform) and reports the
 conservative mode (unobserved space inside C(t) is an obstacle) as the variant ``conservative``. Output: the
-top-level keys of the other scenarios, ``stage_ms`` (median milliseconds per stage), node counts, and with
+top-level keys of the other scenarios, ``stage_ms`` (median milliseconds per stage), node counts,
+``reachability_reused`` (the fraction of frames whose C(t) was a reused grid, docs/octree.md), and with
 ``--out``: ``reachability_fig1.png`` (C(t) coloured by the minimum time, SAPHARI Fig. 1),
 ``octree_fig6.png`` (occupied red, occluded orange, Fig. 6), the usual plots, OctoMap files of the last frame
 and ``recording.mcap`` with the channels ``/octree`` and ``/reachability`` besides the usual ones.
@@ -137,6 +138,9 @@ def _summary(log, task, cfg, stage) -> dict[str, Any]:
 
     m = compute_metrics(log, task, cfg)
     m["stage_ms"] = _stage_ms(log, stage)
+    if stage.reuse is not None:  # frames whose C(t) was a reused grid (depthguard.octree.reach_reuse)
+        n = stage.reuse.reused + stage.reuse.computed
+        m["reachability_reused"] = round(stage.reuse.reused / n, 3) if n else None
     counts = stage.counts
     m["octree_nodes_median"] = {k: int(np.median([c[k] for c in counts])) for k in counts[0]} if counts else {}
     return m
