@@ -5,7 +5,8 @@ corners, and ``q`` its quantised far depth: ``d_end = q * DEND_SCALE >= max_k z`
 conservatively far). ``u0 = -1`` marks a camera that is not involved (the cell is not entirely in front of
 it and inside its image, or its footprint is wider than ``FOOT_MAX`` pixels); the stored map packs the
 five numbers in one int64 (:func:`pack`). None of this is compiled with fast-math, so the stored map and
-the on-the-fly footprints are bit-identical. Ray and camera tables: :mod:`depthguard.depthgrid.records`.
+the on-the-fly footprints are bit-identical. Rays (:func:`ray`) and camera rows:
+:mod:`depthguard.depthgrid.records`.
 """
 
 from __future__ import annotations
@@ -15,11 +16,25 @@ import math
 import numba as nb
 import numpy as np
 
-__all__ = ["DEND_SCALE", "Q_MAX", "FOOT_MAX", "rect_footprint", "cell_footprint", "pack", "unpack", "build_map"]
+__all__ = ["DEND_SCALE", "Q_MAX", "FOOT_MAX", "ray", "rect_footprint", "cell_footprint", "pack", "unpack", "build_map"]
 
 DEND_SCALE = 4e-4  # metres per unit of the quantised far depth (15 bits): 0.4 mm steps, up to 13.1 m
 Q_MAX = 32767
 FOOT_MAX = 255  # largest footprint extent (pixels - 1) a cell may have in a secondary camera
+
+
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+def ray(tab, k, v, u):
+    """Ray (u, v) of a :class:`~depthguard.depthgrid.records.RayTable` for secondary camera k: ``M[k] @ (us[u],
+    vs[v], 1)``, three float64."""
+    M, us, vs = tab
+    a = us[u]
+    b = vs[v]
+    return (
+        M[k, 0, 0] * a + M[k, 0, 1] * b + M[k, 0, 2],
+        M[k, 1, 0] * a + M[k, 1, 1] * b + M[k, 1, 2],
+        M[k, 2, 0] * a + M[k, 2, 1] * b + M[k, 2, 2],
+    )
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -41,9 +56,7 @@ def rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams):
         cv = va if j == 0 else vb
         for i in range(2):
             cu = ua if i == 0 else ub
-            mx = corner_rays[k, cv, cu, 0]
-            my = corner_rays[k, cv, cu, 1]
-            mz = corner_rays[k, cv, cu, 2]
+            mx, my, mz = ray(corner_rays, k, cv, cu)
             for s in range(2):
                 d = d1 if s == 0 else d2
                 Z = d * mz + bz

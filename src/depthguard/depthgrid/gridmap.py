@@ -39,7 +39,7 @@ import numpy as np
 from depthguard.camera import Camera
 from depthguard.depthgrid import footprint as K
 from depthguard.depthgrid.grid import DepthGrid
-from depthguard.depthgrid.records import MapArrays
+from depthguard.depthgrid.records import MapArrays, RayTable
 
 __all__ = ["GridMap", "MAP_MODES", "default_cache_dir", "map_key"]
 
@@ -70,24 +70,22 @@ def map_key(grid: DepthGrid, secondaries: list[Camera]) -> str:
 
 
 def _projection_tables(grid: DepthGrid, secondaries: list[Camera]):
+    """The corner and centre :class:`RayTable` of the principal camera's pixels for the secondary cameras,
+    and their ``cams`` rows (b_k, fx, fy, cx, cy, W, H)."""
     cam0 = grid.camera
     us = (np.arange(cam0.width + 1) - cam0.cx) / cam0.fx
     vs = (np.arange(cam0.height + 1) - cam0.cy) / cam0.fy
-    c = np.stack(np.broadcast_arrays(us[None, :], vs[:, None], np.ones((1, 1))), axis=-1)  # (H+1, W+1, 3)
     uc = (np.arange(cam0.width) + 0.5 - cam0.cx) / cam0.fx
     vc = (np.arange(cam0.height) + 0.5 - cam0.cy) / cam0.fy
-    cc = np.stack(np.broadcast_arrays(uc[None, :], vc[:, None], np.ones((1, 1))), axis=-1)  # (H, W, 3)
     n = len(secondaries)
-    rays = np.zeros((max(n, 1), cam0.height + 1, cam0.width + 1, 3))
-    centres = np.zeros((max(n, 1), cam0.height, cam0.width, 3))
+    Ms = np.zeros((max(n, 1), 3, 3))
     cams = np.zeros((n, 9))
     for k, cam in enumerate(secondaries):
         M = cam.R @ cam0.R.T
-        rays[k] = c @ M.T
-        centres[k] = cc @ M.T
+        Ms[k] = M
         cams[k, :3] = cam.t - M @ cam0.t
         cams[k, 3:] = (cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
-    return rays, centres, cams
+    return RayTable(Ms, us, vs), RayTable(Ms, uc, vc), cams
 
 
 class GridMap:
@@ -173,7 +171,7 @@ class GridMap:
     @property
     def nbytes(self) -> int:
         """Memory held by the map, bytes (projection tables plus stored footprints)."""
-        tables = self.corner_rays.nbytes + self.centre_rays.nbytes + self.cams.nbytes
+        tables = sum(a.nbytes for a in (*self.corner_rays, *self.centre_rays[1:], self.cams))
         return int(tables + (self.packed.nbytes if self.stored else 0))
 
     @property

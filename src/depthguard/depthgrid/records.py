@@ -3,8 +3,9 @@
 Conventions shared by every depth-grid kernel (the method: :mod:`depthguard.depthgrid.fusion`):
 
 * the principal camera's pixel-corner rays are ``c = ((u' - cx)/fx, (v' - cy)/fy, 1)``, ``u' = 0..W``;
-  for secondary camera k, ``corner_rays[k, v', u'] = M_k c`` (``centre_rays[k, v, u]`` likewise for the
-  pixel-centre rays) with ``M_k = R_k R_0^T``, and ``cams[k] = (b_k, fx, fy, cx, cy, W, H)`` with
+  for secondary camera k, the corner ray ``M_k c`` of corner (u', v') (the pixel-centre rays likewise), with
+  ``M_k = R_k R_0^T``, computed where it is needed from a :class:`RayTable` (``footprint.ray``), and
+  ``cams[k] = (b_k, fx, fy, cx, cy, W, H)`` with
   ``b_k = t_k - M_k t_0``, so the cell corner at depth ``d`` is ``X_k = d M_k c + b_k``;
 * principal pixel kinds: 0 nothing, 1 measured surface at ``start``, 2 unknown from ``start`` on
   (missing pixel at the near limit), 3 robot at ``start`` (RA-L'16 case iv).
@@ -17,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = [
+    "RayTable",
     "Grid",
     "MapArrays",
     "Votes",
@@ -49,12 +51,23 @@ class Grid(NamedTuple):
     n_cells: int
 
 
-class MapArrays(NamedTuple):
-    """The off-line map (RA-L'16 §V): ``corner_rays`` (K, H+1, W+1, 3), ``centre_rays`` (K, H, W, 3),
-    ``cams`` (K, 9), and, when ``stored``, every cell's packed footprint ``pmap`` (K, H, W, n_cells)."""
+class RayTable(NamedTuple):
+    """The principal camera's rays as seen from the secondary cameras' orientation: ray (u', v') of camera k
+    is ``M[k] @ (us[u'], vs[v'], 1)``; ``M`` (K, 3, 3) float64, ``us`` (W or W+1,) and ``vs`` (H or H+1,) the
+    normalised coordinates ``(u' - cx) / fx``, ``(v' - cy) / fy`` of the pixel corners (or centres). A few
+    kilobytes instead of a (K, H+1, W+1, 3) table (14.8 MB at 640x480), which the queries would read."""
 
-    corner_rays: np.ndarray
-    centre_rays: np.ndarray
+    M: np.ndarray
+    us: np.ndarray
+    vs: np.ndarray
+
+
+class MapArrays(NamedTuple):
+    """The off-line map (RA-L'16 §V): ``corner_rays`` and ``centre_rays`` (:class:`RayTable`, pixel corners
+    and centres), ``cams`` (K, 9), and, when ``stored``, every cell's packed footprint ``pmap`` (K, H, W, n_cells)."""
+
+    corner_rays: RayTable
+    centre_rays: RayTable
     cams: np.ndarray
     stored: bool
     pmap: np.ndarray

@@ -29,7 +29,7 @@ import math
 
 import numba as nb
 
-from depthguard.depthgrid.footprint import DEND_SCALE, cell_footprint, rect_footprint, unpack
+from depthguard.depthgrid.footprint import DEND_SCALE, cell_footprint, ray, rect_footprint, unpack
 from depthguard.depthgrid.pyramid import pixel_sees_past, rect_sees_past
 
 __all__ = [
@@ -60,10 +60,11 @@ def footprint_sees_past(k, u0, v0, du, dv, q, votes):
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _corner(k, cu, cv, d, corner_rays, cams):
     """Image point (x, y) in camera k of the principal corner ray (cu, cv) at depth d."""
-    Z = d * corner_rays[k, cv, cu, 2] + cams[k, 2]
+    mx, my, mz = ray(corner_rays, k, cv, cu)
+    Z = d * mz + cams[k, 2]
     return (
-        cams[k, 3] * (d * corner_rays[k, cv, cu, 0] + cams[k, 0]) / Z + cams[k, 5],
-        cams[k, 4] * (d * corner_rays[k, cv, cu, 1] + cams[k, 1]) / Z + cams[k, 6],
+        cams[k, 3] * (d * mx + cams[k, 0]) / Z + cams[k, 5],
+        cams[k, 4] * (d * my + cams[k, 1]) / Z + cams[k, 6],
     )
 
 
@@ -154,12 +155,13 @@ def centre_sees_past(k, u, v, d1, d2, mp, votes):
     cams = mp.cams
     rays = mp.centre_rays
     dm = 0.5 * (d1 + d2)
-    Z = dm * rays[k, v, u, 2] + cams[k, 2]
+    mx, my, mz = ray(rays, k, v, u)
+    Z = dm * mz + cams[k, 2]
     if Z <= 1e-6:
         return False
     iz = 1.0 / Z
-    pu = cams[k, 3] * (dm * rays[k, v, u, 0] + cams[k, 0]) * iz + cams[k, 5]
-    pv = cams[k, 4] * (dm * rays[k, v, u, 1] + cams[k, 1]) * iz + cams[k, 6]
+    pu = cams[k, 3] * (dm * mx + cams[k, 0]) * iz + cams[k, 5]
+    pv = cams[k, 4] * (dm * my + cams[k, 1]) * iz + cams[k, 6]
     if not (pu >= 0.0 and pv >= 0.0 and pu < cams[k, 7] and pv < cams[k, 8]):
         return False
     # the vote, or the top of the pixel's robot window (pixel_sees_past needs hi >= d_end > Z)
@@ -225,9 +227,13 @@ def tile_block_cleared(ua, va, ub, vb, g0, g1, grid, mp, vt, stack):
     dm = 0.5 * (d1 + d2)
     for k in range(cams.shape[0]):
         # quick necessary test at the centre of the piece
-        mx = 0.25 * (cr[k, va, ua, 0] + cr[k, va, ub, 0] + cr[k, vb, ua, 0] + cr[k, vb, ub, 0])
-        my = 0.25 * (cr[k, va, ua, 1] + cr[k, va, ub, 1] + cr[k, vb, ua, 1] + cr[k, vb, ub, 1])
-        mz = 0.25 * (cr[k, va, ua, 2] + cr[k, va, ub, 2] + cr[k, vb, ua, 2] + cr[k, vb, ub, 2])
+        ax, ay, az = ray(cr, k, va, ua)
+        bx, by, bz = ray(cr, k, va, ub)
+        cx_, cy_, cz_ = ray(cr, k, vb, ua)
+        ex, ey, ez = ray(cr, k, vb, ub)
+        mx = 0.25 * (ax + bx + cx_ + ex)
+        my = 0.25 * (ay + by + cy_ + ey)
+        mz = 0.25 * (az + bz + cz_ + ez)
         Z = dm * mz + cams[k, 2]
         if Z <= 1e-6:
             continue
