@@ -14,6 +14,9 @@ time stamps of the rmw_zenoh attachments (publication times, one clock) come fro
   published -> its last message reaches the node's callback), ``wait`` (CDR decoding, pairing by stamp and
   the node's thread waking up -> the distance stage starts on it), ``compute`` and ``publish`` (-> the
   distances published);
+* ``in_process``: the same computation on the same frame sets in this process, before the nodes start:
+  ``back_to_back`` (one frame set after the other) and ``paced`` (one per camera period, the process idle in
+  between, as in the node); their difference is what idling between frames costs on the machine;
 * ``shared_memory``: of the image samples the distance node received, the fraction that came through Zenoh's
   shared memory (Zenoh puts messages over 3 KB there by default between processes of one host).
 
@@ -121,6 +124,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     cpath.write_text(src.read_text() + f"\n[network]\nbase_port = {port}\nconnect = []\n")
     cellf = read_cell(cpath)
     names, sets = _frames(quick, cellf, 6)
+    in_process = _in_process_compute(cellf, sets, n=40 if quick else 90)
     env = {**os.environ}
     env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[2]), env.get("PYTHONPATH", "")])
     procs = []
@@ -170,12 +174,40 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             "compute": _stats([r["compute"] for r in dist]),
             "publish": _stats([r["pub"] - r["start"] - r["compute"] for r in dist]),
         },
+        "in_process": in_process,
         "shared_memory": _shm_fraction(_read(tmp / "distance.log")),
         "frame_sets": len(dist),
     }
     b = out["baseline_distance_compute"]["median_ms"]
     p = out["frame_to_distances"]["median_ms"]
     out["ratio_frame_to_distances_vs_compute"] = (p / b) if (p and b) else None
+    return out
+
+
+def _in_process_compute(cell, sets, n: int) -> dict:
+    """The distance node's computation (:func:`~depthguard.nodes.distance._frame_set_distances`) on the frame
+    sets in this process: ``back_to_back`` and ``paced`` at the cameras' period (median, p99 ms)."""
+    from depthguard.nodes.distance import _frame_set_distances, frame_set_cameras
+    from depthguard.runner.chain import cell_control_points, cell_distance_stage, load_cell_robot
+
+    model = load_cell_robot(cell)
+    points = cell_control_points(cell, model)
+    cams = frame_set_cameras([c.build() for c in cell.cameras], sets[0][1], model, [], {})
+    stage = cell_distance_stage(cell, cams)
+    period = 1.0 / float(cell.cameras[0].rate)
+    out = {}
+    for name, pause in (("back_to_back", 0.0), ("paced", period)):
+        times = []
+        for i in range(n + 5):
+            q, depths, masks = sets[i % len(sets)]
+            depths, masks = [d.copy() for d in depths], [m.copy() for m in masks]  # fresh, as decoded
+            t0 = time.perf_counter()
+            _frame_set_distances(stage, cell, cams, points, depths, masks, q, q)
+            dt = time.perf_counter() - t0
+            if i >= 5:
+                times.append(dt)
+            time.sleep(max(0.0, pause - dt))
+        out[name] = _stats(times)
     return out
 
 
