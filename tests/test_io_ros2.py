@@ -1,8 +1,13 @@
 """ROS 2 messages and MCAP recordings, checked with decoders independent of the encoder: ``mcap_ros2``
 (its own CDR parser driven by the embedded ``ros2msg`` schema text) and a plain Jazzy type store."""
 
+import math
+import struct
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("rosbags")
 pytest.importorskip("mcap")
@@ -123,3 +128,39 @@ def test_tf_of_a_camera_pose_matches_the_projection():
     p = np.array([tf.translation.x, tf.translation.y, tf.translation.z])
     P = np.array([0.3, -0.2, 0.5])
     np.testing.assert_allclose(Rq.T @ (P - p), R @ P + t, atol=1e-9)
+
+
+_SPECIAL = np.array([0.0, -0.0, -1.0, np.nan, np.inf, -np.inf, 1e-40, 3.4e38, 0.5, 7.25], np.float32)
+
+
+@settings(deadline=None)  # (the first example compiles the decoding kernel on a cold cache)
+@given(
+    h=st.integers(1, 7),
+    w=st.integers(1, 9),
+    pad=st.integers(0, 5),
+    big=st.booleans(),
+    mm=st.booleans(),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_image_to_depth_reads_every_layout_as_metres_with_nan_for_no_reading(h, w, pad, big, mm, seed):
+    """Depth decoding on raw bytes laid out by hand (row padding, both byte orders, 16UC1 millimetres and
+    32FC1 metres with 0, negative, NaN, inf and subnormal samples): the metres where the sample is a reading
+    (> 0, finite), NaN elsewhere; the expected values come from Python floats, not from the decoder."""
+    rng = np.random.default_rng(seed)
+    if mm:
+        vals = rng.integers(0, 65536, (h, w)).astype(np.uint16)
+        vals[rng.random((h, w)) < 0.3] = 0
+        want = [[np.float32(x) / np.float32(1000.0) if x > 0 else np.nan for x in row] for row in vals.tolist()]
+        enc, item, fmt = "16UC1", 2, "H"
+    else:
+        vals = rng.choice(_SPECIAL, (h, w)).astype(np.float32)
+        want = [[x if (x > 0 and math.isfinite(x)) else np.nan for x in row] for row in vals.tolist()]
+        enc, item, fmt = "32FC1", 4, "f"
+    order = ">" if big else "<"
+    rows = [struct.pack(f"{order}{w}{fmt}", *row) + b"\xab" * pad for row in vals.tolist()]
+    msg = ros2.image_msg(0.0, "c", np.ones((h, w)))
+    msg.encoding, msg.is_bigendian, msg.step = enc, int(big), w * item + pad
+    msg.data = np.frombuffer(b"".join(rows), np.uint8)
+    got = ros2.image_to_depth(msg)
+    assert got.dtype == np.float32 and got.shape == (h, w) and got.flags.writeable
+    np.testing.assert_array_equal(got, np.array(want, np.float32))

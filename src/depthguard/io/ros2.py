@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from depthguard.kernels.depthimage import metres_or_nan
+
 __all__ = [
     "DEPTHGUARD_MSGS",
     "typestore",
@@ -152,20 +154,17 @@ def image_to_depth(msg) -> np.ndarray:
     if dtype is None:
         raise ValueError(f"Image encoding {msg.encoding!r} is not a depth encoding (expected 16UC1 or 32FC1)")
     item = np.dtype(dtype).itemsize
-    raw = np.asarray(msg.data, dtype=np.uint8).tobytes()
+    raw = np.ascontiguousarray(np.asarray(msg.data, dtype=np.uint8)).reshape(-1)
     step = int(msg.step) or w * item
-    if step < w * item or len(raw) < step * h:
-        raise ValueError(f"Image {w}x{h} {msg.encoding} holds {len(raw)} bytes with step {msg.step}: too few")
+    if step < w * item or raw.size < step * h:
+        raise ValueError(f"Image {w}x{h} {msg.encoding} holds {raw.size} bytes with step {msg.step}: too few")
     order = ">" if msg.is_bigendian else "<"
-    rows = np.frombuffer(raw[: step * h], dtype=np.uint8).reshape(h, step)[:, : w * item]
-    img = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order)).reshape(h, w)
-    if dtype == np.uint16:
-        out = img.astype(np.float32) / 1000.0
-        out[img == 0] = np.nan
-        return out
-    out = img.astype(np.float32)
-    out[~(np.isfinite(out) & (out > 0))] = np.nan
-    return out
+    typ = np.dtype(dtype).newbyteorder(order)
+    if step == w * item:  # (the usual layout: read the samples where they lie, one pass to the output)
+        img = np.frombuffer(raw, dtype=typ, count=h * w).reshape(h, w)
+    else:
+        img = np.ascontiguousarray(raw[: step * h].reshape(h, step)[:, : w * item]).view(typ).reshape(h, w)
+    return metres_or_nan(img, 1000.0 if dtype == np.uint16 else 1.0)
 
 
 def camera_info_msg(t: float, frame_id: str, camera) -> Any:
