@@ -61,8 +61,41 @@ def _load_entry(spec: str, what: str):
 
 
 def _scenario_options(args: argparse.Namespace) -> dict:
-    keys = ("cameras", "backend", "octree_res", "case", "lambda_", "contacts", "rate", "ssm", "view")
-    return {k: getattr(args, k, None) for k in keys}
+    keys = ("cameras", "backend", "octree_res", "case", "lambda_", "contacts", "rate", "ssm")
+    out = {k: getattr(args, k, None) for k in keys}
+    out["view"] = _view_port(args)
+    return out
+
+
+# the scenarios that can feed the live view (they simulate depth cameras in a cell)
+VIEW_SCENARIOS = ("ssm-approach", "saphari-octree")
+
+
+def _view_port(args: argparse.Namespace) -> int | None:
+    """``--view``: the live view's port (``--view-port``), after checking that the scenario has one and that
+    viser imports; None without ``--view``."""
+    if not getattr(args, "view", False):
+        return None
+    if args.name == "pivot" or (args.name in EXTRA_SCENARIOS and args.name not in VIEW_SCENARIOS):
+        raise _Exit(
+            f"--view: scenario {args.name!r} has no simulated depth cameras to show; the live view runs with the"
+            f" cell scenarios ({', '.join(list_scenario_names())}) and {', '.join(VIEW_SCENARIOS)}"
+        )
+    try:
+        import viser  # noqa: F401
+    except ImportError as exc:
+        raise _Exit(f"--view needs viser: pip install 'depthguard[all]' ({exc})") from None
+    if not 1 <= args.view_port <= 65535:
+        raise _Exit(f"--view-port must be a TCP port (1-65535), got {args.view_port}")
+    return int(args.view_port)
+
+
+def list_scenario_names() -> list[str]:
+    """The shipped cell scenarios (``src/depthguard/data/scenarios``), without importing the simulator."""
+    from importlib import resources
+
+    files = resources.files("depthguard.data") / "scenarios"
+    return sorted(p.name[: -len(".toml")] for p in files.iterdir() if p.name.endswith(".toml"))
 
 
 def _cmd_scenario(args: argparse.Namespace) -> int:
@@ -70,6 +103,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
         from depthguard.io.files import prepare_out_dir
 
         prepare_out_dir(args.out, "--out folder")
+    _view_port(args)  # (a scenario without a view, or no viser: refused before any work)
     if args.name == "pivot":
         from depthguard.pivot_scenario import run_pivot_scenario
 
@@ -102,6 +136,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             **({"backend": "octree", "octree_res": args.octree_res or 0.05} if args.backend == "octree" else {}),
             ssm=bool(getattr(args, "ssm", False)),
             placement=getattr(args, "placement", None),
+            view=_view_port(args),
         )
     if args.json:
         print(json.dumps(out, default=float))
@@ -212,7 +247,10 @@ def _add_scenario(sub) -> None:
     )
     p.add_argument("--rate", type=_positive_float, default=None, help="control rate in Hz (saphari-contact-*)")
     p.add_argument("--ssm", action="store_true", help="speed and separation monitoring on top of the repulsion")
-    p.add_argument("--view", action="store_true", help="live 3-D view in the browser")
+    p.add_argument("--view", action="store_true", help="live 3-D view in the browser while the run goes on")
+    p.add_argument(
+        "--view-port", type=int, default=8080, metavar="PORT", help="port of the live view (127.0.0.1; default 8080)"
+    )
     p.add_argument("--out", default=None, metavar="DIR", help="run folder (metrics, plots, recording)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_scenario)

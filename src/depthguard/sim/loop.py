@@ -178,8 +178,14 @@ def run_loop(
     task: Task,
     cfg: LoopConfig,
     record_frames_every: int = 3,
+    view=None,
 ) -> SimLog:
-    """Run the cell for ``cfg.duration`` s of simulated time. Returns the :class:`SimLog`."""
+    """Run the cell for ``cfg.duration`` s of simulated time. Returns the :class:`SimLog`.
+
+    ``view``: a :class:`depthguard.viz.live.LiveView` fed with each frame set (and the octree, with that
+    backend), each distance call and every tenth control cycle; it only stores references, its own thread
+    draws.
+    """
     pivot = None
     if cfg.pivot:
         from depthguard.pivot import PivotFilter
@@ -224,6 +230,8 @@ def run_loop(
             if frame_count % every == 0:
                 log.frames.append((t, [_to_mm(d) for d in depths]))
             frame_count += 1
+            if view is not None:
+                _show_frames(view, stage, depths, masks)
         # ---------------------------------------------------------------- distance stage (333 Hz)
         if t >= next_dist - 1e-9 and stage.ready:
             next_dist += cfg.distance_period
@@ -237,6 +245,8 @@ def run_loop(
             log.acc_eval.extend(np.asarray(res.distance, float))
             log.acc_true.extend(ptruth.evaluate(cp.centres, cp.radii, snap)[0])
             log.acc_tol.extend(stage.tolerance(cp.centres, noise))
+            if view is not None:
+                view.set_distances(cp.centres, cp.radii, res.distance, res.direction)
             if bound_frame is not None:
                 _log_bound(log, cams, kin, bound_frame, cp, log.acc_true[-len(cp.radii) :], cfg.rho)
                 bound_frame = None
@@ -253,6 +263,9 @@ def run_loop(
         else:
             q_cmd, qd_cmd, status = ctrl.step(t, q_meas, cell.qd(), xdot, cp, None, None, -1.0, cfg.avoid)
         log.wall_control.append(time.perf_counter() - w0)
+        if view is not None and k % 10 == 0:
+            view.set_joints(q_meas)
+            view.set_status(status.get("status", "-"))
         cell.step(q_cmd, qd_cmd)
         # ---------------------------------------------------------------- truth (metrics only)
         per_link, tmin, name, _ = truth.evaluate()
@@ -272,6 +285,14 @@ def run_loop(
 
 
 BOUND_SPACING = 0.01  # m, lattice of the measured bound
+
+
+def _show_frames(view, stage, depths: list, masks: list) -> None:
+    """Hand a frame set to the live view, and the octree when the stage is the octree backend's."""
+    view.set_frames(depths, masks)
+    backend = getattr(stage, "backend", None)
+    if backend is not None and hasattr(backend, "frame"):
+        view.set_octree(backend.frame)
 
 
 def _bound_every(cams: list, cfg: LoopConfig) -> int:

@@ -95,11 +95,14 @@ def _stage(sc: dict, cell, kin, scanners, mode: str, res: float):
     )  # fmt: skip
 
 
-def _run_one(sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, res: float, label: str):
+def _run_one(
+    sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, res: float, label: str, view: int | None = None
+):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
     from depthguard.sim.pipeline import Controller
     from depthguard.sim.scenario_setup import scenario_task
+    from depthguard.sim.scenarios import open_view
 
     cell, kin, scanners = _build(sc, quick)
     cams = [KinectSim(cell.model, c, i, seed=i) for i, c in enumerate(cell.cameras)]
@@ -118,7 +121,12 @@ def _run_one(sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, 
         progress=progress, label=label, distance_period=float(sc.get("distance_period", 0.003)),
         frame_period=float(sc["quick_frame_period"] if quick else sc["frame_period"]),
     )  # fmt: skip
-    log = run_loop(cell, cams, kin, stage, ctrl, task, cfg)
+    live = open_view(view, label, kin.model, cell.cameras, cfg.rho)
+    try:
+        log = run_loop(cell, cams, kin, stage, ctrl, task, cfg, view=live)
+    finally:
+        if live is not None:
+            live.close()
     for c in cams:
         c.close()
     return cell, log, task, cfg, stage
@@ -161,7 +169,9 @@ def run(
     sc = load_scenario(scenario_path())
     res = check_res(options.get("octree_res") or sc.get("octree_res", 0.05), "--octree-res")
     t0 = time.perf_counter()
-    cell, log, task, cfg, stage = _run_one(sc, quick, avoidance, progress, "saphari", res, f"{name} (saphari)")
+    cell, log, task, cfg, stage = _run_one(
+        sc, quick, avoidance, progress, "saphari", res, f"{name} (saphari)", view=options.get("view")
+    )
     result: dict[str, Any] = {
         "scenario": name,
         "description": sc.get("description", ""),

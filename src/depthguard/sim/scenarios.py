@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import copy
 import json
+import sys
 import time
 import tomllib
 from importlib import resources
@@ -165,6 +166,7 @@ def _run_one(
     octree_res: float = 0.05,
     ssm: bool = False,
     setup=None,
+    view: int | None = None,
 ):
     from depthguard.sim.depthcam import KinectSim
     from depthguard.sim.loop import LoopConfig, run_loop
@@ -216,11 +218,27 @@ def _run_one(
         label=label,
         distance_period=float(sc.get("distance_period", 0.003)),
     )
-    log = run_loop(cell, cams, kin, stage, ctrl, task, cfg)
+    live = open_view(view, label, kin.model, cell.cameras, cfg.rho)
+    try:
+        log = run_loop(cell, cams, kin, stage, ctrl, task, cfg, view=live)
+    finally:
+        if live is not None:
+            live.close()
     log.ssm = ctrl if ssm and avoidance else None
     for c in cams:
         c.close()
     return cell, log, task, cfg
+
+
+def open_view(port: int | None, name: str, model, cameras: list, rho: float):
+    """The live view of a simulated run on 127.0.0.1:``port`` (None: no view); says where on stderr."""
+    if port is None:
+        return None
+    from depthguard.viz.live import LiveView
+
+    live = LiveView.for_scene(name, model, cameras, rho, port=port)
+    print(f"live view: http://127.0.0.1:{live.port}", file=sys.stderr, flush=True)
+    return live
 
 
 def _distance_stage(sc: dict, cell, kin, backend: str, octree_res: float, ssm_range: float | None = None):
@@ -269,6 +287,7 @@ def run_scenario(
     octree_res: float = 0.05,
     ssm: bool = False,
     placement: str | None = None,
+    view: int | None = None,
 ) -> dict[str, Any]:
     """Run a scenario; return its metrics (the object ``depthguard scenario NAME --json`` prints).
 
@@ -289,6 +308,8 @@ def run_scenario(
             :func:`depthguard.sim.ssm_metrics.ssm_metrics` and ``ssm.png``. Off when ``avoidance`` is False.
         placement: a camera placement of :func:`depthguard.sim.depthcam.placement` instead of the file's
             ``cameras`` (e.g. ``"ral-rolled"``; None: the file's).
+        view: serve the live view (:class:`depthguard.viz.live.LiveView`) of the main run on this port of
+            127.0.0.1 while it runs (None: no view).
     Returns:
         A JSON-ready dict with top-level ``collision_steps``, ``min_clearance``, ``task_completion``,
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
@@ -311,7 +332,7 @@ def run_scenario(
         octree_res=octree_res, ssm=ssm,
     )  # fmt: skip
     label = f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})"
-    cell, log, task, cfg = _run_one(sc, label=label, demo=demo, **run_kw)
+    cell, log, task, cfg = _run_one(sc, label=label, demo=demo, view=view, **run_kw)
     result: dict[str, Any] = {
         "scenario": sc["name"],
         "placement": sc.get("cameras"),

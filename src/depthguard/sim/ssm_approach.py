@@ -166,6 +166,7 @@ def run(name: str = "ssm-approach", quick: bool = False, avoidance: bool = True,
     cell, log, task, cfg = _run_one(
         sc, quick=quick, avoidance=avoidance, cameras=None, progress=progress,
         label=f"{name} ({'ssm' if avoidance else 'no avoid'})", ssm=True, setup=_connect,
+        view=(options or {}).get("view"),
     )  # fmt: skip
     person_script = cell.spec.people[0]
     res: dict[str, Any] = {

@@ -7,6 +7,9 @@ What the page shows, in the world frame:
   self-filter removed as the robot's (magenta); about 160 points per image row (``stride``);
 * the control spheres coloured by distance (red at contact, yellow half way, green at rho and beyond) and the
   repulsive vectors (orange segments, longer when nearer);
+* with the octree backend (``scenario --backend octree --view``, ``scenario saphari-octree --view``), the
+  obstacle octree's nodes: occupied (red), occluded (orange) and unseen (grey; obstacles in the conservative
+  mode) as squares of the node size;
 * a panel with the controller status, the smallest distance and the rates of frames, distance queries and
   commands.
 
@@ -17,6 +20,8 @@ the control loop never waits on the browser.
 
 from __future__ import annotations
 
+import contextlib
+import sys
 import threading
 import time
 from collections import deque
@@ -32,6 +37,8 @@ __all__ = ["LiveView", "run_view_node", "CAMERA_COLOURS"]
 #: Point-cloud colour of camera k (RGB 0-255).
 CAMERA_COLOURS = [(40, 120, 255), (0, 190, 190), (250, 160, 0), (140, 90, 255)]
 ROBOT_PIXELS = (255, 0, 220)
+#: Colour of the octree's node kinds (depthguard.octree.fusion: 1 occupied, 2 occluded, 3 unseen).
+OCTREE_COLOURS = {"occupied": (1, (230, 30, 30)), "occluded": (2, (255, 150, 40)), "unseen": (3, (120, 120, 130))}
 
 
 def _distance_rgb(d: float, rho: float) -> tuple[int, int, int]:
@@ -74,7 +81,8 @@ class LiveView:
         self._carried = [(i, c.parent) for i, c in enumerate(cell.cameras) if c.parent != "world"]
         self.rho = float(cell.distance["rho"])
         self.stride, self.period = stride, 1.0 / float(max_hz)
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        with contextlib.redirect_stdout(sys.stderr):  # (viser's banner: stdout carries the commands' JSON)
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.port = port
         cam = self.server.initial_camera
         cam.position, cam.look_at, cam.up = (2.0, -2.0, 1.5), (0.0, 0.0, 0.45), (0.0, 0.0, 1.0)
@@ -88,7 +96,14 @@ class LiveView:
         gui = self.server.gui
         self.md = gui.add_markdown("**DepthGuard**: waiting for data")
         self.lock = threading.Lock()
-        self.state: dict[str, Any] = {"q": None, "frames": None, "masks": None, "res": None, "status": "-"}
+        self.state: dict[str, Any] = {
+            "q": None,
+            "frames": None,
+            "masks": None,
+            "res": None,
+            "status": "-",
+            "octree": None,
+        }
         self.times = {k: deque(maxlen=60) for k in ("frames", "queries", "commands")}
         self.clouds: dict[str, Any] = {}
         self.draws = 0
@@ -97,6 +112,19 @@ class LiveView:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="depthguard-live-view", daemon=True)
         self._thread.start()
+
+    @classmethod
+    def for_scene(cls, name: str, model: Any, cameras: list[Camera], rho: float, **kw: Any) -> LiveView:
+        """A view of a simulated scenario (``depthguard scenario NAME --view``): ``cameras`` fixed in the world
+        (principal first), the robot ``model`` at the world origin, ``rho`` in metres; ``kw`` as the
+        constructor's (``port``...)."""
+        from types import SimpleNamespace
+
+        # (the view reads of a cell file its name, rho and which cameras a link carries: none here)
+        cell = SimpleNamespace(
+            name=name, distance={"rho": float(rho)}, cameras=[SimpleNamespace(parent="world") for _ in cameras]
+        )
+        return cls(cell, model, None, cameras, **kw)
 
     # ------------------------------------------------------------------ producer side (cheap, any thread)
     def inputs(self, tick, frames) -> None:
@@ -148,6 +176,12 @@ class LiveView:
             self.state["status"] = status
             self.times["commands"].append(time.perf_counter())
 
+    def set_octree(self, frame: Any) -> None:
+        """The obstacle octree of the latest frame (:class:`depthguard.octree.fusion.OctreeFrame`, or None);
+        its nodes are drawn at the next redraw."""
+        with self.lock:
+            self.state["octree"] = frame
+
     # ------------------------------------------------------------------ drawing side (its own thread)
     def _loop(self) -> None:
         last = 0.0
@@ -184,6 +218,22 @@ class LiveView:
         elif f"robot{k}" in self.clouds:
             self.clouds.pop(f"robot{k}").remove()
 
+    def _octree(self, frame: Any) -> None:
+        """Draw the nodes of an octree frame by kind (squares of the node size at their centres)."""
+        box = frame.box
+        sc = self.server.scene
+        for name, (code, col) in OCTREE_COLOURS.items():
+            idx = np.argwhere(frame.kind == code)
+            key = f"octree_{name}"
+            if len(idx) == 0:
+                if key in self.clouds:
+                    self.clouds.pop(key).remove()
+                continue
+            pts = (np.asarray(box.origin, float) + (idx + 0.5) * float(box.res)).astype(np.float32)
+            self.clouds[key] = sc.add_point_cloud(
+                f"/octree/{name}", pts, col, point_size=0.9 * float(box.res), point_shape="square"
+            )
+
     def _world_cameras(self, q) -> list[Camera] | None:
         """The cameras in the world frame at joint positions ``q``; None when a carried camera cannot be
         placed (no usable joint state yet)."""
@@ -208,6 +258,8 @@ class LiveView:
             masks = st["masks"] or [None] * len(st["frames"])
             for k, (cam, dep) in enumerate(zip(cams, st["frames"], strict=False)):
                 self._cloud(cam, dep, masks[k] if k < len(masks) else None, k)
+        if st["octree"] is not None:
+            self._octree(st["octree"])
         dmin = None
         if st["res"] is not None:
             centres, radii, res = st["res"]
@@ -250,7 +302,8 @@ class LiveView:
         self._stop.set()
         self._dirty.set()
         self._thread.join(2.0)
-        self.server.stop()
+        with contextlib.redirect_stdout(sys.stderr):
+            self.server.stop()
 
 
 def run_view_node(
