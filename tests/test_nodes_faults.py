@@ -8,7 +8,8 @@ module; each test injects one fault and watches the controller's status topic fr
 * a camera node frozen (SIGSTOP: its session stops answering, as in a network partition) then continued:
   the same stop and resume;
 * the controller node killed: the driver's watchdog holds the arm (the sim node's log);
-* an unlisted publisher of distances: ignored and reported by the controller.
+* an unlisted publisher of distances: ignored and reported by the controller;
+* a slow consumer (the distance node running a fifth of the time): the same stop, no backlog, and resume.
 
 The test cell relaxes the timeouts to what a 2-core shared CI machine can keep (controller 250 Hz,
 joint timeout 0.1 s, distance timeout 0.3 s); duplicated / reordered samples are tested at the transport
@@ -187,6 +188,45 @@ def test_unlisted_distance_publisher_is_ignored_and_reported(system):
     assert out[-1]["rejected_publishers"] == ["test_watch"]
     assert out[-1]["dropped"].get("publisher not allowed", 0) >= 5
     sysm.start("controller")
+
+
+def test_slow_distance_node_works_on_the_newest_frames(system):
+    """A slow consumer: the distance node runs 0.1 s in every 0.5 s (SIGSTOP / SIGCONT) for 4 s, far slower
+    than the frames come. The controller stops the arm on stale distances and keeps running; the node builds
+    no backlog: once it runs freely again its results are about one frame set old, not the queued frames of
+    the slow phase; and the controller resumes through its latch."""
+    sysm, watch = system
+    assert watch.wait_for("OK", time.time() - 0.5, 60.0), "not OK before the slow phase"
+    pid = sysm.procs["distance"].pid
+    t_slow = time.time()
+    try:
+        while time.time() - t_slow < 4.0:
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(0.4)
+            os.kill(pid, signal.SIGCONT)
+            time.sleep(0.1)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    t_free = time.time()
+    assert watch.wait_for("STOP_STALE_DISTANCES", t_slow, 0.5) is not None, "no stale-data stop while slow"
+    assert sysm.procs["controller"].poll() is None and sysm.procs["distance"].poll() is None
+    t_ok = watch.wait_for("OK", t_free, 90.0)
+    assert t_ok is not None, "never resumed after the slow phase"
+    time.sleep(max(1.0, t_free + 2.5 - time.time()))
+    with watch.lock:  # the statuses since the slow phase began, each change once (published on change)
+        seq = [s for t, s in watch.events if t >= t_slow]
+    changes = [s for i, s in enumerate(seq) if i == 0 or s != seq[i - 1]]
+    assert all(not (a == "STOP_STALE_DISTANCES" and b == "OK") for a, b in zip(changes, changes[1:], strict=False)), (
+        f"resumed without the latch: {changes}"
+    )
+    log = [json.loads(x) for x in (sysm.tmp / "distance.log").read_text().splitlines() if '"distances"' in x]
+    slow = [r["pub"] - r["stamp"] for r in log if t_slow + 0.5 < r["pub"] < t_free]
+    assert slow and max(slow) > D_TIMEOUT, "the slow phase never delivered stale results (nothing was tested)"
+    ages = [r["pub"] - r["stamp"] for r in log if r["pub"] > t_free + 1.0]
+    assert len(ages) >= 5, f"only {len(ages)} results after the slow phase"
+    ages.sort()
+    # (a queue of the slow phase's frames would keep ages of seconds; 2 cores shared with the whole system)
+    assert ages[len(ages) // 2] < 0.25, f"results {ages[len(ages) // 2]:.3f} s old (median) after the slow phase"
 
 
 def test_controller_killed_driver_watchdog_holds_the_arm(system):
