@@ -99,10 +99,10 @@ def _run_one(
     sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, res: float, label: str, view: int | None = None
 ):
     from depthguard.sim.depthcam import KinectSim
-    from depthguard.sim.loop import LoopConfig, run_loop
+    from depthguard.sim.loop import LoopConfig
     from depthguard.sim.pipeline import Controller
     from depthguard.sim.scenario_setup import scenario_task
-    from depthguard.sim.scenarios import open_view
+    from depthguard.sim.scenarios import run_loop_viewed
 
     cell, kin, scanners = _build(sc, quick)
     cams = [KinectSim(cell.model, c, i, seed=i) for i, c in enumerate(cell.cameras)]
@@ -121,12 +121,7 @@ def _run_one(
         progress=progress, label=label, distance_period=float(sc.get("distance_period", 0.003)),
         frame_period=float(sc["quick_frame_period"] if quick else sc["frame_period"]),
     )  # fmt: skip
-    live = open_view(view, label, kin.model, cell.cameras, cfg.rho)
-    try:
-        log = run_loop(cell, cams, kin, stage, ctrl, task, cfg, view=live)
-    finally:
-        if live is not None:
-            live.close()
+    log = run_loop_viewed(view, cell, cams, kin, stage, ctrl, task, cfg)
     for c in cams:
         c.close()
     return cell, log, task, cfg, stage

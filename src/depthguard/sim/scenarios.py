@@ -169,7 +169,7 @@ def _run_one(
     view: int | None = None,
 ):
     from depthguard.sim.depthcam import KinectSim
-    from depthguard.sim.loop import LoopConfig, run_loop
+    from depthguard.sim.loop import LoopConfig
     from depthguard.sim.pipeline import Controller
 
     if ssm and cameras is None:  # SSM needs a cell without blind pockets near the robot (docs/ssm.md)
@@ -218,16 +218,23 @@ def _run_one(
         label=label,
         distance_period=float(sc.get("distance_period", 0.003)),
     )
-    live = open_view(view, label, kin.model, cell.cameras, cfg.rho)
-    try:
-        log = run_loop(cell, cams, kin, stage, ctrl, task, cfg, view=live)
-    finally:
-        if live is not None:
-            live.close()
+    log = run_loop_viewed(view, cell, cams, kin, stage, ctrl, task, cfg)
     log.ssm = ctrl if ssm and avoidance else None
     for c in cams:
         c.close()
     return cell, log, task, cfg
+
+
+def run_loop_viewed(view: int | None, cell, cams, kin, stage, ctrl, task, cfg):
+    """:func:`depthguard.sim.loop.run_loop`, with the live view on port ``view`` while it runs (None: none)."""
+    from depthguard.sim.loop import run_loop
+
+    live = open_view(view, cfg.label, kin.model, cell.cameras, cfg.rho)
+    try:
+        return run_loop(cell, cams, kin, stage, ctrl, task, cfg, view=live)
+    finally:
+        if live is not None:
+            live.close()
 
 
 def open_view(port: int | None, name: str, model, cameras: list, rho: float):
