@@ -78,6 +78,26 @@ class _Inputs:
         return CycleInput(t, s["q"], s["qd"], s["tj"], s["xd"], s["d"], s["dirs"], s["td"], *mon)
 
 
+def warm_up(points, config, model, cycles: int = 300) -> str:
+    """Run a throwaway controller for ``cycles`` simulated cycles on synthetic, valid input (the robot at
+    mid-range, a slow task velocity, an obstacle 0.3 m from every sphere, fresh data) so that every compiled
+    kernel of the stopped and the moving paths is loaded before the node's first real cycle (a first use
+    inside the loop once stalled the node for seconds). Returns the last status name."""
+    from depthguard.control.cycle import AvoidanceController, CycleInput
+
+    ctrl = AvoidanceController(points, config)
+    q = 0.5 * (np.asarray(model.q_min, float) + np.asarray(model.q_max, float))
+    qd, xd = np.zeros_like(q), np.array([0.02, 0.0, 0.0])
+    N = points.n_points
+    d, dirs = np.full(N, 0.3), np.tile([0.0, 0.0, 1.0], (N, 1))
+    out = None
+    for k in range(cycles):
+        t = k * config.dt
+        out = ctrl.step(CycleInput(t, q, qd, t, xd, d, dirs, t, None, None))
+        q, qd = np.asarray(out.q_cmd, float), np.asarray(out.qdot_cmd, float)
+    return out.status.name if out is not None else "-"
+
+
 def run_controller_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
@@ -90,6 +110,7 @@ def run_controller_node(
     model = load_cell_robot(cell)
     points = cell_control_points(cell, model)
     config = _controller_config(cell)
+    warm_up(points, config, model)
     ctrl = AvoidanceController(points, config)
     N, n = points.n_points, len(model.joint_names)
     top = Topics.of(cell)
