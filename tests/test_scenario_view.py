@@ -18,10 +18,10 @@ from depthguard.cli import main  # noqa: E402
 def _spy_view(monkeypatch) -> list:
     """Capture the LiveView that a scenario opens; before it closes, draw its last state once more and keep
     what was drawn (``drawn``) beside the state it was drawn from (``last``)."""
-    from depthguard.sim import scenarios
+    from depthguard.sim import live_run
 
     seen: list = []
-    real_open = scenarios.open_view
+    real_open = live_run.open_view
 
     def spy(*a, **k):
         view = real_open(*a, **k)
@@ -38,7 +38,7 @@ def _spy_view(monkeypatch) -> list:
         seen.append(view)
         return view
 
-    monkeypatch.setattr(scenarios, "open_view", spy)
+    monkeypatch.setattr(live_run, "open_view", spy)
     return seen
 
 

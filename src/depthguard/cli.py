@@ -60,11 +60,9 @@ def _load_entry(spec: str, what: str):
     return getattr(mod, fn_name)
 
 
-def _scenario_options(args: argparse.Namespace) -> dict:
+def _scenario_options(args: argparse.Namespace, view: int | None) -> dict:
     keys = ("cameras", "backend", "octree_res", "case", "lambda_", "contacts", "rate", "ssm")
-    out = {k: getattr(args, k, None) for k in keys}
-    out["view"] = _view_port(args)
-    return out
+    return {**{k: getattr(args, k, None) for k in keys}, "view": view}
 
 
 # the scenarios that can feed the live view (they simulate depth cameras in a cell)
@@ -77,9 +75,11 @@ def _view_port(args: argparse.Namespace) -> int | None:
     if not getattr(args, "view", False):
         return None
     if args.name == "pivot" or (args.name in EXTRA_SCENARIOS and args.name not in VIEW_SCENARIOS):
+        from depthguard.sim.scenarios import list_scenarios  # (no simulator import)
+
         raise _Exit(
             f"--view: scenario {args.name!r} has no simulated depth cameras to show; the live view runs with the"
-            f" cell scenarios ({', '.join(list_scenario_names())}) and {', '.join(VIEW_SCENARIOS)}"
+            f" cell scenarios ({', '.join(list_scenarios())}) and {', '.join(VIEW_SCENARIOS)}"
         )
     try:
         import viser  # noqa: F401
@@ -90,20 +90,12 @@ def _view_port(args: argparse.Namespace) -> int | None:
     return int(args.view_port)
 
 
-def list_scenario_names() -> list[str]:
-    """The shipped cell scenarios (``src/depthguard/data/scenarios``), without importing the simulator."""
-    from importlib import resources
-
-    files = resources.files("depthguard.data") / "scenarios"
-    return sorted(p.name[: -len(".toml")] for p in files.iterdir() if p.name.endswith(".toml"))
-
-
 def _cmd_scenario(args: argparse.Namespace) -> int:
     if args.out:  # before any work: a bad --out must not cost a whole run
         from depthguard.io.files import prepare_out_dir
 
         prepare_out_dir(args.out, "--out folder")
-    _view_port(args)  # (a scenario without a view, or no viser: refused before any work)
+    view = _view_port(args)  # (a scenario without a view, or no viser: refused before any work)
     if args.name == "pivot":
         from depthguard.pivot_scenario import run_pivot_scenario
 
@@ -119,7 +111,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             avoidance=not args.no_avoidance,
             out_dir=args.out,
             progress=not args.json,
-            options=_scenario_options(args),
+            options=_scenario_options(args, view),
         )
     else:
         try:
@@ -136,7 +128,7 @@ def _cmd_scenario(args: argparse.Namespace) -> int:
             **({"backend": "octree", "octree_res": args.octree_res or 0.05} if args.backend == "octree" else {}),
             ssm=bool(getattr(args, "ssm", False)),
             placement=getattr(args, "placement", None),
-            view=_view_port(args),
+            view=view,
         )
     if args.json:
         print(json.dumps(out, default=float))

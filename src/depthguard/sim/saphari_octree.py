@@ -99,10 +99,10 @@ def _run_one(
     sc: dict, quick: bool, avoidance: bool, progress: bool, mode: str, res: float, label: str, view: int | None = None
 ):
     from depthguard.sim.depthcam import KinectSim
+    from depthguard.sim.live_run import run_loop_viewed
     from depthguard.sim.loop import LoopConfig
     from depthguard.sim.pipeline import Controller
     from depthguard.sim.scenario_setup import scenario_task
-    from depthguard.sim.scenarios import run_loop_viewed
 
     cell, kin, scanners = _build(sc, quick)
     cams = [KinectSim(cell.model, c, i, seed=i) for i, c in enumerate(cell.cameras)]

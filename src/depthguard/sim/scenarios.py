@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import copy
 import json
-import sys
 import time
 import tomllib
 from importlib import resources
@@ -169,6 +168,7 @@ def _run_one(
     view: int | None = None,
 ):
     from depthguard.sim.depthcam import KinectSim
+    from depthguard.sim.live_run import run_loop_viewed
     from depthguard.sim.loop import LoopConfig
     from depthguard.sim.pipeline import Controller
 
@@ -223,29 +223,6 @@ def _run_one(
     for c in cams:
         c.close()
     return cell, log, task, cfg
-
-
-def run_loop_viewed(view: int | None, cell, cams, kin, stage, ctrl, task, cfg):
-    """:func:`depthguard.sim.loop.run_loop`, with the live view on port ``view`` while it runs (None: none)."""
-    from depthguard.sim.loop import run_loop
-
-    live = open_view(view, cfg.label, kin.model, cell.cameras, cfg.rho)
-    try:
-        return run_loop(cell, cams, kin, stage, ctrl, task, cfg, view=live)
-    finally:
-        if live is not None:
-            live.close()
-
-
-def open_view(port: int | None, name: str, model, cameras: list, rho: float):
-    """The live view of a simulated run on 127.0.0.1:``port`` (None: no view); says where on stderr."""
-    if port is None:
-        return None
-    from depthguard.viz.live import LiveView
-
-    live = LiveView.for_scene(name, model, cameras, rho, port=port)
-    print(f"live view: http://127.0.0.1:{live.port}", file=sys.stderr, flush=True)
-    return live
 
 
 def _distance_stage(sc: dict, cell, kin, backend: str, octree_res: float, ssm_range: float | None = None):
