@@ -5,48 +5,26 @@ Certificates are made with the ``openssl`` command (skipped where it is missing)
 from __future__ import annotations
 
 import random
-import shutil
-import subprocess
 import time
 from pathlib import Path
 
 import pytest
 
+from certs import make_ca, make_cert, need_openssl, tls_settings
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _certs(d: Path, name: str) -> tuple[Path, Path, Path]:
-    def run(*args):
-        subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True)
-
-    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}-ca.key", "-out", f"{name}-ca.pem",
-        "-days", "2", "-subj", f"/CN={name}-ca")  # fmt: skip
-    run(
-        "req",
-        "-newkey",
-        "rsa:2048",
-        "-nodes",
-        "-keyout",
-        f"{name}.key",
-        "-out",
-        f"{name}.csr",
-        "-subj",
-        "/CN=localhost",
-    )
-    (d / "ext.cnf").write_text(
-        "subjectAltName=IP:127.0.0.1,DNS:localhost\nbasicConstraints=CA:FALSE\n"
-        "keyUsage=digitalSignature,keyEncipherment\nextendedKeyUsage=serverAuth,clientAuth\n"
-    )
-    run("x509", "-req", "-in", f"{name}.csr", "-CA", f"{name}-ca.pem", "-CAkey", f"{name}-ca.key",
-        "-CAcreateserial", "-out", f"{name}.pem", "-days", "2", "-extfile", "ext.cnf")  # fmt: skip
-    return d / f"{name}-ca.pem", d / f"{name}.pem", d / f"{name}.key"
+    ca = make_ca(d, name)
+    crt, key = make_cert(d, ca, name, "localhost")
+    return ca[0], crt, key
 
 
 @pytest.mark.slow
 def test_mutual_tls_between_nodes(tmp_path):
     pytest.importorskip("zenoh")
-    if shutil.which("openssl") is None:
-        pytest.skip("the openssl command is needed to make test certificates")
+    need_openssl()
     from depthguard.io import ros2
     from depthguard.io.cellfile import read_cell
     from depthguard.io.zenoh_transport import ZenohNode
@@ -63,14 +41,8 @@ def test_mutual_tls_between_nodes(tmp_path):
     dist = open_node(cell, "distance")  # listens on tls/127.0.0.1:base+3
     port = base + 3
 
-    def tls(ca_, crt_, key_):
-        return {
-            "root_ca_certificate": str(ca_), "listen_certificate": str(crt_), "listen_private_key": str(key_),
-            "connect_certificate": str(crt_), "connect_private_key": str(key_), "enable_mtls": True,
-        }  # fmt: skip
-
-    good = ZenohNode("controller", listen=[], connect=[f"tls/127.0.0.1:{port}"], tls=tls(ca, crt, key))
-    stranger = ZenohNode("stranger", listen=[], connect=[f"tls/127.0.0.1:{port}"], tls=tls(oca, ocrt, okey))
+    good = ZenohNode("controller", listen=[], connect=[f"tls/127.0.0.1:{port}"], tls=tls_settings(ca, crt, key))
+    stranger = ZenohNode("stranger", listen=[], connect=[f"tls/127.0.0.1:{port}"], tls=tls_settings(oca, ocrt, okey))
     plain = ZenohNode("plain", listen=[], connect=[f"tcp/127.0.0.1:{port}"])
     try:
         got = []

@@ -50,7 +50,9 @@ cell file are relative to the file's folder. Sections:
   ``connect`` (extra endpoints, default the ROS 2 router ``tcp/127.0.0.1:7447``), ``publishers`` (node names
   allowed to publish distances and joint commands; default: DepthGuard's own ``distance`` and
   ``controller``), ``tls_root_ca``, ``tls_certificate``, ``tls_private_key`` (paths: Zenoh TLS for a network
-  endpoint; required when ``host`` is not a loopback address).
+  endpoint; required when ``host`` is not a loopback address; with ``{node}`` in the certificate and key
+  paths, each node has its own certificate, whose common name is its node name, and Zenoh's access control
+  lets only the ``publishers`` publish distances and joint commands: ``docs/nodes.md``).
 """
 
 from __future__ import annotations
@@ -365,10 +367,19 @@ def _network(src: Path, table: Any) -> dict[str, Any]:
             f"{src}: network.host {net['host']!r} is not loopback: give tls_root_ca, tls_certificate and"
             " tls_private_key (Zenoh TLS) to open a network endpoint"
         )
+    per_node = ["{node}" in net[k] for k in ("tls_certificate", "tls_private_key")]
+    if "{node}" in net["tls_root_ca"] or per_node[0] != per_node[1]:
+        raise CellError(
+            f"{src}: network.tls_certificate and tls_private_key take {{node}} (one certificate per node)"
+            " both or neither, and tls_root_ca never"
+        )
     for k in ("tls_root_ca", "tls_certificate", "tls_private_key"):
         if net[k]:
             path = (src.parent / net[k]).resolve()
-            if not path.is_file():
+            if "{node}" in net[k]:  # (each node's own file is checked when the node starts)
+                if "{node}" not in str(path.parent) and not path.parent.is_dir():
+                    raise CellError(f"{src}: network.{k} '{net[k]}': no folder {path.parent}")
+            elif not path.is_file():
                 raise CellError(f"{src}: network.{k} '{net[k]}' is not a file (looked at {path})")
             net[k] = str(path)
     return net

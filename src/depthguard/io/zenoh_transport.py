@@ -37,7 +37,15 @@ from depthguard.io.rmw_zenoh import (
     topic_keyexpr,
 )
 
-__all__ = ["ROUTER_ENDPOINT", "session_config", "ZenohNode", "RosPublisher", "Subscription", "SampleFilter"]
+__all__ = [
+    "ROUTER_ENDPOINT",
+    "session_config",
+    "acl_put_keys",
+    "ZenohNode",
+    "RosPublisher",
+    "Subscription",
+    "SampleFilter",
+]
 
 #: Where the ROS 2 Zenoh router (``ros2 run rmw_zenoh_cpp rmw_zenohd``) listens.
 ROUTER_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -51,11 +59,17 @@ def _zenoh():
     return zenoh
 
 
-def session_config(listen: list[str], connect: list[str], tls: dict[str, str] | None = None):
+def session_config(
+    listen: list[str],
+    connect: list[str],
+    tls: dict[str, str] | None = None,
+    access_control: dict[str, Any] | None = None,
+):
     """A ``zenoh.Config``: peer mode, no multicast scouting, the given endpoints, background retries.
 
     ``tls``: ``{"root_ca_certificate": path, "listen_certificate": path, "listen_private_key": path}`` for
-    ``tls/`` endpoints (Zenoh's TLS transport); endpoints on other hosts should use it.
+    ``tls/`` endpoints (Zenoh's TLS transport); endpoints on other hosts should use it. ``access_control``:
+    Zenoh's ACL section (:func:`depthguard.io.zenoh_acl.access_control`).
     """
     zenoh = _zenoh()
     for e in list(listen) + list(connect):
@@ -73,7 +87,14 @@ def session_config(listen: list[str], connect: list[str], tls: dict[str, str] | 
     c.insert_json5("listen/exit_on_failure", json.dumps({"router": True, "peer": True, "client": True}))
     if tls:
         c.insert_json5("transport/link/tls", json.dumps(tls))
+    if access_control:
+        c.insert_json5("access_control", json.dumps(access_control))
     return c
+
+
+def acl_put_keys(access_control: dict[str, Any]) -> set[str]:
+    """The key expressions on which some rule of Zenoh's ACL section allows a ``put``."""
+    return {k for r in access_control.get("rules", []) if "put" in r.get("messages", []) for k in r["key_exprs"]}
 
 
 class RosPublisher:
@@ -205,7 +226,17 @@ class Subscription:
 
     @property
     def rejected_publishers(self) -> set[str]:
+        """Node names of the publishers whose samples were dropped as not allowed."""
         return self.filter.rejected_publishers
+
+    @property
+    def unlisted_publishers(self) -> set[str]:
+        """Publishers declared on this topic that are not allowed (:meth:`ZenohNode.unlisted_publishers`);
+        empty when anyone may publish here. With Zenoh's access control their samples never arrive, so
+        this is where they are reported."""
+        if self.filter.allowed is None:
+            return set()
+        return self.node.unlisted_publishers(self.topic, self.filter.allowed)
 
     def _on_sample(self, sample) -> None:
         now = time.time_ns()
@@ -231,6 +262,9 @@ class ZenohNode:
         domain: ROS domain id.
         listen: endpoints to listen on (loopback by default); ``connect``: endpoints to connect to
             (default: the ROS 2 router at ``tcp/127.0.0.1:7447``).
+        tls: Zenoh's TLS link settings (:func:`session_config`).
+        access_control: Zenoh's ACL section; with it, the peers' certificate common names identify them in
+            :meth:`unlisted_publishers` too (one certificate per node).
     """
 
     def __init__(
@@ -241,16 +275,20 @@ class ZenohNode:
         listen: list[str] | None = None,
         connect: list[str] | None = None,
         tls: dict[str, str] | None = None,
+        access_control: dict[str, Any] | None = None,
     ) -> None:
         zenoh = _zenoh()
         self.name, self.domain = str(name), int(domain)
-        self.session = zenoh.open(session_config(listen or [], [ROUTER_ENDPOINT] if connect is None else connect, tls))
+        conf = session_config(listen or [], [ROUTER_ENDPOINT] if connect is None else connect, tls, access_control)
+        self.session = zenoh.open(conf)
+        self.identified = bool(access_control)
+        self._acl_keys = None if not access_control else acl_put_keys(access_control)
         self.zid = str(self.session.info.zid())
         self.nid = 0
         self._eid = 0
         self.token = liveliness_token(self.domain, self.zid, self.nid, self._next_eid(), "NN", self.name)
         self._lv = self.session.liveliness().declare_token(self.token)
-        self._graph: dict[bytes, str] = {}
+        self._graph: dict[bytes, Any] = {}  # GID -> the publisher's liveliness token (parsed)
         self._glock = threading.Lock()
         self._graph_sub = self.session.liveliness().declare_subscriber(
             f"@ros2_lv/{self.domain}/**", self._on_token, history=True
@@ -274,14 +312,53 @@ class ZenohNode:
             if sample.kind == _zenoh().SampleKind.DELETE:
                 self._graph.pop(entity_gid(key), None)
             else:
-                self._graph[entity_gid(key)] = tok.node
+                self._graph[entity_gid(key)] = tok
 
     def publisher_node(self, gid: bytes) -> str | None:
         """Name of the node whose publisher has ``gid`` (from the graph's liveliness tokens), None if unknown."""
         with self._glock:
-            return self._graph.get(bytes(gid))
+            tok = self._graph.get(bytes(gid))
+        return None if tok is None else tok.node
+
+    def peer_identities(self) -> dict[str, str]:
+        """Zenoh id of each directly linked peer -> the common name of its TLS certificate (peers whose
+        link carries none are left out)."""
+        out = {}
+        try:
+            links = list(self.session.info.links())
+        except Exception:  # noqa: BLE001 - a closed or half-dead session: no identities
+            return out
+        for link in links:
+            ident = getattr(link, "auth_identifier", None)
+            if ident:
+                out[str(link.zid)] = str(ident)
+        return out
+
+    def unlisted_publishers(self, topic: str, allowed: set[str]) -> set[str]:
+        """The publishers declared on ``topic`` in the ROS graph that are not ``allowed``: their node name,
+        and, with access control (:attr:`identified`), ``"name (certificate CN)"`` for a publisher whose
+        certificate's common name is not its node name or not allowed (a peer that took a listed name)."""
+        with self._glock:
+            toks = [t for t in self._graph.values() if t.topic == topic and t.zid != self.zid]
+        ids = self.peer_identities() if self.identified and toks else {}
+        out = set()
+        for t in toks:
+            cn = ids.get(t.zid)
+            if t.node not in allowed:
+                out.add(t.node if cn in (None, t.node) else f"{t.node} (certificate {cn})")
+            elif self.identified and cn != t.node:
+                out.add(f"{t.node} (certificate {cn or 'unknown'})")
+        return out
+
+    def _check_acl(self, topic: str, typename: str) -> None:
+        if self._acl_keys is not None and topic_keyexpr(self.domain, topic, typename) not in self._acl_keys:
+            raise ValueError(
+                f"topic {topic} of type {typename} is not in this node's access control (Zenoh would drop"
+                " its samples): add it to the cell's topics (nodes.common.Topics.typed)"
+            )
 
     def publisher(self, topic: str, typename: str, qos: QoS = QOS_DEFAULT) -> RosPublisher:
+        self._check_acl(topic, typename)
         p = RosPublisher(self, topic, typename, qos, self._next_eid())
         self.entities.append(p)
         return p
@@ -296,6 +373,7 @@ class ZenohNode:
         check_order: bool = True,
     ) -> Subscription:
         """Subscribe; ``allowed``: node names that may publish on this topic (None = anyone)."""
+        self._check_acl(topic, typename)
         s = Subscription(self, topic, typename, callback, self._next_eid(), allowed, check_order)
         self.entities.append(s)
         return s

@@ -23,6 +23,9 @@ from depthguard.runner.bag import TASK_TOPIC
 __all__ = [
     "node_names",
     "open_node",
+    "node_certificate",
+    "node_access_control",
+    "PER_NODE",
     "Topics",
     "camera_at_size",
     "StopFlag",
@@ -31,6 +34,9 @@ __all__ = [
 ]
 
 _FIXED = ("distance", "controller", "monitor", "run", "view")
+
+#: In ``network.tls_certificate`` and ``tls_private_key``: the node's name (one certificate per node).
+PER_NODE = "{node}"
 
 #: A frame is self-filtered (camera nodes) or corrected for the robot's interior (distance node) only with
 #: joint states at most this far (s) from its stamp.
@@ -68,18 +74,54 @@ def open_node(cell: CellFile, name: str, *, domain: int | None = None, connect: 
     listen = [_endpoint(cell, base + idx)]
     peers = [_endpoint(cell, base + k) for k in range(len(names)) if k != idx]
     extra = list(net["connect"]) if connect is None else list(connect)
-    tls = None
+    dom = int(net.get("domain", 0)) if domain is None else int(domain)
+    tls, acl = None, None
     if net.get("tls_certificate"):
+        crt, key = node_certificate(net, name)
         tls = {
             "root_ca_certificate": net["tls_root_ca"],
-            "listen_certificate": net["tls_certificate"],
-            "listen_private_key": net["tls_private_key"],
-            "connect_certificate": net["tls_certificate"],
-            "connect_private_key": net["tls_private_key"],
+            "listen_certificate": crt,
+            "listen_private_key": key,
+            "connect_certificate": crt,
+            "connect_private_key": key,
             "enable_mtls": True,
         }
-    dom = int(net.get("domain", 0)) if domain is None else int(domain)
-    return ZenohNode(name, domain=dom, listen=listen, connect=peers + extra, tls=tls)
+        if PER_NODE in net["tls_certificate"]:
+            acl = node_access_control(cell, dom)
+    return ZenohNode(name, domain=dom, listen=listen, connect=peers + extra, tls=tls, access_control=acl)
+
+
+def node_certificate(net: dict[str, Any], name: str) -> tuple[str, str]:
+    """Node ``name``'s certificate and private key (paths) from a cell's ``[network]`` table: the same pair
+    for every node, or, with ``{node}`` in the paths, the node's own pair, whose certificate must have the
+    node's name as its common name (Zenoh's access control identifies the node by it)."""
+    from depthguard.io.zenoh_acl import certificate_common_name
+
+    crt, key = net["tls_certificate"], net["tls_private_key"]
+    if PER_NODE not in crt:
+        return crt, key
+    crt, key = crt.replace(PER_NODE, name), key.replace(PER_NODE, name)
+    for k, path in (("tls_certificate", crt), ("tls_private_key", key)):
+        if not Path(path).is_file():
+            raise ValueError(f"network.{k}: node {name!r} has no file {path}")
+    cn = certificate_common_name(crt)
+    if cn != name:
+        raise ValueError(
+            f"network.tls_certificate: {crt} has the common name {cn!r}; with one certificate per node it"
+            f" must be the node's name {name!r} (Zenoh's access control identifies the node by it)"
+        )
+    return crt, key
+
+
+def node_access_control(cell: CellFile, domain: int) -> dict[str, Any]:
+    """Zenoh's ACL section for a node of ``cell`` (:mod:`depthguard.io.zenoh_acl`): only the certificates
+    named in ``network.publishers`` may publish distances and joint commands."""
+    from depthguard.io.rmw_zenoh import topic_keyexpr
+    from depthguard.io.zenoh_acl import access_control
+
+    open_, protected = Topics.of(cell).typed()
+    keys = [[topic_keyexpr(domain, t, ty) for t, ty in group] for group in (open_, protected)]
+    return access_control(keys[0], keys[1], list(cell.network.get("publishers", ["distance", "controller"])))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,6 +156,26 @@ class Topics:
             depth={c.name: f"/depthguard/{c.name}/depth" for c in cell.cameras},
             mask={c.name: f"/depthguard/{c.name}/robot_mask" for c in cell.cameras},
         )
+
+    def typed(self) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+        """``(open, protected)``: the ``(topic, ROS type)`` pairs that the nodes exchange; the protected
+        ones (distances and joint commands) only the cell's ``network.publishers`` may publish."""
+        img = "sensor_msgs/msg/Image"
+        open_ = [
+            (self.joint_states, "sensor_msgs/msg/JointState"),
+            (self.task, "geometry_msgs/msg/Vector3Stamped"),
+            (self.status, "depthguard_msgs/msg/ControllerStatus"),
+            *[(t, img) for group in (self.raw, self.depth, self.mask) for t in group.values()],
+        ]
+        dist = "depthguard_msgs/msg/ControlPointDistances"
+        protected = [
+            (self.distances, dist),
+            (self.monitor_distances, dist),
+            (self.command, "sensor_msgs/msg/JointState"),
+            (self.command_array, "std_msgs/msg/Float64MultiArray"),
+            (self.command_trajectory, "trajectory_msgs/msg/JointTrajectory"),
+        ]
+        return open_, protected
 
 
 def camera_at_size(camera: Camera, width: int, height: int) -> Camera:

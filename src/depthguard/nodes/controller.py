@@ -171,6 +171,7 @@ def run_controller_node(
             "cycle_ms_p99": float(np.percentile(cw, 99)) if cw.size else None,
             "dropped": dict(sub_d.dropped),
             "rejected_publishers": sorted(sub_d.rejected_publishers),
+            "unlisted_publishers": sorted(sub_d.unlisted_publishers),
         }
         node.close()
         jl.close()

@@ -107,6 +107,8 @@ def run_sim_node(
                 time.sleep(spare)
     finally:
         out = {"frames": frames, "joint_states": n_js, "held_cycles": held, "dropped": dict(sub.dropped)}
+        out["rejected_publishers"] = sorted(sub.rejected_publishers)
+        out["unlisted_publishers"] = sorted(sub.unlisted_publishers)
         node.close()
         src.close()
         jl.close()
