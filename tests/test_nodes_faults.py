@@ -9,11 +9,13 @@ module; each test injects one fault and watches the controller's status topic fr
   the same stop and resume;
 * the controller node killed: the driver's watchdog holds the arm (the sim node's log);
 * an unlisted publisher of distances: ignored and reported by the controller;
+* duplicated and reordered distances (replayed while the distance node is frozen): dropped, the same stop
+  and resume;
 * a slow consumer (the distance node running a fifth of the time): the same stop, no backlog, and resume.
 
 The test cell relaxes the timeouts to what a 2-core shared CI machine can keep (controller 250 Hz,
-joint timeout 0.1 s, distance timeout 0.3 s); duplicated / reordered samples are tested at the transport
-level in ``test_rmw_zenoh.py``.
+joint timeout 0.1 s, distance timeout 0.3 s); duplicated / reordered samples are also tested at the
+transport level in ``test_rmw_zenoh.py``.
 """
 
 from __future__ import annotations
@@ -163,6 +165,17 @@ def _fault_and_recover(system, name: str, kill: bool) -> None:
     assert "STOP_RESUME_WAIT" in between, "resumed without the resume latch"
 
 
+def _controller_report_and_restart(sysm, watch) -> dict:
+    """Stop the controller node (SIGTERM: it prints its report), start it again and wait for its first OK
+    (a status from the new process: the old one's last statuses must not count); returns the report."""
+    sysm.stop("controller")
+    out = [json.loads(x) for x in (sysm.tmp / "controller.out").read_text().splitlines() if x.startswith("{")]
+    t_start = time.time()
+    sysm.start("controller")
+    assert watch.wait_for("OK", t_start, 90.0), "the restarted controller never reached OK"
+    return out[-1]
+
+
 def test_distance_node_killed_and_restarted(system):
     _fault_and_recover(system, "distance", kill=True)
 
@@ -183,11 +196,67 @@ def test_unlisted_distance_publisher_is_ignored_and_reported(system):
         pub.publish(msg)
         time.sleep(0.05)
     time.sleep(0.5)
-    sysm.stop("controller")  # SIGTERM: the node prints its report
-    out = [json.loads(x) for x in (sysm.tmp / "controller.out").read_text().splitlines() if x.startswith("{")]
-    assert out[-1]["rejected_publishers"] == ["test_watch"]
-    assert out[-1]["dropped"].get("publisher not allowed", 0) >= 5
-    sysm.start("controller")
+    out = _controller_report_and_restart(sysm, watch)
+    assert out["rejected_publishers"] == ["test_watch"]
+    assert out["dropped"].get("publisher not allowed", 0) >= 5
+
+
+def test_replayed_and_reordered_distances_do_not_keep_the_arm_moving(system):
+    """Duplicated and reordered messages, real processes. While the distance node is frozen, a peer keeps
+    sending (a) exact copies of the node's last samples (its attachment: GID and sequence number) and (b) the
+    same payloads from a second publisher under the listed name ``distance``, oldest last (header stamps
+    going back). The controller drops both, stops the arm within its stale-data timeout, keeps running, and
+    resumes through its latch when the node continues; its report counts both kinds of drop."""
+    from depthguard.io.rmw_zenoh import topic_keyexpr
+    from depthguard.io.zenoh_transport import ZenohNode
+    from depthguard.nodes.common import Topics, _endpoint, node_names
+
+    sysm, watch = system
+    assert watch.wait_for("OK", time.time() - 0.5, 60.0), "not OK before the fault"
+    top = Topics.of(watch.cell)
+    key = topic_keyexpr(0, top.distances, "depthguard_msgs/msg/ControlPointDistances")
+    seen: list[tuple[bytes, bytes]] = []
+    tap = watch.node.session.declare_subscriber(
+        key, lambda s: seen.append((s.payload.to_bytes(), s.attachment.to_bytes()))
+    )
+    base = watch.cell.network["base_port"]
+    peers = [_endpoint(watch.cell, base + k) for k in range(len(node_names(watch.cell)))]
+    impostor = ZenohNode("distance", domain=0, listen=[], connect=peers)  # (a listed name, no TLS here)
+    try:
+        pub = impostor.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
+        end = time.time() + 10
+        while len(seen) < 20 and time.time() < end:
+            time.sleep(0.05)
+        assert len(seen) >= 20, "too few distance samples seen to replay"
+        t_fault = time.time()
+        os.kill(sysm.procs["distance"].pid, signal.SIGSTOP)
+        time.sleep(0.05)
+        copies = list(seen[-20:])
+        end = t_fault + 2.5
+        while time.time() < end:
+            for payload, att in copies[-5:]:  # (a) exact duplicates
+                watch.node.session.put(key, payload, attachment=att)
+            for payload, _ in reversed(copies):  # (b) a fresh publisher, stamps going back
+                pub.put_cdr(payload)
+            time.sleep(0.02)
+        t_stop = watch.wait_for("STOP_STALE_DISTANCES", t_fault, 0.1)
+        assert t_stop is not None and t_stop - t_fault <= D_TIMEOUT + 0.5, "no timely stop under replayed data"
+        with watch.lock:
+            late = [s for t, s in watch.events if t > t_stop + 0.1]
+        assert late and all(x.startswith("STOP") for x in late), f"moved on replayed data: {set(late)}"
+        assert sysm.procs["controller"].poll() is None, "the controller node must keep running"
+    finally:
+        os.kill(sysm.procs["distance"].pid, signal.SIGCONT)
+        tap.undeclare()
+        impostor.close()
+    t_back = time.time()
+    t_ok = watch.wait_for("OK", t_back, 90.0)
+    assert t_ok is not None, "never resumed after the distance node continued"
+    with watch.lock:
+        assert "STOP_RESUME_WAIT" in [s for t, s in watch.events if t_back <= t < t_ok], "resumed without latch"
+    dropped = _controller_report_and_restart(sysm, watch)["dropped"]
+    assert dropped.get("duplicate or reordered sequence number", 0) >= 5, dropped
+    assert dropped.get("stale or reordered stamp", 0) >= 19, dropped
 
 
 def test_slow_distance_node_works_on_the_newest_frames(system):
