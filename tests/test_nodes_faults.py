@@ -7,6 +7,8 @@ module; each test injects one fault and watches the controller's status topic fr
   stale-data timeout, keeps running, and resumes (OK) after its resume latch once distances come back;
 * a camera node frozen (SIGSTOP: its session stops answering, as in a network partition) then continued:
   the same stop and resume;
+* a network partition simulated by closing the session: the distance node's process closes its Zenoh
+  session and later opens a new one (``tests/partition_node.py``): the same stop and resume;
 * the controller node killed: the driver's watchdog holds the arm (the sim node's log);
 * an unlisted publisher of distances: ignored and reported by the controller;
 * duplicated and reordered distances (replayed while the distance node is frozen): dropped, the same stop
@@ -182,6 +184,46 @@ def test_distance_node_killed_and_restarted(system):
 
 def test_camera_node_frozen_and_continued(system):
     _fault_and_recover(system, "camera0", kill=False)
+
+
+def test_distance_session_closed_then_opened_again(system):
+    """A network partition simulated by closing the session: the distance node's process closes its Zenoh
+    session (SIGUSR1 to ``tests/partition_node.py``) and lives on without one, then opens a new session
+    (SIGUSR2), which the other nodes' connection retries find again. The same stop and resume as a kill."""
+    sysm, watch = system
+    sysm.stop("distance")
+    out_path = sysm.tmp / "partition.out"
+    cmd = [sys.executable, str(ROOT / "tests" / "partition_node.py"), str(sysm.cell), str(sysm.tmp / "distance.log")]
+    sysm.procs["distance"] = proc = subprocess.Popen(  # (the node for the rest of the module)
+        cmd,
+        env=sysm.env,
+        stdout=open(out_path, "a"),
+        stderr=subprocess.DEVNULL,  # noqa: SIM115
+    )
+
+    def events(kind: str) -> list[float]:
+        lines = out_path.read_text().splitlines()
+        return [json.loads(x)["t"] for x in lines if x.startswith("{") and json.loads(x)["ev"] == kind]
+
+    assert watch.wait_for("OK", time.time(), 90.0), "never OK with the partition node"
+    t_fault = time.time()
+    proc.send_signal(signal.SIGUSR1)
+    t_stop = watch.wait_for("STOP_STALE_DISTANCES", t_fault, 10.0)
+    assert t_stop is not None and t_stop - t_fault <= D_TIMEOUT + 0.5, "no timely stop once the session closed"
+    time.sleep(1.0)
+    closed = [t for t in events("closed") if t >= t_fault]
+    assert closed and proc.poll() is None, "the node's session did not close, or its process ended"
+    assert sysm.procs["controller"].poll() is None, "the controller node must keep running"
+    with watch.lock:
+        late = [s for t, s in watch.events if t > t_stop + 0.1]
+    assert late and all(s.startswith("STOP") for s in late), f"moved again without a session: {set(late)}"
+    t_back = time.time()
+    proc.send_signal(signal.SIGUSR2)
+    t_ok = watch.wait_for("OK", t_back, 90.0)
+    assert t_ok is not None, "never resumed after the session opened again"
+    assert [t for t in events("open") if t >= t_back], "no new session"
+    with watch.lock:
+        assert "STOP_RESUME_WAIT" in [s for t, s in watch.events if t_back <= t < t_ok], "resumed without latch"
 
 
 def test_unlisted_distance_publisher_is_ignored_and_reported(system):
