@@ -112,8 +112,12 @@ def _publish(cell, names, sets, duration: float, stop_when) -> None:
         node.close()
 
 
-def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = None) -> dict:
-    """Measure for 20 s (``quick``: 8 s, 160x120 images) once the distance node answers."""
+def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = None, network: str = "") -> dict:
+    """Measure for 20 s (``quick``: 8 s, 160x120 images) once the distance node answers.
+
+    ``network``: more lines for the cell's ``[network]`` table (TOML, absolute paths), for example the TLS
+    certificates (one per node: the ``sim`` node publishes the frames) to measure what TLS and Zenoh's access
+    control cost."""
     from depthguard.io.cellfile import read_cell
 
     src = Path(cell) if cell else _CELL
@@ -121,7 +125,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     tmp = Path(tempfile.mkdtemp(prefix="dg-net-"))
     port = random.randint(31000, 36000)
     cpath = tmp / "cell.toml"
-    cpath.write_text(src.read_text() + f"\n[network]\nbase_port = {port}\nconnect = []\n")
+    cpath.write_text(src.read_text() + f"\n[network]\nbase_port = {port}\nconnect = []\n{network}\n")
     cellf = read_cell(cpath)
     names, sets = _frames(quick, cellf, 6)
     in_process = _in_process_compute(cellf, sets, n=40 if quick else 90)
@@ -160,7 +164,10 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             "cameras": 2,
             "mode": cellf.distance["mode"],
             "processes": ["frames (camera nodes' output, this process)", *nodes],
-            "transport": "zenoh peer-to-peer, tcp loopback",
+            "transport": "zenoh peer-to-peer, "
+            + ("tls" if cellf.network.get("tls_certificate") else "tcp")
+            + " loopback"
+            + (", access control" if "{node}" in cellf.network.get("tls_certificate", "") else ""),
             "measured_s": duration,
             "load_1min": os.getloadavg()[0],
         },
