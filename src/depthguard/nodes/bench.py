@@ -138,9 +138,10 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
         procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
     marks: dict[str, float] = {}
 
-    def warmed() -> bool:
+    def warmed() -> bool:  # (the controller node logs its warm-up, which compiles its kernels on a new machine)
         if "t" not in marks and len(_read(tmp / "distance.log")) >= 10:
-            marks["t"] = time.time()
+            if any(r.get("ev") == "warm_up" for r in _read(tmp / "controller.log")):
+                marks["t"] = time.time()
         return "t" in marks and time.time() - marks["t"] > duration
 
     try:
