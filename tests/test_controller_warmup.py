@@ -22,7 +22,7 @@ import numpy as np
 from numba.core.dispatcher import Dispatcher
 from depthguard.control.cycle import AvoidanceController, CycleInput
 from depthguard.io.cellfile import read_cell
-from depthguard.nodes.controller import warm_up
+from depthguard.control.warmup import warm_up
 from depthguard.runner.chain import _controller_config, cell_control_points, load_cell_robot
 
 def signatures():
@@ -60,8 +60,8 @@ print(json.dumps({"warm_up": met, "seen": sorted(seen), "new": new}))
 
 
 def test_warm_up_walks_the_stopped_braking_resuming_and_moving_paths():
+    from depthguard.control.warmup import warm_up
     from depthguard.io.cellfile import read_cell
-    from depthguard.nodes.controller import warm_up
     from depthguard.runner.chain import _controller_config, cell_control_points, load_cell_robot
 
     cell = read_cell(ROOT / "examples/cells/sim-hexagon.toml")

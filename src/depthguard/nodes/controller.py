@@ -78,70 +78,12 @@ class _Inputs:
         return CycleInput(t, s["q"], s["qd"], s["tj"], s["xd"], s["d"], s["dirs"], s["td"], *mon)
 
 
-def warm_up(points, config, model, cycles: int = 300) -> list[str]:
-    """Run a throwaway controller through every path of its cycle on synthetic input, so that every compiled
-    kernel is loaded (or compiled) before the node's first real cycle: a first use inside the real-time loop
-    stalled the node for 6-7 s twice (the braking kernel, first used at the first resume).
-
-    The phases, ``cycles`` simulated cycles each (more where a timeout or the resume latch must pass first;
-    the robot at mid-range, an obstacle 0.3 m from every
-    sphere unless said): no input yet (STOP_INVALID_INPUT); joint states only; every input fresh with a slow
-    task velocity (OK, moving); the distances going stale (STOP_STALE_DISTANCES, jerk-limited braking); fresh
-    again (STOP_RESUME_WAIT, for ``resume_time``, then OK); the monitor's own distances; no task velocity and
-    nothing within range; obstacles at contact (SCALED or a stop); the joint states going stale
-    (STOP_STALE_JOINTS). Returns the status names met, in order of first appearance (``[]`` when
-    ``cycles`` is 0)."""
-    from depthguard.control.cycle import AvoidanceController, CycleInput
-
-    if cycles <= 0:
-        return []
-    ctrl = AvoidanceController(points, config)
-    q = 0.5 * (np.asarray(model.q_min, float) + np.asarray(model.q_max, float))
-    qd, task = np.zeros_like(q), np.array([0.02, 0.0, 0.0])
-    N = points.n_points
-    near, none, touch = np.full(N, 0.3), np.full(N, np.inf), np.linspace(0.0, 0.05, N)
-    up = np.tile([0.0, 0.0, 1.0], (N, 1))
-
-    def past(seconds: float) -> int:  # cycles to run past a timeout or the latch, then ``cycles`` more
-        return int(np.ceil(float(seconds) / config.dt)) + cycles
-
-    # (cycles, joints fresh, task velocity, distances or None, distances fresh, with the monitor's)
-    phases = [
-        (cycles, None, task, None, False, False),
-        (cycles, True, task, None, False, False),
-        (cycles, True, task, near, True, False),
-        (past(config.distance_timeout), True, task, near, False, False),
-        (past(config.resume_time), True, task, near, True, False),
-        (cycles, True, task, near, True, True),
-        (cycles, True, np.zeros(3), none, True, False),
-        (cycles, True, task, touch, True, False),
-        (past(config.joint_timeout), False, task, near, True, False),
-    ]
-    seen: list[str] = []
-    t, k = 0.0, 0
-    t_joints = t_dist = -np.inf
-    for n, joints, xd, d, fresh, monitor in phases:
-        for _ in range(n):
-            t = k * config.dt
-            t_joints = t if joints else t_joints
-            t_dist = t if fresh else t_dist
-            mon = (d, up) if monitor else (None, None)
-            inp = CycleInput(t, q if joints is not None else None, qd if joints is not None else None, t_joints,
-                             xd, d, up if d is not None else None, t_dist, *mon)  # fmt: skip
-            out = ctrl.step(inp)
-            if joints is not None and out.q_cmd is not None:  # (a perfect robot follows the command)
-                q, qd = np.asarray(out.q_cmd, float), np.asarray(out.qdot_cmd, float)
-            if out.status.name not in seen:
-                seen.append(out.status.name)
-            k += 1
-    return seen
-
-
 def run_controller_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the controller node until ``duration`` s or SIGTERM; returns counters and cycle times."""
     from depthguard.control.cycle import AvoidanceController
+    from depthguard.control.warmup import warm_up
     from depthguard.runner.chain import _controller_config, cell_control_points, load_cell_robot
 
     stop = stop if stop is not None else StopFlag()
