@@ -24,7 +24,12 @@ import numpy as np
 
 from depthguard.kernels.depthimage import metres_or_nan
 
+#: The task velocity (``geometry_msgs/msg/Vector3Stamped``, m/s of the end effector): recorded in bags and
+#: recordings, published by the ``sim`` node.
+TASK_TOPIC = "/depthguard/task_velocity"
+
 __all__ = [
+    "TASK_TOPIC",
     "DEPTHGUARD_MSGS",
     "typestore",
     "stamp",

@@ -18,7 +18,7 @@ from typing import Any
 
 from depthguard.camera import Camera
 from depthguard.io.cellfile import CellFile
-from depthguard.runner.bag import TASK_TOPIC
+from depthguard.io.ros2 import TASK_TOPIC
 
 __all__ = [
     "node_names",

@@ -24,11 +24,10 @@ from depthguard.camera import Camera
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellCamera, CellFile, refuse_align
 from depthguard.io.mcap_ros2 import read_messages
+from depthguard.io.ros2 import TASK_TOPIC
 from depthguard.runner.sources import Tick
 
 __all__ = ["BagSource", "undistort_map", "TASK_TOPIC"]
-
-TASK_TOPIC = "/depthguard/task_velocity"
 
 
 def _distort(x: np.ndarray, y: np.ndarray, model: str, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
