@@ -192,3 +192,29 @@ def test_acl_drops_an_impostor_that_the_name_allow_list_lets_through(tmp_path):
     finally:
         for n in (impostor, stranger, witness, dist, ctl):
             n.close()
+
+
+@pytest.mark.slow
+def test_every_node_starts_under_access_control(tmp_path):
+    """Each of the cell's nodes (``sim``, both cameras, ``distance``, ``controller``, ``monitor``, the
+    ``run`` publisher, ``view``) starts with its own certificate and Zenoh's access control and runs briefly:
+    a node that declared a topic outside its access control would refuse to start (Zenoh would drop it)."""
+    pytest.importorskip("zenoh")
+    pytest.importorskip("viser")
+    need_openssl()
+    from depthguard.nodes import run_node
+    from depthguard.nodes.runpub import ZenohRunPublisher
+    from depthguard.viz.live import run_view_node
+
+    ca = make_ca(tmp_path, "cell")
+    cell_path = _cell(tmp_path, _per_node(tmp_path, random.randint(48000, 52000)))
+    cell = read_cell(cell_path)
+    for n in node_names(cell):
+        make_cert(tmp_path, ca, n, n)
+    ran = {}
+    for n in ("sim", "camera0", "camera1", "distance", "controller", "monitor"):
+        src = {"source": "sim:ral-hexagon", "quick": True} if n == "sim" else {}
+        ran[n] = run_node(n, str(cell_path), duration=0.3, **src)
+    ran["run"] = ZenohRunPublisher(cell, chain=None).close()
+    ran["view"] = run_view_node(str(cell_path), port=random.randint(52001, 56000), duration=0.3)
+    assert set(ran) == set(node_names(cell))

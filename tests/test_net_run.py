@@ -4,8 +4,11 @@ section is validated; ``depthguard node`` refuses unknown names."""
 from __future__ import annotations
 
 import collections
+import os
 import random
 import struct
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -336,3 +339,31 @@ def test_controller_node_pairs_the_monitors_distances_by_stamp():
     three = ros2.distances_msg(1.1, [*names, "c"], np.zeros((3, 3)), np.full(3, 0.1), np.full(3, 0.1), np.zeros((3, 3)))
     inp.on_monitor(three, att, 0)  # a wrong number of points: ignored
     np.testing.assert_array_equal(inp.cycle_input(dict(inp.st), 1.12).monitor_distances, [0.4, 0.6])
+
+
+_FAILING_SETUP = r"""
+import sys
+from depthguard.io import zenoh_transport
+from depthguard.nodes import run_node
+
+def refuse(self, *a, **k):
+    raise RuntimeError("subscription refused (test)")
+
+zenoh_transport.ZenohNode.subscribe = refuse  # the node's set-up fails after its session opened
+try:
+    run_node("monitor", sys.argv[1], duration=30.0)
+except RuntimeError as exc:
+    print("raised:", exc, flush=True)
+    sys.exit(3)
+"""
+
+
+def test_a_node_whose_set_up_fails_exits_instead_of_hanging(tmp_path):
+    """An open Zenoh session keeps threads that keep the process alive: a node that fails after opening
+    its session must close it, so that the process ends with the error (it once hung at exit)."""
+    pytest.importorskip("zenoh")
+    cell = _cell(tmp_path, f"base_port = {random.randint(56000, 60000)}\nconnect = []\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
+    res = subprocess.run([sys.executable, "-c", _FAILING_SETUP, str(cell)], env=env, capture_output=True,
+                         text=True, timeout=60)  # fmt: skip
+    assert res.returncode == 3 and "subscription refused" in res.stdout, res.stderr[-1500:]

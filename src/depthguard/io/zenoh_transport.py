@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -41,6 +42,7 @@ __all__ = [
     "ROUTER_ENDPOINT",
     "session_config",
     "acl_put_keys",
+    "close_open_nodes",
     "ZenohNode",
     "RosPublisher",
     "Subscription",
@@ -254,6 +256,19 @@ class Subscription:
         self._lv.undeclare()
 
 
+_OPEN_NODES: weakref.WeakSet = weakref.WeakSet()
+
+
+def close_open_nodes() -> int:
+    """Close every :class:`ZenohNode` of this process that is still open; returns how many. A node whose
+    set-up raises after its session opened calls this: an open session keeps Zenoh's threads, and with them
+    the process, alive after the error."""
+    nodes = list(_OPEN_NODES)
+    for n in nodes:
+        n.close()
+    return len(nodes)
+
+
 class ZenohNode:
     """A ROS 2 node on Zenoh: one session, its ``NN`` liveliness token, publishers and subscriptions.
 
@@ -294,6 +309,14 @@ class ZenohNode:
             f"@ros2_lv/{self.domain}/**", self._on_token, history=True
         )
         self.entities: list[Any] = []
+        self._closed = False
+        _OPEN_NODES.add(self)
+
+    def __enter__(self) -> ZenohNode:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def _next_eid(self) -> int:
         e = self._eid
@@ -379,6 +402,11 @@ class ZenohNode:
         return s
 
     def close(self) -> None:
+        """Undeclare everything and close the session (once; later calls do nothing)."""
+        if self._closed:
+            return
+        self._closed = True
+        _OPEN_NODES.discard(self)
         for e in self.entities:
             try:
                 e.close()

@@ -33,6 +33,22 @@ def run_node(
     watchdog: float = 0.05,
 ) -> dict[str, Any]:
     """Run node ``name`` of the cell file until ``duration`` s (None: until SIGTERM / Ctrl-C)."""
+    try:
+        return _run_node(name, cell_path, source, quick, duration, log, domain, connect, watchdog)
+    except BaseException:
+        _close_sessions()  # (a node that failed in its set-up leaves no Zenoh session keeping the process)
+        raise
+
+
+def _close_sessions() -> None:
+    try:
+        from depthguard.io.zenoh_transport import close_open_nodes
+    except ImportError:  # pragma: no cover - no Zenoh: no session to close
+        return
+    close_open_nodes()
+
+
+def _run_node(name, cell_path, source, quick, duration, log, domain, connect, watchdog) -> dict[str, Any]:
     cell = read_cell(cell_path)
     kw: dict[str, Any] = dict(duration=duration, log=log, domain=domain, connect=connect)
     if name == "sim":

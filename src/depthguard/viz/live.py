@@ -328,7 +328,7 @@ def run_view_node(
     points = cell_control_points(cell, model)
     view = LiveView(cell, model, points, [c.build() for c in cell.cameras], port=port)
     top = Topics.of(cell)
-    node = open_node(cell, "view", domain=domain, connect=connect)
+    node = None
     names = [c.name for c in cell.cameras]
     frames: dict[str, np.ndarray] = {}
     masks: dict[str, np.ndarray] = {}
@@ -360,20 +360,24 @@ def run_view_node(
             [p.distance for p in P], [[p.direction.x, p.direction.y, p.direction.z] for p in P],
         )  # fmt: skip
 
-    node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
-    for n in names:
-        node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n))
-        node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n))
-    node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist)
-    node.subscribe(top.status, "depthguard_msgs/msg/ControllerStatus", lambda m, a, t: view.set_status(str(m.status)))
     stop = stop if stop is not None else StopFlag()
-    print(f"depthguard view: http://127.0.0.1:{port}", flush=True)
-    t0 = time.time()
-    try:
+    try:  # (whatever fails here, the session and the web server close: neither keeps the process alive)
+        node = open_node(cell, "view", domain=domain, connect=connect)
+        node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
+        for n in names:
+            node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n))
+            node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n))
+        node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist)
+        node.subscribe(
+            top.status, "depthguard_msgs/msg/ControllerStatus", lambda m, a, t: view.set_status(str(m.status))
+        )
+        print(f"depthguard view: http://127.0.0.1:{port}", flush=True)
+        t0 = time.time()
         while not stop and (duration is None or time.time() - t0 < duration):
             stop.wait(0.2)
     finally:
-        node.close()
+        if node is not None:
+            node.close()
         view.close()
     return {
         "draws": view.draws,
