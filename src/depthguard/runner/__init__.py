@@ -103,14 +103,23 @@ def run_cell(
     if transport not in ("none", "zenoh"):
         raise ValueError(f"--transport must be 'none' or 'zenoh', got {transport!r}")
     sinks: list[Any] = []
-    if transport == "zenoh":
-        from depthguard.nodes.runpub import ZenohRunPublisher
+    try:
+        if transport == "zenoh":
+            from depthguard.nodes.runpub import ZenohRunPublisher
 
-        sinks.append(ZenohRunPublisher(cell, chain, domain=zenoh_domain, connect=zenoh_connect))
-    if view:
-        from depthguard.viz.live import LiveView
+            sinks.append(ZenohRunPublisher(cell, chain, domain=zenoh_domain, connect=zenoh_connect))
+        if view:
+            from depthguard.viz.live import LiveView
 
-        sinks.append(LiveView(cell, model, chain.points, chain.local_cameras))  # (it places carried cameras)
+            sinks.append(LiveView(cell, model, chain.points, chain.local_cameras))  # (it places carried cameras)
+    except BaseException:  # (an open session or web server left behind would keep the process alive)
+        for s in sinks:
+            s.close()
+        if transport == "zenoh":
+            from depthguard.io.zenoh_transport import close_open_nodes
+
+            close_open_nodes()
+        raise
     summary = run_chain(
         cell, src, chain, realtime=realtime, out_dir=out_dir, progress=progress, label=source, log=log, sinks=sinks
     )
