@@ -9,6 +9,7 @@ graph's names), and Zenoh's ACL drops it; the controller reports it from the gra
 
 from __future__ import annotations
 
+import json
 import random
 import time
 from pathlib import Path
@@ -218,3 +219,41 @@ def test_every_node_starts_under_access_control(tmp_path):
     ran["run"] = ZenohRunPublisher(cell, chain=None).close()
     ran["view"] = run_view_node(str(cell_path), port=random.randint(52001, 56000), duration=0.3)
     assert set(ran) == set(node_names(cell))
+
+
+@pytest.mark.slow
+def test_certs_command_makes_what_every_node_needs(tmp_path, capsys):
+    """``depthguard certs``: a CA and one certificate per node whose common name is the node's name; with
+    the [network] lines it prints, two nodes of the cell talk over mutual TLS under access control."""
+    pytest.importorskip("zenoh")
+    need_openssl()
+    from depthguard.cli import main
+    from depthguard.io import ros2
+    from depthguard.nodes.common import open_node
+
+    cell_path = _cell(tmp_path, f"base_port = {random.randint(56001, 60000)}\nconnect = []\n")
+    text = cell_path.read_text()
+    assert main(["certs", "--cell", str(cell_path), "--out", str(tmp_path / "certs"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    cell_path.write_text(text + "\n".join(out["network"]) + "\n")
+    cell = read_cell(cell_path)
+    assert set(out["made"]) == {"ca.pem", *node_names(cell)} and out["kept"] == []
+    for n in node_names(cell):
+        assert node_certificate(cell.network, n)[0].endswith(f"certs/{n}.pem")  # (its CN is its name)
+        assert (tmp_path / "certs" / f"{n}.key").stat().st_mode & 0o077 == 0, "a private key others can read"
+    assert main(["certs", "--cell", str(cell_path), "--out", str(tmp_path / "certs"), "--node", "extra", "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["made"] == ["extra"] and set(again["kept"]) == set(node_names(cell))  # (the CA reused)
+    ctl, dist = open_node(cell, "controller"), open_node(cell, "distance")
+    got = []
+    try:
+        ctl.subscribe(cell.topics["distances"], DIST, lambda m, a, t: got.append(1), allowed={"distance"})
+        pub = dist.publisher(cell.topics["distances"], DIST)
+        end = time.time() + 10
+        while not got and time.time() < end:
+            pub.publish(ros2.distances_msg(time.time(), ["ee"], np.zeros((1, 3)), [0.1], [0.5], [[1.0, 0, 0]]))
+            time.sleep(0.1)
+        assert got, "nodes with the certificates of depthguard certs did not talk"
+    finally:
+        ctl.close()
+        dist.close()

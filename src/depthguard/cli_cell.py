@@ -110,6 +110,21 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_certs(args: argparse.Namespace) -> int:
+    from depthguard.nodes.certs import make_cell_certificates
+
+    out = make_cell_certificates(
+        args.cell, args.out, days=args.days, hosts=args.host, nodes=args.node, overwrite=args.overwrite
+    )
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(f"certificates in {out['folder']}: made {out['made'] or 'none'}, kept {out['kept'] or 'none'}")
+    print("add to the cell file's [network] table (one certificate per node: Zenoh's access control is on):")
+    print("\n".join(out["network"]))
+    return 0
+
+
 def _zenoh_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-domain", type=int, default=None, metavar="N", help="ROS domain id (default: cell file)")
     p.add_argument(
@@ -165,6 +180,21 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
     _zenoh_flags(p)
     p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser(
+        "certs", help="a CA and one TLS certificate per node of a cell (Zenoh mutual TLS and access control)"
+    )
+    p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file (its nodes and host)")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder of the certificates (a CA there is reused)")
+    p.add_argument("--days", type=positive_int, default=365, metavar="N", help="validity of new certificates")
+    p.add_argument(
+        "--host", action="append", default=None, metavar="ADDR",
+        help="an address the nodes listen on (repeatable; default 127.0.0.1, localhost and network.host)",
+    )  # fmt: skip
+    p.add_argument("--node", action="append", default=None, metavar="NAME", help="one more node (repeatable)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing node certificates")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_certs)
 
     p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
     p.add_argument("action", choices=["check"])
