@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from certs import make_ca, make_cert, need_openssl, tls_settings
 from depthguard.io.cellfile import CellError, read_cell
@@ -257,3 +259,32 @@ def test_certs_command_makes_what_every_node_needs(tmp_path, capsys):
     finally:
         ctl.close()
         dist.close()
+
+
+_KEY = st.from_regex(r"[0-9]{1,3}/[a-z_]{1,8}(/[a-z_]{1,8}){0,2}/[A-Za-z_:]{1,12}/RIHS01_[0-9a-f]{6}", fullmatch=True)
+
+
+@given(
+    open_keys=st.lists(_KEY, max_size=6, unique=True),
+    protected=st.lists(_KEY, min_size=1, max_size=6, unique=True),
+    publishers=st.lists(st.from_regex(r"[a-z][a-z0-9_]{0,10}", fullmatch=True), max_size=4),
+)
+def test_acl_section_invariants_hold_for_any_topics_and_publishers(open_keys, protected, publishers):
+    """For any open and protected keys and any publishers: default deny, no deny rule, every protected key
+    comes in only from the listed certificates and goes out to anyone, every open key both ways for anyone,
+    nothing else may be put, and the graph stays open."""
+    open_keys = [k for k in open_keys if k not in protected]
+    acl = access_control(open_keys, protected, publishers)
+    assert acl["enabled"] and acl["default_permission"] == "deny"
+    assert all(r["permission"] == "allow" for r in acl["rules"])
+    ingress, egress = _allowed_puts(acl, "ingress"), _allowed_puts(acl, "egress")
+    subjects = {s["id"]: s for s in acl["subjects"]}
+    for k in protected:
+        names = set().union(*(subjects[s].get("cert_common_names", {"*"}) for s in ingress.get(k, set())))
+        assert names == set(publishers), (k, names)
+        assert egress[k] == {"anyone"}
+    for k in open_keys:
+        assert ingress[k] == egress[k] == {"anyone"}
+    assert set(ingress) == set(open_keys) | (set(protected) if publishers else set())
+    graph = [r for r in acl["rules"] if "put" not in r["messages"]]
+    assert graph and all("@ros2_lv/**" in r["key_exprs"] and "**" in r["key_exprs"] for r in graph)
