@@ -568,3 +568,23 @@ def test_image_of_another_size_mid_run_stops_with_the_camera_named(tmp_path):
     assert summary["sensor_faults"] == {"cam: image of shape (60, 80), expected (120, 160)": 1}
     i = log.t.index(0.04)
     assert "STOP_SENSOR_FAULT" not in log.status[:i] and set(log.status[i:]) == {"STOP_SENSOR_FAULT"}
+
+
+def test_run_cell_closes_its_source_when_the_set_up_fails(monkeypatch):
+    """A run that fails before its loop (here an unknown transport) closes the source it opened: a live
+    camera must not stay streaming, a simulator not stay loaded."""
+    import depthguard.runner as runner
+
+    closed = []
+    real_open = runner.open_source
+
+    def open_and_watch(*a, **k):
+        src = real_open(*a, **k)
+        real_close = src.close
+        src.close = lambda: (closed.append(True), real_close())
+        return src
+
+    monkeypatch.setattr(runner, "open_source", open_and_watch)
+    with pytest.raises(ValueError, match="--transport must be"):
+        run_cell(ROOT / "examples/cells/sim-hexagon.toml", "sim:ral-hexagon", quick=True, transport="carrier-pigeon")
+    assert closed == [True]

@@ -99,11 +99,11 @@ def run_cell(
     cell = read_cell(cell_path)
     model = load_cell_robot(cell)
     src = open_source(source, cell, model.joint_names, quick=quick, links=frozenset(f.name for f in model.model.frames))
-    chain = Chain(cell, src.cameras, model, parents=getattr(src, "camera_parents", None))
-    if transport not in ("none", "zenoh"):
-        raise ValueError(f"--transport must be 'none' or 'zenoh', got {transport!r}")
     sinks: list[Any] = []
-    try:
+    try:  # (a source, session or web server left open would keep a device or the process busy)
+        chain = Chain(cell, src.cameras, model, parents=getattr(src, "camera_parents", None))
+        if transport not in ("none", "zenoh"):
+            raise ValueError(f"--transport must be 'none' or 'zenoh', got {transport!r}")
         if transport == "zenoh":
             from depthguard.nodes.runpub import ZenohRunPublisher
 
@@ -112,9 +112,10 @@ def run_cell(
             from depthguard.viz.live import LiveView
 
             sinks.append(LiveView(cell, model, chain.points, chain.local_cameras))  # (it places carried cameras)
-    except BaseException:  # (an open session or web server left behind would keep the process alive)
+    except BaseException:
         for s in sinks:
             s.close()
+        src.close()
         if transport == "zenoh":
             from depthguard.io.zenoh_transport import close_open_nodes
 
