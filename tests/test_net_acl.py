@@ -108,6 +108,19 @@ def test_cell_file_takes_node_placeholders_in_both_paths_or_neither(tmp_path):
         read_cell(_cell(tmp_path, net))
 
 
+def test_cell_check_says_how_the_nodes_are_secured(tmp_path):
+    from depthguard.io.cell_describe import describe_cell
+
+    assert "plain TCP (no TLS)" in describe_cell(read_cell(CELL))
+    (tmp_path / "cell-ca.pem").write_text("(a CA)")
+    for n in ("sim", "distance"):
+        (tmp_path / f"{n}.pem").write_text("(a certificate)")
+    text = describe_cell(read_cell(_cell(tmp_path, _per_node(tmp_path, 47000))))
+    line = next(x for x in text.splitlines() if x.startswith("network:"))
+    assert "ports 47000-47007" in line and "one certificate per node, Zenoh's access control on" in line
+    assert "no certificate yet for: camera0, camera1, controller, monitor, run, view" in line
+
+
 def test_node_certificate_must_name_its_node(tmp_path):
     need_openssl()
     ca = make_ca(tmp_path, "cell")

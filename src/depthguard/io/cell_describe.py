@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.io.cellfile import CellFile, ssm_range
+from depthguard.io.cellfile import CellFile, node_names, ssm_range
 
 __all__ = ["describe_cell"]
 
@@ -44,6 +44,28 @@ def _background_line(cell: CellFile) -> str:
     if cell.controller["ssm"]:
         return f"background: {what}: applied to the depth images before the distances (SSM on)"
     return f"background: {what}: not applied (SSM off: the repulsion sees the whole scene, the table included)"
+
+
+def _network_line(cell: CellFile) -> str:
+    """The nodes' network (docs/nodes.md): ports, transport, the allow-list, and with one certificate per
+    node the nodes whose certificate file is missing."""
+    net = cell.network
+    names = node_names(cell)
+    crt = net.get("tls_certificate", "")
+    if not crt:
+        tls = "plain TCP (no TLS)"
+    elif "{node}" not in crt:
+        tls = "mutual TLS, one certificate for all nodes (the allow-list trusts the nodes' names)"
+    else:
+        missing = [n for n in names if not Path(crt.replace("{node}", n)).is_file()]
+        tls = "mutual TLS, one certificate per node, Zenoh's access control on" + (
+            f" (no certificate yet for: {', '.join(missing)})" if missing else ""
+        )
+    return (
+        f"network: ROS domain {net['domain']}; nodes listen on {net['host']} ports {net['base_port']}-"
+        f"{net['base_port'] + len(names) - 1}; {tls}; connect {net['connect']}; distances and commands only from"
+        f" {net['publishers']}"
+    )
 
 
 def describe_cell(cell: CellFile) -> str:
@@ -97,4 +119,5 @@ def describe_cell(cell: CellFile) -> str:
     )
     lines.append(_background_line(cell))
     lines.append("topics: " + ", ".join(f"{k} {v}" for k, v in cell.topics.items()))
+    lines.append(_network_line(cell))
     return "\n".join(lines)

@@ -85,6 +85,7 @@ __all__ = [
     "Sphere",
     "read_cell",
     "refuse_align",
+    "node_names",
 ]
 
 
@@ -343,6 +344,12 @@ def read_cell(path: str | Path) -> CellFile:
     net = _network(src, data.get("network", {}))
     robot = _robot(src, data["robot"])
     return CellFile(src, cell["name"], cell["description"], robot, cams, dist, ctrl, topics, data, net)
+
+
+def node_names(cell: CellFile) -> list[str]:
+    """The names of a cell's nodes on Zenoh, in port order (node *k* listens on ``network.base_port + k``):
+    ``sim``, one per camera (the camera's name), ``distance``, ``controller``, ``monitor``, ``run``, ``view``."""
+    return ["sim", *[c.name for c in cell.cameras], "distance", "controller", "monitor", "run", "view"]
 
 
 def ssm_range(cell: CellFile) -> float | None:

@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from depthguard.io.cellfile import read_cell
+from depthguard.io.cellfile import node_names, read_cell
 
 __all__ = ["make_cell_certificates"]
 
@@ -70,8 +70,6 @@ def make_cell_certificates(
         raise RuntimeError("depthguard certs needs the openssl command (Debian: apt install openssl)")
     if int(days) <= 0:
         raise ValueError(f"days must be a positive number of days, got {days}")
-    from depthguard.nodes.common import node_names
-
     cell_path = Path(cell_path)
     cell = read_cell(cell_path)
     names = list(dict.fromkeys([*node_names(cell), *(nodes or [])]))

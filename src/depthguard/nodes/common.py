@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from depthguard.camera import Camera
-from depthguard.io.cellfile import CellFile
+from depthguard.io.cellfile import CellFile, node_names
 from depthguard.io.ros2 import TASK_TOPIC
 
 __all__ = [
@@ -33,19 +33,12 @@ __all__ = [
     "now_s",
 ]
 
-_FIXED = ("distance", "controller", "monitor", "run", "view")
-
 #: In ``network.tls_certificate`` and ``tls_private_key``: the node's name (one certificate per node).
 PER_NODE = "{node}"
 
 #: A frame is self-filtered (camera nodes) or corrected for the robot's interior (distance node) only with
 #: joint states at most this far (s) from its stamp.
 MAX_JOINT_SKEW = 0.05
-
-
-def node_names(cell: CellFile) -> list[str]:
-    """All node names of ``cell`` in port order."""
-    return ["sim", *[c.name for c in cell.cameras], *_FIXED]
 
 
 def _endpoint(cell: CellFile, port: int) -> str:
