@@ -296,6 +296,9 @@ class ZenohNode:
         self.name, self.domain = str(name), int(domain)
         conf = session_config(listen or [], [ROUTER_ENDPOINT] if connect is None else connect, tls, access_control)
         self.session = zenoh.open(conf)
+        self.entities: list[Any] = []
+        self._closed = False
+        _OPEN_NODES.add(self)  # (from here on, close_open_nodes() can close it, whatever fails below)
         self.identified = bool(access_control)
         self._acl_keys = None if not access_control else acl_put_keys(access_control)
         self.zid = str(self.session.info.zid())
@@ -308,9 +311,6 @@ class ZenohNode:
         self._graph_sub = self.session.liveliness().declare_subscriber(
             f"@ros2_lv/{self.domain}/**", self._on_token, history=True
         )
-        self.entities: list[Any] = []
-        self._closed = False
-        _OPEN_NODES.add(self)
 
     def __enter__(self) -> ZenohNode:
         return self
