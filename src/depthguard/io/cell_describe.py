@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.io.cellfile import CellFile, node_names, ssm_range
+from depthguard.io.cellfile import CellFile, node_names, node_tls_files, per_node_certificates, ssm_range
 
 __all__ = ["describe_cell"]
 
@@ -54,10 +54,10 @@ def _network_line(cell: CellFile) -> str:
     crt = net.get("tls_certificate", "")
     if not crt:
         tls = "plain TCP (no TLS)"
-    elif "{node}" not in crt:
+    elif not per_node_certificates(net):
         tls = "mutual TLS, one certificate for all nodes (the allow-list trusts the nodes' names)"
     else:
-        missing = [n for n in names if not Path(crt.replace("{node}", n)).is_file()]
+        missing = [n for n in names if not Path(node_tls_files(net, n)[0]).is_file()]
         tls = "mutual TLS, one certificate per node, Zenoh's access control on" + (
             f" (no certificate yet for: {', '.join(missing)})" if missing else ""
         )

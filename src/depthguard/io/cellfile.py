@@ -86,7 +86,13 @@ __all__ = [
     "read_cell",
     "refuse_align",
     "node_names",
+    "PER_NODE",
+    "per_node_certificates",
+    "node_tls_files",
 ]
+
+#: In ``network.tls_certificate`` and ``tls_private_key``: the node's name (one certificate per node).
+PER_NODE = "{node}"
 
 
 @dataclass(frozen=True)
@@ -352,6 +358,17 @@ def node_names(cell: CellFile) -> list[str]:
     return ["sim", *[c.name for c in cell.cameras], "distance", "controller", "monitor", "run", "view"]
 
 
+def per_node_certificates(net: dict[str, Any]) -> bool:
+    """Whether a (read) ``[network]`` table gives each node its own certificate (``{node}`` in the paths)."""
+    return PER_NODE in net.get("tls_certificate", "")
+
+
+def node_tls_files(net: dict[str, Any], name: str) -> tuple[str, str]:
+    """Node ``name``'s certificate and private key paths from a (read) ``[network]`` table: the shared pair,
+    or with ``{node}`` in the paths the node's own."""
+    return net["tls_certificate"].replace(PER_NODE, name), net["tls_private_key"].replace(PER_NODE, name)
+
+
 def ssm_range(cell: CellFile) -> float | None:
     """The range (m) of the distances that the SSM monitor gets, ``max(rho, ssm_range)``; None without SSM."""
     if not cell.controller["ssm"]:
@@ -374,8 +391,8 @@ def _network(src: Path, table: Any) -> dict[str, Any]:
             f"{src}: network.host {net['host']!r} is not loopback: give tls_root_ca, tls_certificate and"
             " tls_private_key (Zenoh TLS) to open a network endpoint"
         )
-    per_node = ["{node}" in net[k] for k in ("tls_certificate", "tls_private_key")]
-    if "{node}" in net["tls_root_ca"] or per_node[0] != per_node[1]:
+    per_node = [PER_NODE in net[k] for k in ("tls_certificate", "tls_private_key")]
+    if PER_NODE in net["tls_root_ca"] or per_node[0] != per_node[1]:
         raise CellError(
             f"{src}: network.tls_certificate and tls_private_key take {{node}} (one certificate per node)"
             " both or neither, and tls_root_ca never"
@@ -383,8 +400,8 @@ def _network(src: Path, table: Any) -> dict[str, Any]:
     for k in ("tls_root_ca", "tls_certificate", "tls_private_key"):
         if net[k]:
             path = (src.parent / net[k]).resolve()
-            if "{node}" in net[k]:  # (each node's own file is checked when the node starts)
-                if "{node}" not in str(path.parent) and not path.parent.is_dir():
+            if PER_NODE in net[k]:  # (each node's own file is checked when the node starts)
+                if PER_NODE not in str(path.parent) and not path.parent.is_dir():
                     raise CellError(f"{src}: network.{k} '{net[k]}': no folder {path.parent}")
             elif not path.is_file():
                 raise CellError(f"{src}: network.{k} '{net[k]}' is not a file (looked at {path})")

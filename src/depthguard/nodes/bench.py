@@ -118,7 +118,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     ``network``: more lines for the cell's ``[network]`` table (TOML, absolute paths), for example the TLS
     certificates (one per node: the ``sim`` node publishes the frames) to measure what TLS and Zenoh's access
     control cost."""
-    from depthguard.io.cellfile import read_cell
+    from depthguard.io.cellfile import per_node_certificates, read_cell
 
     src = Path(cell) if cell else _CELL
     duration = 8.0 if quick else 20.0
@@ -168,7 +168,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             "transport": "zenoh peer-to-peer, "
             + ("tls" if cellf.network.get("tls_certificate") else "tcp")
             + " loopback"
-            + (", access control" if "{node}" in cellf.network.get("tls_certificate", "") else ""),
+            + (", access control" if per_node_certificates(cellf.network) else ""),
             "measured_s": duration,
             "load_1min": os.getloadavg()[0],
         },

@@ -18,7 +18,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from depthguard.io.cellfile import node_names, read_cell
+from depthguard.io.cellfile import PER_NODE, node_names, read_cell
 
 __all__ = ["make_cell_certificates"]
 
@@ -38,6 +38,21 @@ def _san(hosts: list[str]) -> str:
         except ValueError:
             parts.append(f"DNS:{h}")
     return ",".join(dict.fromkeys(parts))
+
+
+def _sign_node_certificate(out: Path, name: str, san: str, days: int) -> None:
+    """``<name>.key`` and ``<name>.pem`` in ``out``: common name ``name``, alternative names ``san``, signed
+    by ``out``'s CA for client and server use (mutual TLS)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        ext, csr = Path(tmp) / "ext.cnf", Path(tmp) / f"{name}.csr"
+        ext.write_text(
+            f"subjectAltName={san}\nbasicConstraints=CA:FALSE\nkeyUsage=digitalSignature,keyEncipherment\n"
+            "extendedKeyUsage=serverAuth,clientAuth\n"
+        )
+        _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{name}.key", "-out", str(csr),
+                 "-subj", f"/CN={name}", cwd=out)  # fmt: skip
+        _openssl("x509", "-req", "-in", str(csr), "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
+                 "-out", f"{name}.pem", "-days", str(days), "-extfile", str(ext), cwd=out)  # fmt: skip
 
 
 def make_cell_certificates(
@@ -90,21 +105,11 @@ def make_cell_certificates(
             _openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca.key", "-out", "ca.pem",
                      "-days", str(int(days)), "-subj", f"/CN={cell.name}-ca", cwd=out)  # fmt: skip
             made.append("ca.pem")
-        with tempfile.TemporaryDirectory() as tmp:
-            ext = Path(tmp) / "ext.cnf"
-            ext.write_text(
-                f"subjectAltName={san}\nbasicConstraints=CA:FALSE\nkeyUsage=digitalSignature,keyEncipherment\n"
-                "extendedKeyUsage=serverAuth,clientAuth\n"
-            )
-            for n in names:
-                if (out / f"{n}.pem").exists() and (out / f"{n}.key").exists() and not overwrite:
-                    kept.append(n)
-                    continue
-                csr = Path(tmp) / f"{n}.csr"
-                _openssl("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{n}.key", "-out", str(csr),
-                         "-subj", f"/CN={n}", cwd=out)  # fmt: skip
-                _openssl("x509", "-req", "-in", str(csr), "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
-                         "-out", f"{n}.pem", "-days", str(int(days)), "-extfile", str(ext), cwd=out)  # fmt: skip
+        for n in names:
+            if (out / f"{n}.pem").exists() and (out / f"{n}.key").exists() and not overwrite:
+                kept.append(n)
+            else:
+                _sign_node_certificate(out, n, san, int(days))
                 made.append(n)
     finally:
         os.umask(old_umask)
@@ -116,7 +121,7 @@ def make_cell_certificates(
         rel = str(out.resolve())
     network = [
         f'tls_root_ca = "{rel}/ca.pem"',
-        f'tls_certificate = "{rel}/{{node}}.pem"',
-        f'tls_private_key = "{rel}/{{node}}.key"',
+        f'tls_certificate = "{rel}/{PER_NODE}.pem"',
+        f'tls_private_key = "{rel}/{PER_NODE}.key"',
     ]
     return {"folder": str(out.resolve()), "ca": str(ca.resolve()), "made": made, "kept": kept, "network": network}

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from depthguard.camera import Camera
-from depthguard.io.cellfile import CellFile, node_names
+from depthguard.io.cellfile import PER_NODE, CellFile, node_names, node_tls_files, per_node_certificates
 from depthguard.io.ros2 import TASK_TOPIC
 
 __all__ = [
@@ -32,9 +32,6 @@ __all__ = [
     "JsonLog",
     "now_s",
 ]
-
-#: In ``network.tls_certificate`` and ``tls_private_key``: the node's name (one certificate per node).
-PER_NODE = "{node}"
 
 #: A frame is self-filtered (camera nodes) or corrected for the robot's interior (distance node) only with
 #: joint states at most this far (s) from its stamp.
@@ -79,7 +76,7 @@ def open_node(cell: CellFile, name: str, *, domain: int | None = None, connect: 
             "connect_private_key": key,
             "enable_mtls": True,
         }
-        if PER_NODE in net["tls_certificate"]:
+        if per_node_certificates(net):
             acl = node_access_control(cell, dom)
     return ZenohNode(name, domain=dom, listen=listen, connect=peers + extra, tls=tls, access_control=acl)
 
@@ -90,10 +87,9 @@ def node_certificate(net: dict[str, Any], name: str) -> tuple[str, str]:
     node's name as its common name (Zenoh's access control identifies the node by it)."""
     from depthguard.io.zenoh_acl import certificate_common_name
 
-    crt, key = net["tls_certificate"], net["tls_private_key"]
-    if PER_NODE not in crt:
+    crt, key = node_tls_files(net, name)
+    if not per_node_certificates(net):
         return crt, key
-    crt, key = crt.replace(PER_NODE, name), key.replace(PER_NODE, name)
     for k, path in (("tls_certificate", crt), ("tls_private_key", key)):
         if not Path(path).is_file():
             raise ValueError(f"network.{k}: node {name!r} has no file {path}")

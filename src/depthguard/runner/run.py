@@ -167,9 +167,7 @@ def run_chain(
     bar = [-1]
     sinks = list(sinks or [])
     if realtime:  # (every kernel of the controller's cycle loaded before the loop: no first use inside it)
-        from depthguard.control.warmup import warm_up
-
-        warm_up(chain.points, chain.config, chain.model)
+        chain.warm_up()
     try:
         for tick in source.ticks():
             t_first = tick.t if t_first is None else t_first
