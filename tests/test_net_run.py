@@ -337,8 +337,16 @@ def test_controller_node_pairs_the_monitors_distances_by_stamp():
     inp.on_monitor(msg(1.1, [0.4, 0.6]), att, 0)
     np.testing.assert_array_equal(inp.cycle_input(dict(inp.st), 1.12).monitor_distances, [0.4, 0.6])
     three = ros2.distances_msg(1.1, [*names, "c"], np.zeros((3, 3)), np.full(3, 0.1), np.full(3, 0.1), np.zeros((3, 3)))
-    inp.on_monitor(three, att, 0)  # a wrong number of points: ignored
+    with pytest.raises(ValueError, match="control points"):  # a wrong number of points (counted by the subscription)
+        inp.on_monitor(three, att, 0)
     np.testing.assert_array_equal(inp.cycle_input(dict(inp.st), 1.12).monitor_distances, [0.4, 0.6])
+    named = _Inputs(7, N, names)  # with the controller's names: other names or another order are refused too
+    for other in (["a", "x"], ["b", "a"]):
+        with pytest.raises(ValueError, match="control points"):
+            named.on_dist(ros2.distances_msg(1.2, other, c, r, np.full(N, 0.1), np.zeros((N, 3))), att, 0)
+    assert named.st["d"] is None
+    named.on_dist(msg(1.2, [0.1, 0.2]), att, 0)
+    np.testing.assert_array_equal(named.st["d"], [0.1, 0.2])
 
 
 _FAILING_SETUP = r"""

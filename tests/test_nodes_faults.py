@@ -13,7 +13,10 @@ module; each test injects one fault and watches the controller's status topic fr
 * an unlisted publisher of distances: ignored and reported by the controller;
 * duplicated and reordered distances (replayed while the distance node is frozen): dropped, the same stop
   and resume;
-* a slow consumer (the distance node running a fifth of the time): the same stop, no backlog, and resume.
+* a slow consumer (the distance node running a fifth of the time): the same stop, no backlog, and resume;
+* bad inputs on the open topics (a joint state stamped an hour ahead, images of a size the camera cannot
+  have, rgb8 raw images): every node keeps running and the arm keeps moving (``test_node_inputs.py`` has
+  the property tests of the same guards).
 
 The test cell relaxes the timeouts to what a 2-core shared CI machine can keep (controller 250 Hz,
 joint timeout 0.1 s, distance timeout 0.3 s); duplicated / reordered samples are also tested at the
@@ -341,6 +344,54 @@ def test_slow_distance_node_works_on_the_newest_frames(system):
     ages.sort()
     # (a queue of the slow phase's frames would keep ages of seconds; 2 cores shared with the whole system)
     assert ages[len(ages) // 2] < 0.25, f"results {ages[len(ages) // 2]:.3f} s old (median) after the slow phase"
+
+
+def test_bad_inputs_from_an_open_peer_neither_stop_the_nodes_nor_hold_the_arm(system):
+    """Images and joint states are open topics (any admitted peer may publish them). A peer sends (a) one
+    joint state stamped an hour ahead, (b) for 2 s, depth images of 100x100 pixels (not a scaled image of
+    the camera's) with their masks on camera0's prepared topics, and (c) rgb8 images on camera0's raw topic.
+    Every node keeps running; the future joint state is dropped by the controller (counted), so it never
+    refuses its inputs or holds the arm for the hour; the distance node skips the bad frame sets (logged);
+    and the arm is moving again once the bad images stop. Before this was guarded, (b) stopped the distance
+    node and (a) held the arm for the hour."""
+    import numpy as np
+
+    from depthguard.io import ros2
+    from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
+    from depthguard.nodes.camera import mask_msg
+    from depthguard.nodes.common import Topics
+    from depthguard.runner.chain import load_cell_robot
+
+    sysm, watch = system
+    assert watch.wait_for("OK", time.time() - 0.5, 60.0), "not OK before the bad inputs"
+    top = Topics.of(watch.cell)
+    pub_js = watch.node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
+    pub_d = watch.node.publisher(top.depth["camera0"], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
+    pub_m = watch.node.publisher(top.mask["camera0"], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
+    pub_raw = watch.node.publisher(top.raw["camera0"], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
+    time.sleep(1.5)  # (the graph: the nodes learn the new publishers)
+    t0 = time.time()
+    names = list(load_cell_robot(watch.cell).joint_names)
+    pub_js.publish(ros2.joint_state_msg(t0 + 3600.0, names, np.zeros(len(names)), np.zeros(len(names))))
+    while time.time() < t0 + 2.0:
+        now = time.time()
+        pub_d.publish(ros2.image_msg(now, "camera0", np.full((100, 100), 1.5, np.float32), "32FC1"))
+        pub_m.publish(mask_msg(now, "camera0", np.zeros((100, 100), bool)))
+        rgb = ros2.image_msg(now, "camera0", np.ones((120, 160)))
+        rgb.encoding = "rgb8"
+        pub_raw.publish(rgb)
+        time.sleep(1 / 15)
+    for name in ("sim", "camera0", "camera1", "distance", "controller"):
+        assert sysm.procs[name].poll() is None, f"the {name} node stopped on bad inputs"
+    assert watch.wait_for("OK", time.time(), 60.0), "the arm never moved again after the bad inputs"
+    with watch.lock:
+        assert "STOP_INVALID_INPUT" not in [s for t, s in watch.events if t >= t0], "the future joint state was taken"
+    skipped = [json.loads(x) for x in (sysm.tmp / "distance.log").read_text().splitlines() if '"skipped"' in x]
+    assert any("not a scaled" in r["reason"] for r in skipped), "the distance node never saw a bad frame set"
+    bad = [x for x in (sysm.tmp / "camera0.log").read_text().splitlines() if '"bad_frame"' in x]
+    assert bad, "the camera node never saw an rgb8 frame"
+    report = _controller_report_and_restart(sysm, watch)
+    assert report["dropped_by_topic"][top.joint_states].get("stamp in the future", 0) >= 1, report
 
 
 def test_controller_killed_driver_watchdog_holds_the_arm(system):

@@ -1,16 +1,27 @@
 """What a ROS 2 subscription on Zenoh lets through, without any Zenoh (:class:`SampleFilter`): duplicates,
-reordered or stale samples, publishers not allowed on the topic and malformed payloads are dropped and counted
-by reason. :class:`depthguard.io.zenoh_transport.Subscription` applies it to every sample."""
+reordered or stale samples, samples stamped in the future, publishers not allowed on the topic and malformed
+payloads are dropped and counted by reason. :class:`depthguard.io.zenoh_transport.Subscription` applies it to
+every sample.
+
+Why a stamp in the future is dropped: the stamp order is kept per topic, so one sample stamped an hour ahead
+(a publisher whose clock jumped, or a bad peer) would otherwise make every later sample "stale" for that hour,
+and a controller fed by this topic would hold the arm for the hour. The nodes' clocks must agree far better
+than :data:`MAX_FUTURE_S` anyway: the controller refuses data stamped more than one control period ahead of
+its own clock (``STOP_INVALID_INPUT``)."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Any
 
 from depthguard.io import ros2
 from depthguard.io.rmw_zenoh import decode_attachment
 
-__all__ = ["SampleFilter"]
+__all__ = ["SampleFilter", "MAX_FUTURE_S"]
+
+MAX_FUTURE_S = 0.5
+"""How far (s) a header stamp may lie ahead of the receiver's clock and still be taken."""
 
 
 class SampleFilter:
@@ -21,7 +32,9 @@ class SampleFilter:
         typename: the ROS type of the payload.
         who: GID (16 bytes) -> publishing node name or None (the graph), used only with ``allowed``.
         allowed: node names that may publish here (None = anyone).
-        check_order: drop messages whose header stamp is not newer than the last accepted one.
+        check_order: drop messages whose header stamp is not newer than the last accepted one, or lies more
+            than ``max_future`` seconds after the receiver's clock (``now`` of :meth:`accept`).
+        max_future: see ``check_order`` (:data:`MAX_FUTURE_S`).
     """
 
     def __init__(
@@ -30,17 +43,29 @@ class SampleFilter:
         who: Callable[[bytes], str | None] | None = None,
         allowed: set[str] | None = None,
         check_order: bool = True,
+        max_future: float = MAX_FUTURE_S,
     ) -> None:
         self.typename, self.who, self.allowed, self.check_order = typename, who, allowed, check_order
+        self.max_future = float(max_future)
         self.last_seq: dict[bytes, int] = {}
         self.last_stamp = -float("inf")
         self.dropped: dict[str, int] = {}
         self.rejected_publishers: set[str] = set()
+        self.last_refusal: str | None = None
 
     def _drop(self, why: str) -> None:
         self.dropped[why] = self.dropped.get(why, 0) + 1
 
-    def accept(self, attachment: bytes | None, payload: bytes) -> tuple[Any, Any] | None:
+    def reject(self, exc: Exception) -> None:
+        """Count a message that passed this filter but that the node could not use (its callback raised
+        ``exc``: an image of another encoding, a size that contradicts the data...), by the error's type;
+        :attr:`last_refusal` keeps the newest error's text."""
+        self._drop(f"refused by the node ({type(exc).__name__})")
+        self.last_refusal = str(exc)[:300]
+
+    def accept(self, attachment: bytes | None, payload: bytes, now: float | None = None) -> tuple[Any, Any] | None:
+        """The decoded ``(message, attachment)``, or None when the sample is dropped; ``now``: the receiver's
+        clock (s since the epoch; default ``time.time()``)."""
         try:
             att = decode_attachment(attachment if attachment is not None else b"")
         except ValueError:
@@ -62,6 +87,9 @@ class SampleFilter:
             return None
         if self.check_order and hasattr(msg, "header"):
             st = ros2.to_seconds(msg.header.stamp)
+            if not st <= (time.time() if now is None else now) + self.max_future:
+                self._drop("stamp in the future")
+                return None
             if not st > self.last_stamp:
                 self._drop("stale or reordered stamp")
                 return None

@@ -186,13 +186,16 @@ class Subscription:
     def _on_sample(self, sample) -> None:
         now = time.time_ns()
         att = sample.attachment.to_bytes() if sample.attachment is not None else None
-        got = self.filter.accept(att, sample.payload.to_bytes())
+        got = self.filter.accept(att, sample.payload.to_bytes(), now * 1e-9)
         if got is None:
             return
         self.received += 1
         if _in_shared_memory(sample.payload):
             self.shm_received += 1
-        self.callback(got[0], got[1], now)
+        try:
+            self.callback(got[0], got[1], now)
+        except Exception as exc:  # noqa: BLE001 - a message the node cannot use: counted, never raised into Zenoh
+            self.filter.reject(exc)
 
     def close(self) -> None:
         self._sub.undeclare()

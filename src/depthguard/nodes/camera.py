@@ -21,7 +21,7 @@ from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
 from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
 
-__all__ = ["run_camera_node", "mask_msg"]
+__all__ = ["run_camera_node", "mask_msg", "prepare_frame"]
 
 
 def mask_msg(t: float, frame_id: str, mask: np.ndarray):
@@ -31,6 +31,30 @@ def mask_msg(t: float, frame_id: str, mask: np.ndarray):
     img.height, img.width, img.encoding, img.step = h, w, "mono8", w
     img.data = (np.asarray(mask, np.uint8) * 255).ravel()
     return img
+
+
+def prepare_frame(msg, cam0, cc, model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One raw ``sensor_msgs/Image`` prepared as the node publishes it: ``(depth, mask)``, the depth (H, W) in
+    metres (NaN = no reading) and the robot mask (H, W) bool, self-filtered at joint positions ``q``.
+
+    ``cam0``: the camera (in its parent link's frame when the robot carries it); ``cc``: its cell-file entry;
+    ``model``: the robot. Raises ``ValueError`` for an image that cannot be used: not a depth encoding, fewer
+    bytes than its size says, or a size that is not a scaled image of the camera's.
+    """
+    from depthguard.robot.selffilter import self_filter
+    from depthguard.runner.chain import carried_camera
+
+    depth = ros2.image_to_depth(msg)
+    cam = camera_at_size(cam0, depth.shape[1], depth.shape[0])
+    if cc.parent != "world":  # carried by the robot: where the link was at this frame
+        cam = carried_camera(cam, model, q, cc.parent)
+    margin = None
+    if cc.noise_coeff > 0:  # the margin covers the depth noise (runner.chain.self_filter_margins)
+        from depthguard.sim.pipeline import model_filter_margin
+
+        margin = model_filter_margin(cam, q, model, cc.noise_coeff)
+    kw = {} if margin is None else {"margin": margin}
+    return depth, np.asarray(self_filter(cam, depth, q, model, with_depth=False, **kw)[0])
 
 
 def run_camera_node(
@@ -43,8 +67,7 @@ def run_camera_node(
     **kw,
 ) -> dict:
     """Run camera node ``name`` until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.robot.selffilter import self_filter
-    from depthguard.runner.chain import carried_camera, check_camera_parents, load_cell_robot
+    from depthguard.runner.chain import check_camera_parents, load_cell_robot
 
     cc = {c.name: c for c in cell.cameras}.get(name)
     if cc is None:
@@ -95,21 +118,11 @@ def run_camera_node(
                 skipped += 1
                 continue
             try:
-                depth = ros2.image_to_depth(msg)
-                cam = camera_at_size(cam0, depth.shape[1], depth.shape[0])
-                if cc.parent != "world":  # carried by the robot: where the link was at this frame
-                    cam = carried_camera(cam, model, q, cc.parent)
+                depth, mask = prepare_frame(msg, cam0, cc, model, q)
             except ValueError as exc:
                 jl.write(ev="bad_frame", error=str(exc))
                 skipped += 1
                 continue
-            if cc.noise_coeff > 0:  # the margin covers the depth noise (runner.chain.self_filter_margins)
-                from depthguard.sim.pipeline import model_filter_margin
-
-                margin = model_filter_margin(cam, q, model, cc.noise_coeff)
-                mask = np.asarray(self_filter(cam, depth, q, model, margin=margin, with_depth=False)[0])
-            else:
-                mask = np.asarray(self_filter(cam, depth, q, model, with_depth=False)[0])
             fid = msg.header.frame_id
             p1 = pub_d.publish(ros2.image_msg(t, fid, depth, "32FC1"))
             pub_m.publish(mask_msg(t, fid, mask))

@@ -31,10 +31,17 @@ __all__ = ["run_controller_node"]
 
 
 class _Inputs:
-    """The controller's newest inputs, written by the Zenoh callbacks under one lock."""
+    """The controller's newest inputs, written by the Zenoh callbacks under one lock.
 
-    def __init__(self, n: int, N: int) -> None:
+    ``names``: the control points' names, in the controller's order. A distances message for other points
+    (another number, order or names: a distance node with another cell file) is refused with ``ValueError``,
+    which its subscription counts (``refused by the node``): its distances would otherwise be applied to the
+    wrong points. The last good distances then go stale and the controller stops the arm.
+    """
+
+    def __init__(self, n: int, N: int, names: list[str] | tuple[str, ...] | None = None) -> None:
         self.n, self.N = n, N
+        self.names = None if names is None else [str(x) for x in names]
         self.lock = threading.Lock()
         self.st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None}
         self.st.update(td=-np.inf, dpub=None, md=None, mdirs=None, tm=np.nan)
@@ -49,25 +56,25 @@ class _Inputs:
         with self.lock:
             self.st["xd"] = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
 
-    def _pair(self, msg) -> tuple[np.ndarray, np.ndarray] | None:
-        if len(msg.points) != self.N:
-            return None
+    def _pair(self, msg) -> tuple[np.ndarray, np.ndarray]:
         from depthguard.runner.chain import controller_arrays
 
+        got = [str(p.name) for p in msg.points]
+        if len(got) != self.N or (self.names is not None and got != self.names):
+            want = self.names if self.names is not None else f"{self.N} points"
+            raise ValueError(f"distances for control points {got[:12]}, expected {want} (another cell file?)")
         d = [p.distance for p in msg.points]
         return controller_arrays(d, [[p.direction.x, p.direction.y, p.direction.z] for p in msg.points], self.N)
 
     def on_dist(self, msg, att, recv_ns) -> None:
-        pair = self._pair(msg)
-        if pair is not None:
-            with self.lock:
-                self.st.update(d=pair[0], dirs=pair[1], td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
+        d, dirs = self._pair(msg)
+        with self.lock:
+            self.st.update(d=d, dirs=dirs, td=ros2.to_seconds(msg.header.stamp), dpub=att.stamp_ns * 1e-9)
 
     def on_monitor(self, msg, att, recv_ns) -> None:
-        pair = self._pair(msg)
-        if pair is not None:
-            with self.lock:
-                self.st.update(md=pair[0], mdirs=pair[1], tm=ros2.to_seconds(msg.header.stamp))
+        d, dirs = self._pair(msg)
+        with self.lock:
+            self.st.update(md=d, mdirs=dirs, tm=ros2.to_seconds(msg.header.stamp))
 
     def cycle_input(self, s: dict, t: float):
         """The :class:`~depthguard.control.cycle.CycleInput` of a snapshot ``s`` of :attr:`st` at ``t``: the
@@ -97,14 +104,17 @@ def run_controller_node(
     N, n = points.n_points, len(model.joint_names)
     top = Topics.of(cell)
     node = open_node(cell, "controller", **kw)
-    inp = _Inputs(n, N)
+    inp = _Inputs(n, N, points.names)
     on_js, on_task, on_dist, lock, st = inp.on_js, inp.on_task, inp.on_dist, inp.lock, inp.st
 
     allowed = set(cell.network.get("publishers", ["distance"])) if cell.network else None
-    node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
-    node.subscribe(top.task, "geometry_msgs/msg/Vector3Stamped", on_task)
     sub_d = node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist, allowed=allowed)
-    node.subscribe(top.monitor_distances, "depthguard_msgs/msg/ControlPointDistances", inp.on_monitor, allowed=allowed)
+    subs = [
+        sub_d,
+        node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js),
+        node.subscribe(top.task, "geometry_msgs/msg/Vector3Stamped", on_task),
+        node.subscribe(top.monitor_distances, sub_d.typename, inp.on_monitor, allowed=allowed),
+    ]
     pub_cmd = node.publisher(top.command, "sensor_msgs/msg/JointState")
     pub_arr = node.publisher(top.command_array, "std_msgs/msg/Float64MultiArray")
     pub_traj = node.publisher(top.command_trajectory, "trajectory_msgs/msg/JointTrajectory")
@@ -151,7 +161,8 @@ def run_controller_node(
             "statuses": statuses,
             "cycle_ms_median": float(np.median(cw)) if cw.size else None,
             "cycle_ms_p99": float(np.percentile(cw, 99)) if cw.size else None,
-            "dropped": dict(sub_d.dropped),
+            "dropped": dict(sub_d.dropped),  # (the distances')
+            "dropped_by_topic": {x.topic: dict(x.dropped) for x in subs if x.dropped},
             "rejected_publishers": sorted(sub_d.rejected_publishers),
             "unlisted_publishers": sorted(sub_d.unlisted_publishers),
         }

@@ -4,7 +4,8 @@ Subscribes every camera node's prepared depth and robot mask (paired by stamp) a
 every camera has delivered a frame since the last query, it updates the distance stage (depth space for one
 camera, depth grid for several) and queries the control spheres at the newest joint positions; the result
 goes out as ``depthguard_msgs/ControlPointDistances`` on the cell's ``distances`` topic, **stamped with the
-oldest frame's stamp** (the age of the data, which the controller's stale-data timeout checks). With SSM and a
+oldest of the frames' stamps and the stamp of the joint state used** (the age of the data, which the
+controller's stale-data timeout checks). With SSM and a
 ``[controller] background`` the monitor's own distances (the same frames without the empty cell, docs/ssm.md)
 follow on ``monitor_distances`` with the same stamp.
 """
@@ -21,7 +22,7 @@ from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
 
-__all__ = ["run_distance_node", "frame_set_cameras"]
+__all__ = ["run_distance_node", "frame_set_cameras", "FrameSetWork"]
 
 _UNPAIRED_MAX = 32  # frames kept per camera while their depth or mask is missing
 
@@ -47,7 +48,7 @@ class _FrameSets:
         self.mask: dict[str, dict] = {n: {} for n in names}
         self.recv: dict[str, dict] = {n: {} for n in names}  # stamp -> the later receive time (s) of the pair
         self.ready: dict[str, tuple] = {}
-        self.joint: dict = {"q": None}
+        self.joint: dict = {"q": None, "t": -np.inf}  # the newest joint positions and their stamp (s)
         self.joints: deque = deque(maxlen=400)  # (stamp s, q): the joint state of each frame set
 
     def _pair(self, n: str, t: float, pub: float, recv_ns: int) -> None:
@@ -85,9 +86,30 @@ class _FrameSets:
     def on_js(self, msg, att, recv_ns) -> None:
         q = np.asarray(msg.position, float)
         if q.shape == (self.n_joints,) and np.all(np.isfinite(q)):
+            t = ros2.to_seconds(msg.header.stamp)
             with self.lock:
-                self.joint["q"] = q
-                self.joints.append((ros2.to_seconds(msg.header.stamp), q))
+                self.joint.update(q=q, t=t)
+                self.joints.append((t, q))
+
+    def take(self, carried: list) -> tuple | None:
+        """The next frame set, once every camera has one and a joint state has come: ``(sets, q, t_data,
+        q_frames, q_cams)``, each set ``(stamp, depth, mask, published, received)`` in camera order, ``q`` the
+        newest joint positions, ``q_frames`` / ``q_cams`` those of the principal frame / of each carried camera's
+        frame (:meth:`q_at`); else None.
+
+        ``t_data``, the stamp that the distances carry, is the oldest of the frames' stamps and the stamp of
+        ``q``: the control spheres are placed at ``q``, so distances computed from joint positions that stopped
+        coming (a joint-state publisher gone silent or partitioned from this node alone) age like distances
+        from old frames, and the controller's stale-data timeout stops the arm."""
+        with self.lock:
+            self.ev.clear()
+            if len(self.ready) < len(self.names) or self.joint["q"] is None:
+                return None
+            sets = [self.ready.pop(n) for n in self.names]
+            q, t_q = self.joint["q"].copy(), self.joint["t"]
+            q_frames = self.q_at(sets[0][0])  # the robot where the principal frame saw it
+            q_cams = {k: self.q_at(sets[k][0]) for k, _ in carried}
+        return sets, q, min(min(s[0] for s in sets), t_q), q_frames, q_cams
 
     def q_at(self, t: float) -> np.ndarray | None:
         """The joint state nearest to stamp ``t`` (s), None if none lies within ``MAX_JOINT_SKEW`` (call
@@ -127,17 +149,45 @@ def _frame_set_distances(stage, cell: CellFile, cams, points, depths, masks, q_f
     return cps, res, (monitor(cps.centres, cps.radii) if monitor is not None else None)
 
 
+class FrameSetWork:
+    """The distance node's work on one frame set, apart from Zenoh: the cameras at the frames' sizes (and where
+    a carried camera's link was), the distance stage (rebuilt when a size changes, kept otherwise) and the
+    distances (:func:`_frame_set_distances`).
+
+    :meth:`distances` raises ``ValueError`` for a frame set that cannot be used: an image whose size is not a
+    scaled camera image, a mask of another size than its depth... The stage is then forgotten, so that the
+    next frame set starts from a clean one; the node skips the set, its distances go stale and the controller
+    stops the arm until good frame sets come again.
+    """
+
+    def __init__(self, cell: CellFile, cams0: list, points, carried: list) -> None:
+        self.cell, self.cams0, self.points, self.carried = cell, cams0, points, carried
+        self.stage, self.sizes, self.cams = None, [], None
+
+    def distances(self, depths: list, masks: list, q_frames, q_cams: dict, q) -> tuple | None:
+        """``(control points, distances, the monitor's distances or None)`` of one frame set (depths (H, W)
+        metres, masks (H, W) bool, one per camera), or None when a carried camera's joint state is missing."""
+        from depthguard.runner.chain import cell_distance_stage
+
+        try:
+            sizes = [np.shape(d) for d in depths]
+            if self.stage is None or self.carried or sizes != self.sizes:  # (a camera may change its resolution)
+                self.stage = None
+                cams = frame_set_cameras(self.cams0, depths, self.points.model, self.carried, q_cams)
+                if cams is None:
+                    return None
+                self.stage, self.sizes, self.cams = cell_distance_stage(self.cell, cams), sizes, cams
+            return _frame_set_distances(self.stage, self.cell, self.cams, self.points, depths, masks, q_frames, q)
+        except ValueError:
+            self.stage = None
+            raise
+
+
 def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.runner.chain import (
-        cell_control_points,
-        cell_distance_stage,
-        check_camera_parents,
-        check_chain_support,
-        load_cell_robot,
-    )
+    from depthguard.runner.chain import cell_control_points, check_camera_parents, check_chain_support, load_cell_robot
 
     check_chain_support(cell)
     stop = stop if stop is not None else StopFlag()
@@ -152,59 +202,40 @@ def run_distance_node(
     top = Topics.of(cell)
     node = open_node(cell, "distance", **kw)
     fs = _FrameSets(names, len(model.joint_names))
-    lock, ev, ready, joint, on_js, on_depth, on_mask = (
-        fs.lock,
-        fs.ev,
-        fs.ready,
-        fs.joint,
-        fs.on_js,
-        fs.on_depth,
-        fs.on_mask,
-    )
 
-    subs = [node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)]
+    subs = [node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", fs.on_js)]
     for n in names:
-        subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n)))
-        subs.append(node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n)))
+        subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", fs.on_depth(n)))
+        subs.append(node.subscribe(top.mask[n], "sensor_msgs/msg/Image", fs.on_mask(n)))
     pub = node.publisher(top.distances, "depthguard_msgs/msg/ControlPointDistances")
     pub_mon = node.publisher(top.monitor_distances, "depthguard_msgs/msg/ControlPointDistances")
-    stage, stage_sizes = None, []
+    work = FrameSetWork(cell, cams0, points, carried)
     queries = 0
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
-            if not ev.wait(0.05):
+            if not fs.ev.wait(0.05):
                 continue
-            with lock:
-                ev.clear()
-                if len(ready) < len(names) or joint["q"] is None:
-                    continue
-                sets = [ready.pop(n) for n in names]
-                q = joint["q"].copy()
-                q_frames = fs.q_at(sets[0][0])  # the robot where the principal frame saw it
-                q_cams = {k: fs.q_at(sets[k][0]) for k, _ in carried}
+            got_set = fs.take(carried)
+            if got_set is None:
+                continue
+            sets, q, t_data, q_frames, q_cams = got_set
             depths, masks = [s[1] for s in sets], [s[2] for s in sets]
-            sizes = [np.shape(d) for d in depths]
-            if stage is None or carried or sizes != stage_sizes:  # (a camera may change its resolution)
-                cams = frame_set_cameras(cams0, depths, model, carried, q_cams)
-                if cams is None:
-                    jl.write(ev="skipped", reason="no joint state for a carried camera's frame")
-                    stage = None  # no distances from this frame set: they go stale, the controller stops
-                    continue
-                stage, stage_sizes = cell_distance_stage(cell, cams), sizes
             t_start_compute = time.time()
             w0 = time.perf_counter()
             try:
-                cps, res, mres = _frame_set_distances(stage, cell, cams, points, depths, masks, q_frames, q)
+                got = work.distances(depths, masks, q_frames, q_cams, q)
             except ValueError as exc:  # a malformed frame set (a mask of another size...): no distances from it
                 jl.write(ev="skipped", reason=str(exc))
-                stage = None
                 continue
+            if got is None:
+                jl.write(ev="skipped", reason="no joint state for a carried camera's frame")
+                continue  # (no distances from this frame set: they go stale, the controller stops)
+            cps, res, mres = got
             w1 = time.perf_counter()
-            t_data = min(s[0] for s in sets)
             p = pub.publish(ros2.query_msg(t_data, points.names, cps.centres, cps.radii, res, rho=rho)) * 1e-9
             if mres is not None:
-                rng = getattr(stage.monitor, "ssm_range", None) or rho  # (the monitor's range)
+                rng = getattr(work.stage.monitor, "ssm_range", None) or rho  # (the monitor's range)
                 pub_mon.publish(ros2.query_msg(t_data, points.names, cps.centres, cps.radii, mres, rho=rng))
             queries += 1
             jl.write(
