@@ -301,3 +301,46 @@ def test_acl_section_invariants_hold_for_any_topics_and_publishers(open_keys, pr
     assert set(ingress) == set(open_keys) | (set(protected) if publishers else set())
     graph = [r for r in acl["rules"] if "put" not in r["messages"]]
     assert graph and all("@ros2_lv/**" in r["key_exprs"] and "**" in r["key_exprs"] for r in graph)
+
+
+@pytest.mark.slow
+def test_the_whole_chain_moves_the_arm_under_access_control(tmp_path):
+    """Real processes (``sim``, both cameras, ``distance``, ``controller``), each with its own certificate and
+    Zenoh's access control: the frames, masks, joint states, distances and joint commands all get through,
+    so the controller moves the arm (a subscriber with the ``monitor`` certificate watches its status) and the
+    driver takes its commands (its watchdog does not hold the arm); the controller's final report lists no
+    unlisted publisher and no refused message."""
+    pytest.importorskip("zenoh")
+    pytest.importorskip("mujoco")
+    need_openssl()
+    from certs import tls_settings
+    from test_nodes_faults import MOVING, StatusWatch, System
+
+    ca = make_ca(tmp_path, "cell")
+    network = (
+        f'tls_root_ca = "{ca[0]}"\ntls_certificate = "{tmp_path}/{{node}}.pem"\n'
+        f'tls_private_key = "{tmp_path}/{{node}}.key"\n'
+    )
+    sysm = System(tmp_path, network)
+    for n in node_names(read_cell(sysm.cell)):
+        make_cert(tmp_path, ca, n, n)
+    watch = None
+    try:
+        for n in ("sim", "camera0", "camera1", "distance", "controller"):
+            sysm.start(n)
+        tls = tls_settings(ca[0], tmp_path / "monitor.pem", tmp_path / "monitor.key")
+        watch = StatusWatch(sysm.cell, name="monitor", tls=tls)
+        t_ok = watch.wait_for(MOVING, 0.0, 120.0)
+        assert t_ok, f"never moved; statuses: {sorted({s for _, s in watch.events})}"
+        time.sleep(1.5)
+        js = [json.loads(x) for x in (tmp_path / "sim.log").read_text().splitlines() if '"js"' in x]
+        driven = [r for r in js if r["t"] > t_ok + 0.5 and not r["held"]]
+        assert driven, "the driver never took a joint command (its watchdog held the arm)"
+        sysm.stop("controller")
+        out = [json.loads(x) for x in (tmp_path / "controller.out").read_text().splitlines() if x.startswith("{")]
+        assert out[-1]["unlisted_publishers"] == [] and out[-1]["rejected_publishers"] == []
+        assert not any("refused" in k for d in out[-1]["dropped_by_topic"].values() for k in d), out[-1]
+    finally:
+        if watch is not None:
+            watch.close()
+        sysm.close()

@@ -47,21 +47,22 @@ D_TIMEOUT = 0.3
 MOVING = ("OK", "SCALED")  # (the controller runs and moves the arm: a start-up is complete)
 
 
-def _cell(tmp: Path) -> Path:
+def _cell(tmp: Path, network: str = "") -> Path:
+    """The relaxed test cell; ``network``: more lines for its ``[network]`` table (TLS, for example)."""
     text = (ROOT / "examples/cells/sim-hexagon.toml").read_text()
     text = text.replace("joint_timeout = 0.005", "joint_timeout = 0.1")
     text = text.replace("distance_timeout = 0.1", f"distance_timeout = {D_TIMEOUT}")
     text = text.replace("rate = 1000.0", "rate = 250.0")
     port = random.randint(24000, 30000)
-    text += f'\n[network]\nbase_port = {port}\nconnect = []\npublishers = ["distance", "controller"]\n'
+    text += f'\n[network]\nbase_port = {port}\nconnect = []\npublishers = ["distance", "controller"]\n{network}\n'
     p = tmp / "cell.toml"
     p.write_text(text)
     return p
 
 
 class System:
-    def __init__(self, tmp: Path) -> None:
-        self.tmp, self.cell = tmp, _cell(tmp)
+    def __init__(self, tmp: Path, network: str = "") -> None:
+        self.tmp, self.cell = tmp, _cell(tmp, network)
         self.procs: dict[str, subprocess.Popen] = {}
         self.env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
 
@@ -91,7 +92,7 @@ class System:
 class StatusWatch:
     """Our own subscriber of the controller status (received wall time, status name)."""
 
-    def __init__(self, cell_path: Path) -> None:
+    def __init__(self, cell_path: Path, name: str = "test_watch", tls: dict | None = None) -> None:
         from depthguard.io.cellfile import read_cell
         from depthguard.io.zenoh_transport import ZenohNode
         from depthguard.nodes.common import Topics, _endpoint, node_names
@@ -99,7 +100,7 @@ class StatusWatch:
         cell = read_cell(cell_path)
         base = cell.network["base_port"]
         peers = [_endpoint(cell, base + k) for k in range(len(node_names(cell)))]
-        self.node = ZenohNode("test_watch", domain=0, listen=[], connect=peers)
+        self.node = ZenohNode(name, domain=0, listen=[], connect=peers, tls=tls)
         self.cell = cell
         self.events: list[tuple[float, str]] = []
         self.lock = threading.Lock()
