@@ -202,9 +202,7 @@ def test_distance_node_work_answers_or_refuses_any_frame_set(hexagon, data):
     ok_d = _feed(fs, "camera0", depth, False)
     ok_m = _feed(fs, "camera0", data.draw(images(stamp[0], mask=True, size=(depth.width, depth.height))), True)
     good = ros2.image_msg(stamp[0], "camera1", h["depths"][1], "32FC1")
-    from depthguard.nodes.camera import mask_msg
-
-    assert _feed(fs, "camera1", good, False) and _feed(fs, "camera1", mask_msg(stamp[0], "c", h["masks"][1]), True)
+    assert _feed(fs, "camera1", good, False) and _feed(fs, "camera1", ros2.mask_msg(stamp[0], "c", h["masks"][1]), True)
     if ok_d and ok_m:
         assert set(fs.ready) == {"camera0", "camera1"}
         sets = [fs.ready.pop(n) for n in ("camera0", "camera1")]
@@ -245,7 +243,6 @@ def test_distances_carry_the_age_of_the_joint_state_they_were_computed_at(frame_
     """The distance node places the control spheres at the newest joint state; its distances are stamped with
     the oldest of the frames' stamps and that joint state's, so distances from joint states that stopped
     coming (while frames still come) age and go stale at the controller like distances from old frames."""
-    from depthguard.nodes.camera import mask_msg
     from depthguard.nodes.distance import _FrameSets
 
     fs = _FrameSets(["camera0", "camera1"], 2)
@@ -254,9 +251,26 @@ def test_distances_carry_the_age_of_the_joint_state_they_were_computed_at(frame_
         fs.on_js(ros2.joint_state_msg(100.0 + t, ["a", "b"], [t, t], [0.0, 0.0]), att, 0)
     for n, t in zip(fs.names, frame_stamps, strict=True):
         fs.on_depth(n)(ros2.image_msg(100.0 + t, n, np.ones((3, 4)), "32FC1"), att, 0)
-        fs.on_mask(n)(mask_msg(100.0 + t, n, np.zeros((3, 4), bool)), att, 0)
+        fs.on_mask(n)(ros2.mask_msg(100.0 + t, n, np.zeros((3, 4), bool)), att, 0)
     sets, q, t_data, _, _ = fs.take([])
     newest = joint_stamps[-1]
     assert q.tolist() == [newest, newest]
     assert t_data == pytest.approx(100.0 + min(*frame_stamps, newest), abs=1e-6)
     assert fs.take([]) is None  # (each frame set is used once)
+
+
+@given(st.integers(0, 9), st.integers(0, 9), st.integers(0, 4), st.integers(0, 2**31 - 1))
+def test_robot_masks_cross_the_wire_bit_for_bit(h, w, pad, seed):
+    """``mask_msg`` then ``image_to_mask`` (rows padded to ``step`` by another writer, non-zero bytes of any
+    value as robot pixels) gives the mask back; a row step shorter than a row is refused, not misread."""
+    mask = np.random.default_rng(seed).random((h, w)) < 0.4
+    np.testing.assert_array_equal(ros2.image_to_mask(ros2.mask_msg(1.0, "c", mask)), mask)
+    msg = ros2.mask_msg(1.0, "c", mask)
+    rows = np.zeros((h, w + pad), np.uint8)
+    rows[:, :w] = np.where(mask, np.random.default_rng(seed).integers(1, 256, (h, w)), 0)
+    msg.step, msg.data = w + pad, rows.ravel()
+    np.testing.assert_array_equal(ros2.image_to_mask(msg), mask)
+    if w > 1 and h > 0:
+        msg.step = w - 1
+        with pytest.raises(ValueError, match="step"):
+            ros2.image_to_mask(msg)

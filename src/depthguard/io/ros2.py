@@ -37,6 +37,8 @@ __all__ = [
     "header",
     "image_msg",
     "image_to_depth",
+    "mask_msg",
+    "image_to_mask",
     "camera_info_msg",
     "joint_state_msg",
     "tf_msg",
@@ -146,6 +148,37 @@ def image_msg(t: float, frame_id: str, depth: np.ndarray, encoding: str = "16UC1
         step=w * data.itemsize,
         data=np.frombuffer(data.tobytes(), dtype=np.uint8),
     )
+
+
+def mask_msg(t: float, frame_id: str, mask: np.ndarray):
+    """``sensor_msgs/Image`` mono8 of a robot mask (H, W) bool: 255 = robot pixel."""
+    m = np.asarray(mask, bool)
+    if m.ndim != 2:
+        raise ValueError(f"robot mask must be (H, W), got shape {m.shape}")
+    h, w = m.shape
+    return _t("sensor_msgs/msg/Image")(
+        header=header(t, frame_id),
+        height=h,
+        width=w,
+        encoding="mono8",
+        is_bigendian=0,
+        step=w,
+        data=(m.astype(np.uint8) * 255).ravel(),
+    )
+
+
+def image_to_mask(msg) -> np.ndarray:
+    """(H, W) bool robot mask from a mono8 ``sensor_msgs/msg/Image`` (non-zero = robot pixel; rows may be
+    padded to ``step`` bytes). Raises ``ValueError`` for another encoding, a row step shorter than a row or
+    fewer bytes than the size says."""
+    if str(msg.encoding) != "mono8":
+        raise ValueError(f"robot mask must be a mono8 Image, got {msg.encoding!r}")
+    h, w = int(msg.height), int(msg.width)
+    raw = np.asarray(msg.data, np.uint8).reshape(-1)
+    step = int(msg.step) or w
+    if step < w or raw.size < step * h:
+        raise ValueError(f"robot mask {w}x{h} holds {raw.size} bytes with step {msg.step}: too few")
+    return raw[: step * h].reshape(h, step)[:, :w] > 0
 
 
 def image_to_depth(msg) -> np.ndarray:

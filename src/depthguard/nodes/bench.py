@@ -84,7 +84,7 @@ def _publish(cell, names, sets, duration: float, stop_when) -> None:
     """Publish the prepared frames (as the camera nodes do) at the cameras' rate and joint states at 500 Hz."""
     from depthguard.io import ros2
     from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
-    from depthguard.nodes.camera import mask_msg
+    from depthguard.io.ros2 import mask_msg
     from depthguard.nodes.common import Topics, open_node
 
     top = Topics.of(cell)

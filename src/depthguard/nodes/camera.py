@@ -19,18 +19,10 @@ import numpy as np
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
+from depthguard.io.ros2 import mask_msg
 from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
 
 __all__ = ["run_camera_node", "mask_msg", "prepare_frame"]
-
-
-def mask_msg(t: float, frame_id: str, mask: np.ndarray):
-    """``sensor_msgs/Image`` mono8 of a robot mask (H, W) bool: 255 = robot pixel."""
-    img = ros2.image_msg(t, frame_id, np.zeros((1, 1)), "16UC1")
-    h, w = mask.shape
-    img.height, img.width, img.encoding, img.step = h, w, "mono8", w
-    img.data = (np.asarray(mask, np.uint8) * 255).ravel()
-    return img
 
 
 def prepare_frame(msg, cam0, cc, model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

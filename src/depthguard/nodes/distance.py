@@ -27,17 +27,6 @@ __all__ = ["run_distance_node", "frame_set_cameras", "FrameSetWork"]
 _UNPAIRED_MAX = 32  # frames kept per camera while their depth or mask is missing
 
 
-def _mask_from_msg(msg) -> np.ndarray:
-    if str(msg.encoding) != "mono8":
-        raise ValueError(f"robot mask must be a mono8 Image, got {msg.encoding!r}")
-    h, w = int(msg.height), int(msg.width)
-    raw = np.asarray(msg.data, np.uint8)
-    step = int(msg.step) or w
-    if raw.size < step * h:
-        raise ValueError(f"robot mask {w}x{h} holds {raw.size} bytes: too few")
-    return raw[: step * h].reshape(h, step)[:, :w] > 0
-
-
 class _FrameSets:
     """Pairs each camera's prepared depth and mask by stamp; :attr:`ev` is set when every camera has one."""
 
@@ -78,7 +67,7 @@ class _FrameSets:
         def cb(msg, att, recv_ns):
             t = ros2.to_seconds(msg.header.stamp)
             with self.lock:
-                self.mask[n][t] = _mask_from_msg(msg)
+                self.mask[n][t] = ros2.image_to_mask(msg)
                 self._pair(n, t, att.stamp_ns * 1e-9, recv_ns)
 
         return cb

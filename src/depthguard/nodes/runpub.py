@@ -14,7 +14,7 @@ from typing import Any
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
-from depthguard.nodes.camera import mask_msg
+from depthguard.io.ros2 import mask_msg
 from depthguard.nodes.common import Topics, now_s, open_node
 
 __all__ = ["ZenohRunPublisher"]

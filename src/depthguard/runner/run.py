@@ -68,6 +68,7 @@ class _Recorder:
         ]
         self.w.write(cell.topics["tf_static"], "tf2_msgs/msg/TFMessage", ros2.tf_msg(0.0, tfs), 0.0)
         self.types = ros2.typestore().types
+        self.last_marker = -np.inf
 
     def inputs(self, tick, frames) -> None:
         w, cell = self.w, self.cell
@@ -91,12 +92,13 @@ class _Recorder:
 
     def masks(self, t: float, masks) -> None:
         for c, m in zip(self.cell.cameras, masks, strict=True):
-            img = ros2.image_msg(t, c.frame_id, np.zeros(m.shape), "16UC1")
-            img.encoding, img.step = "mono8", m.shape[1]
-            img.data = (np.asarray(m, np.uint8) * 255).ravel()
+            img = ros2.mask_msg(t, c.frame_id, m)
             self.w.write(f"/depthguard/{c.name}/robot_mask", "sensor_msgs/msg/Image", img, t)
 
-    def query(self, t: float, res, cps, markers: bool) -> None:
+    def query(self, t: float, res, cps) -> None:
+        """The distances (and the monitor's, with a background); markers at most every 0.05 s of the source."""
+        markers = t - self.last_marker >= 0.05
+        self.last_marker = t if markers else self.last_marker
         topics = self.cell.topics
         msg = ros2.query_msg(t, cps.names, cps.centres, cps.radii, res, rho=self.chain.rho)
         self.w.write(topics["distances"], "depthguard_msgs/msg/ControlPointDistances", msg, t)
@@ -133,6 +135,64 @@ def _progress(t: float, total: float, last: list[int], label: str) -> None:
         sys.stderr.flush()
 
 
+def _frame_stage(chain: Chain, tick, q_ok: bool, log: RunLog, sinks: list[Any]) -> None:
+    """A new frame set through the chain's frame stage; the masks to the sinks. A joint state that is missing,
+    of the wrong size or not finite cannot place the robot: no frame stage with it (the controller gets it as
+    it is and stops: STOP_INVALID_INPUT)."""
+    if tick.frames is None:
+        return
+    if not q_ok:
+        if tick.q is not None:
+            log.faults["joint state: not finite or wrong size"] += 1
+        return
+    masks = chain.on_frames(tick.frames, tick.q, tick.t_frames)
+    log.frames += 1
+    log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
+    for s in sinks:
+        s.masks(tick.t, masks)
+
+
+def _distance_query(chain: Chain, tick, log: RunLog, sinks: list[Any]) -> None:
+    """One distance query at the tick's joint positions; its result to the log and the sinks."""
+    w0 = time.perf_counter()
+    res = chain.query(tick.t, tick.q)
+    log.wall_query.append(time.perf_counter() - w0)
+    log.t_query.append(tick.t)
+    log.distances.append(np.asarray(res.distance, float).copy())
+    if sinks:
+        cps = chain.points.evaluate(tick.q)
+        for s in sinks:
+            s.query(tick.t, res, cps)
+
+
+def _control(chain: Chain, source: Any, tick, log: RunLog, sinks: list[Any]) -> None:
+    """One controller cycle; its joint command back to the source and to the log and the sinks."""
+    out = chain.control(tick.t, tick.q, tick.qdot, tick.t_joints, tick.xdot_d)
+    source.command(out.q_cmd, out.qdot_cmd)
+    log.t.append(tick.t)
+    log.q_cmd.append(np.asarray(out.q_cmd, float).copy())
+    log.qdot_cmd.append(np.asarray(out.qdot_cmd, float).copy())
+    log.status.append(out.status.name)
+    for s in sinks:
+        s.command(tick.t, out)
+
+
+def _summary(log: RunLog, wall0: float, recording: Path | None) -> dict[str, Any]:
+    wq = np.asarray(log.wall_query)
+    summary: dict[str, Any] = {
+        "frames": log.frames,
+        "commands": len(log.t),
+        "distance_hz_median": float(1.0 / np.median(wq)) if wq.size else None,
+        "statuses": dict(Counter(log.status)),
+        "sensor_faults": dict(log.faults),
+        "duration_s": float(log.t[-1] - log.t[0]) if log.t else 0.0,
+        "wall_s": round(time.perf_counter() - wall0, 3),
+    }
+    if recording is not None:
+        summary["recording"] = str(recording)
+    return summary
+
+
 def run_chain(
     cell: CellFile,
     source: Any,
@@ -154,18 +214,17 @@ def run_chain(
     name), ``duration_s`` (source time), ``wall_s``.
     """
     log = log if log is not None else RunLog()
-    rec = None
+    sinks = list(sinks or [])
+    recording = None
     if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        rec = _Recorder(out / "recording.mcap", chain, cell)
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        recording = Path(out_dir) / "recording.mcap"
+        sinks.insert(0, _Recorder(recording, chain, cell))
     period = float(cell.distance["period"])
     next_query = -np.inf
     wall0 = time.perf_counter()
     t_first = None
-    last_marker = -np.inf
     bar = [-1]
-    sinks = list(sinks or [])
     if realtime:  # (every kernel of the controller's cycle loaded before the loop: no first use inside it)
         chain.warm_up()
     try:
@@ -176,68 +235,20 @@ def run_chain(
                 if lag > 0:
                     time.sleep(lag)
             log.faults.update(f"{k}: {v}" for k, v in tick.faults.items())  # source faults (dropped stream...)
-            if rec is not None:
-                rec.inputs(tick, tick.frames)
             for s in sinks:
                 s.inputs(tick, tick.frames)
-            # a joint state that is missing, of the wrong size or not finite cannot place the robot: no frame
-            # stage and no query with it (the controller gets it as it is and stops: STOP_INVALID_INPUT)
             q_ok = _usable_q(tick.q, len(chain.joint_names))
-            if tick.frames is not None and not q_ok and tick.q is not None:
-                log.faults["joint state: not finite or wrong size"] += 1
-            if tick.frames is not None and q_ok:
-                masks = chain.on_frames(tick.frames, tick.q, tick.t_frames)
-                log.frames += 1
-                log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
-                if rec is not None:
-                    rec.masks(tick.t, masks)
-                for s in sinks:
-                    s.masks(tick.t, masks)
+            _frame_stage(chain, tick, q_ok, log, sinks)
             if chain.ready and q_ok and tick.t >= next_query - 1e-9:
                 next_query = tick.t + period if next_query == -np.inf else next_query + period
-                w0 = time.perf_counter()
-                res = chain.query(tick.t, tick.q)
-                log.wall_query.append(time.perf_counter() - w0)
-                log.t_query.append(tick.t)
-                log.distances.append(np.asarray(res.distance, float).copy())
-                if sinks:
-                    cps = chain.points.evaluate(tick.q)
-                    for s in sinks:
-                        s.query(tick.t, res, cps)
-                if rec is not None:
-                    cps = chain.points.evaluate(tick.q)
-                    rec.query(tick.t, res, cps, markers=tick.t - last_marker >= 0.05)
-                    last_marker = tick.t if tick.t - last_marker >= 0.05 else last_marker
-            out = chain.control(tick.t, tick.q, tick.qdot, tick.t_joints, tick.xdot_d)
-            source.command(out.q_cmd, out.qdot_cmd)
-            log.t.append(tick.t)
-            log.q_cmd.append(np.asarray(out.q_cmd, float).copy())
-            log.qdot_cmd.append(np.asarray(out.qdot_cmd, float).copy())
-            log.status.append(out.status.name)
-            if rec is not None:
-                rec.command(tick.t, out)
-            for s in sinks:
-                s.command(tick.t, out)
+                _distance_query(chain, tick, log, sinks)
+            _control(chain, source, tick, log, sinks)
             if progress:
                 _progress(tick.t - t_first, getattr(source, "duration", 0.0), bar, label)
     finally:
-        if rec is not None:
-            rec.close()
         for s in sinks:
             s.close()
         source.close()
         if progress:
             sys.stderr.write("\n")
-    wq = np.asarray(log.wall_query)
-    summary: dict[str, Any] = {
-        "frames": log.frames,
-        "commands": len(log.t),
-        "distance_hz_median": float(1.0 / np.median(wq)) if wq.size else None,
-        "statuses": dict(Counter(log.status)),
-        "sensor_faults": dict(log.faults),
-        "duration_s": float(log.t[-1] - log.t[0]) if log.t else 0.0,
-        "wall_s": round(time.perf_counter() - wall0, 3),
-    }
-    if rec is not None:
-        summary["recording"] = str(Path(out_dir) / "recording.mcap")
-    return summary
+    return _summary(log, wall0, recording)

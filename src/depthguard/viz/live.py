@@ -320,7 +320,6 @@ def run_view_node(
     from depthguard.io import ros2
     from depthguard.io.cellfile import read_cell
     from depthguard.nodes.common import StopFlag, Topics, open_node
-    from depthguard.nodes.distance import _mask_from_msg
     from depthguard.runner.chain import cell_control_points, load_cell_robot
 
     cell = read_cell(cell_path)
@@ -349,7 +348,7 @@ def run_view_node(
     def on_mask(n):
         def cb(msg, att, recv_ns):
             with lock:
-                masks[n] = _mask_from_msg(msg)
+                masks[n] = ros2.image_to_mask(msg)
 
         return cb
 
