@@ -570,6 +570,49 @@ def test_image_of_another_size_mid_run_stops_with_the_camera_named(tmp_path):
     assert "STOP_SENSOR_FAULT" not in log.status[:i] and set(log.status[i:]) == {"STOP_SENSOR_FAULT"}
 
 
+def test_undecodable_image_mid_run_is_a_named_fault_not_a_crash(tmp_path):
+    """A corrupt image mid-bag (another encoding, fewer bytes than its size says): ``run`` counts a fault
+    naming the camera and goes on; the frame is missing (no frame set at that tick), and the frames after it
+    are used as before."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from depthguard.sim.recorder import camera_tf
+
+    cam, depth, q, model, _ = _scene("32FC1")
+    ts = ros2.typestore()
+    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c_img, c_info, c_js, c_tf = _connections(w, ts)
+        Rw, pw = camera_tf(cam.R, cam.t)
+        tfm = ros2.tf_msg(0.0, [("world", "cam_optical", Rw, pw)])
+        w.write(c_tf, 0, ts.serialize_cdr(tfm, "tf2_msgs/msg/TFMessage"))
+        for k in range(60):
+            t = 0.001 * k
+            if k in (20, 30):
+                bad = ros2.image_msg(t, "cam_optical", depth, "32FC1")
+                if k == 20:
+                    bad.encoding = "rgb8"
+                else:
+                    bad.data = bad.data[:100]
+                w.write(c_img, int(round(t * 1e9)), ts.serialize_cdr(bad, "sensor_msgs/msg/Image"))
+                _write_tick(w, ts, (c_img, c_info, c_js), t, cam, None, q, model.joint_names)
+            else:
+                frame = depth if k % 10 == 0 else None
+                _write_tick(w, ts, (c_img, c_info, c_js), t, cam, frame, q, model.joint_names)
+    cell = tmp_path / "cell.toml"
+    cell.write_text(BAG_CELL)
+    log = RunLog()
+    summary = run_cell(cell, f"bag:{tmp_path / 'bag'}", log=log)
+    # (this synthetic scene does not show the arm where the model puts it: the health check's other faults
+    # come from that, not from the corrupt images)
+    faults = {k: v for k, v in summary["sensor_faults"].items() if "undecodable" in k}
+    assert sorted(faults) == [
+        "cam: undecodable image (Image 160x120 32FC1 holds 100 bytes with step 640: too few)",
+        "cam: undecodable image (Image encoding 'rgb8' is not a depth encoding (expected 16UC1 or 32FC1))",
+    ]
+    assert set(faults.values()) == {1}
+    assert summary["frames"] == 4 and summary["commands"] == 60  # (k = 0, 10, 40, 50)
+
+
 def test_run_cell_closes_its_source_when_the_set_up_fails(monkeypatch):
     """A run that fails before its loop (here an unknown transport) closes the source it opened: a live
     camera must not stay streaming, a simulator not stay loaded."""

@@ -226,6 +226,7 @@ class BagSource:
         cam_of = {c.topic: i for i, c in enumerate(cams)}
         self._pending: list[tuple[float, np.ndarray] | None] = [None] * len(cams)
         self._xdot = np.zeros(3)
+        self._faults: dict[str, str] = {}  # camera name -> fault, reported with the next tick
         wanted = sorted(set(cam_of) | {topics["joint_states"], TASK_TOPIC})
         group: list[tuple[str, object]] = []
         t_group = None
@@ -242,7 +243,11 @@ class BagSource:
         for topic, msg in group:
             if topic in cam_of:
                 i = cam_of[topic]
-                depth = ros2.image_to_depth(msg)
+                try:
+                    depth = ros2.image_to_depth(msg)
+                except ValueError as exc:  # (a corrupt message mid-run: a named fault, the frame missing)
+                    self._faults[self.cell.cameras[i].name] = f"undecodable image ({exc})"
+                    continue
                 if self._maps[i] is not None:
                     depth = _apply_map(depth, self._maps[i])
                 self._pending[i] = (ros2.to_seconds(msg.header.stamp), depth)
@@ -259,7 +264,8 @@ class BagSource:
                 frames = [p[1] for p in pend]
                 tf = max(p[0] for p in pend)
                 self._pending = [None] * len(pend)
-            yield Tick(t, q, qd, t, self._xdot.copy(), frames, tf, {})
+            faults, self._faults = self._faults, {}
+            yield Tick(t, q, qd, t, self._xdot.copy(), frames, tf, faults)
 
     def command(self, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None:  # a recording cannot move
         pass
