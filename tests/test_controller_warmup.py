@@ -1,6 +1,7 @@
 """The controller node's warm-up: every kernel the controller's cycle uses must be loaded before the node's
-real-time loop starts (a first use inside the loop stalled the node for 6-7 s, twice: once the moving path,
-once the braking kernel at the first resume)."""
+real-time loop starts (a first use inside the loop stalled the node for 5-7 s, three times: once the moving
+path, once the braking kernel at the first resume, once read-only joint positions, a new type for the
+kernels, at the first resume)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 # Run in a fresh interpreter (nothing else has used a kernel there): warm up, then drive a new controller
-# through inputs the warm-up does not use verbatim and list every compiled kernel that gained a signature.
+# through inputs the warm-up does not use verbatim (read-only arrays among them, as the controller node's
+# decoded joint states are) and list every compiled kernel that gained a signature.
 _PROBE = r"""
 import json, sys
 import numpy as np
@@ -48,8 +50,13 @@ for case in range(8):
         stale = case >= 4 and 60 < k < 60 + int(2 * cfg.distance_timeout / cfg.dt)
         mon = (d, dirs) if case == 5 and d is not None else (None, None)
         xd = np.zeros(3) if case % 2 else np.array([0.0, -0.03, 0.01])
-        out = ctrl.step(CycleInput(t, q if k > 5 else None, qd if k > 5 else None, t if k > 5 else -np.inf, xd, d,
-                        dirs if d is not None else None, 0.0 if stale else t, *mon))
+        qq, qqd, dd, ddirs = q.copy(), qd.copy(), None if d is None else d.copy(), dirs.copy()
+        if case % 2:  # read-only, as a ROS message's arrays are when decoded in place
+            for a in (qq, qqd, dd, ddirs):
+                if a is not None:
+                    a.setflags(write=False)
+        out = ctrl.step(CycleInput(t, qq if k > 5 else None, qqd if k > 5 else None, t if k > 5 else -np.inf, xd,
+                        dd, ddirs if d is not None else None, 0.0 if stale else t, *mon))
         seen.add(out.status.name)
         if k > 5:
             q, qd = np.asarray(out.q_cmd, float), np.asarray(out.qdot_cmd, float)

@@ -67,14 +67,18 @@ def _time(x: object) -> float:
 
 
 def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndarray | None:
-    """``x`` as a float64 C-contiguous array of ``shape`` (all finite if ``finite``), else None."""
+    """``x`` as a writable float64 C-contiguous array of ``shape`` (all finite if ``finite``), else None.
+
+    Writable: a read-only array (a ROS message's ``position`` decoded in place is one) is another type for
+    the compiled kernels, which would compile it at its first use, inside the control loop (5 s at the
+    first resume of the controller node on a new machine); so it is copied."""
     if x is None:
         return None
-    if type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous:
+    if _plain_array(x):
         a = x  # the usual case, without a copy
     else:
         try:
-            a = np.ascontiguousarray(x, dtype=np.float64)
+            a = np.array(x, dtype=np.float64, order="C")  # (a copy: writable)
         except (TypeError, ValueError, OverflowError):
             return None
     if a.shape != shape:
@@ -84,9 +88,14 @@ def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndar
     return a
 
 
+def _plain_array(x: object) -> bool:
+    """``x`` is a writable float64 C-contiguous array (what :func:`as_vector` returns as it is)."""
+    return type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable
+
+
 def _plain(x: object, n: int) -> bool:
-    """``x`` is a float64 C-contiguous (n,) array (what :func:`as_vector` would return as it is)."""
-    return type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,) and x.flags.c_contiguous
+    """``x`` is a writable float64 C-contiguous (n,) array (what :func:`as_vector` would return as it is)."""
+    return _plain_array(x) and x.shape == (n,)  # type: ignore[union-attr]
 
 
 @njit(cache=True, nogil=True)
@@ -129,13 +138,7 @@ def _check_distances(d_in: object, dirs_in: object, N: int) -> tuple[bool, np.nd
     """``(valid, distances, directions)``; distances/directions None when missing or invalid."""
     if d_in is None or dirs_in is None:
         return True, None, None
-    if (
-        _plain(d_in, N)
-        and type(dirs_in) is np.ndarray
-        and dirs_in.dtype == np.float64
-        and dirs_in.shape == (N, 3)
-        and dirs_in.flags.c_contiguous
-    ):
+    if _plain(d_in, N) and _plain_array(dirs_in) and dirs_in.shape == (N, 3):  # type: ignore[union-attr]
         d, dirs = d_in, dirs_in  # (what as_vector returns for them)
     else:
         d = as_vector(d_in, (N,), finite=False)
