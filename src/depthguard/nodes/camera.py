@@ -77,7 +77,7 @@ def run_camera_node(
     lock = threading.Lock()
 
     def on_js(msg, att, recv_ns):
-        q = np.asarray(msg.position, float)
+        q = np.array(msg.position, float)  # (a writable copy: the decoded message is read-only)
         if q.shape == (len(model.joint_names),) and np.all(np.isfinite(q)):
             with lock:
                 joints.append((ros2.to_seconds(msg.header.stamp), q))

@@ -47,7 +47,7 @@ class _Inputs:
         self.st.update(td=-np.inf, dpub=None, md=None, mdirs=None, tm=np.nan)
 
     def on_js(self, msg, att, recv_ns) -> None:
-        q, qd = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
+        q, qd = np.array(msg.position, float), np.array(msg.velocity, float)  # (writable copies)
         if q.shape == (self.n,) and qd.shape == (self.n,):
             with self.lock:
                 self.st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))

@@ -73,7 +73,7 @@ class _FrameSets:
         return cb
 
     def on_js(self, msg, att, recv_ns) -> None:
-        q = np.asarray(msg.position, float)
+        q = np.array(msg.position, float)  # (a writable copy: the decoded message is read-only)
         if q.shape == (self.n_joints,) and np.all(np.isfinite(q)):
             t = ros2.to_seconds(msg.header.stamp)
             with self.lock:
