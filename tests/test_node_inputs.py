@@ -235,6 +235,7 @@ def test_camera_node_prepares_or_refuses_any_image(hexagon, data):
     assert depth.shape == mask.shape == (int(msg.height), int(msg.width)) and mask.dtype == np.bool_
 
 
+@settings(deadline=None)  # (the first example loads the image decoding kernel)
 @given(
     st.lists(st.floats(0.0, 10.0), min_size=2, max_size=2),
     st.lists(st.floats(0.0, 10.0), min_size=1, max_size=5),
@@ -274,3 +275,49 @@ def test_robot_masks_cross_the_wire_bit_for_bit(h, w, pad, seed):
         msg.step = w - 1
         with pytest.raises(ValueError, match="step"):
             ros2.image_to_mask(msg)
+
+
+@settings(deadline=None)  # (the first example loads the image decoding kernel)
+@given(
+    st.lists(st.tuples(st.integers(0, 1), st.booleans(), st.integers(0, 3), st.booleans()), max_size=120),
+    st.integers(0, 2**31 - 1),
+    st.integers(0, 60),
+)
+def test_frame_sets_pair_depth_and_mask_of_one_stamp_whatever_the_arrival_order(events, seed, lone):
+    """The distance node's pairing under any interleaving of the two cameras' depth and mask topics (each
+    topic's stamps increasing, as its subscription lets them through, with gaps: dropped messages), with
+    frame sets taken at random moments: every camera's depth and mask in a taken set carry the same stamp
+    (each image encodes its stamp), no frame is used twice (stamps strictly increase per camera), and the
+    messages waiting for their partner stay bounded (``lone`` depths of camera1 first: its masks lost).
+    """
+    from depthguard.nodes.distance import _UNPAIRED_MAX, _FrameSets
+
+    fs = _FrameSets(["camera0", "camera1"], 1)
+    fs.on_js(ros2.joint_state_msg(0.0, ["a"], [0.0]), rz.Attachment(1, 0, b"\x00" * 16), 0)
+    rng = np.random.default_rng(seed)
+    next_stamp = {(c, m): 1 for c in (0, 1) for m in (False, True)}
+    last_taken = {0: 0.0, 1: 0.0}
+    att = rz.Attachment(1, 0, b"\x00" * 16)
+    events = [(1, False, 0, False)] * lone + list(events)
+    for cam, is_mask, gap, take in events:
+        n = fs.names[cam]
+        t = next_stamp[cam, is_mask] + gap  # (gap > 0: the messages in between were lost)
+        next_stamp[cam, is_mask] = t + 1
+        if is_mask:
+            fs.on_mask(n)(ros2.mask_msg(float(t), n, (np.arange(12).reshape(3, 4) % (t % 5 + 2)) == 0), att, 0)
+        else:
+            fs.on_depth(n)(ros2.image_msg(float(t), n, np.full((3, 4), float(t), np.float32), "32FC1"), att, 0)
+        for d in (fs.depth[n], fs.mask[n], fs.recv[n]):
+            assert len(d) <= _UNPAIRED_MAX
+        if take or rng.random() < 0.1:
+            got = fs.take([])
+            if got is None:
+                continue
+            sets, _, t_data, _, _ = got
+            for k, (stamp, depth, mask, _, _) in enumerate(sets):
+                assert np.all(depth == np.float32(stamp)), "a depth paired with another stamp's mask"
+                want = (np.arange(12).reshape(3, 4) % (int(stamp) % 5 + 2)) == 0
+                np.testing.assert_array_equal(mask, want)
+                assert stamp > last_taken[k], "a frame used twice, or an older one after a newer"
+                last_taken[k] = stamp
+            assert t_data <= min(s[0] for s in sets)
