@@ -543,24 +543,33 @@ def test_bag_with_non_finite_joint_positions_stops_instead_of_raising(tmp_path):
     assert summary["sensor_faults"]["joint state: not finite or wrong size"] == 1
 
 
-def test_image_of_another_size_mid_run_stops_with_the_camera_named(tmp_path):
-    """A driver that changes its resolution mid-run (or a corrupt message): ``STOP_SENSOR_FAULT`` naming the
-    camera and the shapes, not an exception from the array arithmetic of the health check."""
+def _one_camera_bag(path: Path, cam, q, model, frames: dict) -> None:
+    """A 60-tick bag (1 ms apart) of the test scene's camera at joint positions ``q``: at tick k, the depth
+    image ``frames[k]`` (an array, written as 32FC1 with its CameraInfo, or a ready Image message, written as
+    it is), then the joint state."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     from depthguard.sim.recorder import camera_tf
 
-    cam, depth, q, model, _ = _scene("32FC1")
     ts = ros2.typestore()
-    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         c_img, c_info, c_js, c_tf = _connections(w, ts)
         Rw, pw = camera_tf(cam.R, cam.t)
         tfm = ros2.tf_msg(0.0, [("world", "cam_optical", Rw, pw)])
         w.write(c_tf, 0, ts.serialize_cdr(tfm, "tf2_msgs/msg/TFMessage"))
         for k in range(60):
-            t = 0.001 * k
-            frame = {10: depth, 40: depth[:60, :80].copy()}.get(k)
-            _write_tick(w, ts, (c_img, c_info, c_js), t, cam, frame, q, model.joint_names)
+            frame = frames.get(k)
+            if frame is not None and not isinstance(frame, np.ndarray):
+                w.write(c_img, k * 1_000_000, ts.serialize_cdr(frame, "sensor_msgs/msg/Image"))
+                frame = None
+            _write_tick(w, ts, (c_img, c_info, c_js), 0.001 * k, cam, frame, q, model.joint_names)
+
+
+def test_image_of_another_size_mid_run_stops_with_the_camera_named(tmp_path):
+    """A driver that changes its resolution mid-run (or a corrupt message): ``STOP_SENSOR_FAULT`` naming the
+    camera and the shapes, not an exception from the array arithmetic of the health check."""
+    cam, depth, q, model, _ = _scene("32FC1")
+    _one_camera_bag(tmp_path / "bag", cam, q, model, {10: depth, 40: depth[:60, :80].copy()})
     cell = tmp_path / "cell.toml"
     cell.write_text(BAG_CELL)
     log = RunLog()
@@ -574,30 +583,11 @@ def test_undecodable_image_mid_run_is_a_named_fault_not_a_crash(tmp_path):
     """A corrupt image mid-bag (another encoding, fewer bytes than its size says): ``run`` counts a fault
     naming the camera and goes on; the frame is missing (no frame set at that tick), and the frames after it
     are used as before."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-
-    from depthguard.sim.recorder import camera_tf
-
     cam, depth, q, model, _ = _scene("32FC1")
-    ts = ros2.typestore()
-    with Writer(tmp_path / "bag", version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        c_img, c_info, c_js, c_tf = _connections(w, ts)
-        Rw, pw = camera_tf(cam.R, cam.t)
-        tfm = ros2.tf_msg(0.0, [("world", "cam_optical", Rw, pw)])
-        w.write(c_tf, 0, ts.serialize_cdr(tfm, "tf2_msgs/msg/TFMessage"))
-        for k in range(60):
-            t = 0.001 * k
-            if k in (20, 30):
-                bad = ros2.image_msg(t, "cam_optical", depth, "32FC1")
-                if k == 20:
-                    bad.encoding = "rgb8"
-                else:
-                    bad.data = bad.data[:100]
-                w.write(c_img, int(round(t * 1e9)), ts.serialize_cdr(bad, "sensor_msgs/msg/Image"))
-                _write_tick(w, ts, (c_img, c_info, c_js), t, cam, None, q, model.joint_names)
-            else:
-                frame = depth if k % 10 == 0 else None
-                _write_tick(w, ts, (c_img, c_info, c_js), t, cam, frame, q, model.joint_names)
+    bad = [ros2.image_msg(0.001 * k, "cam_optical", depth, "32FC1") for k in (20, 30)]
+    bad[0].encoding = "rgb8"
+    bad[1].data = bad[1].data[:100]
+    _one_camera_bag(tmp_path / "bag", cam, q, model, {k: depth for k in range(0, 60, 10)} | {20: bad[0], 30: bad[1]})
     cell = tmp_path / "cell.toml"
     cell.write_text(BAG_CELL)
     log = RunLog()

@@ -138,6 +138,11 @@ def image_msg(t: float, frame_id: str, depth: np.ndarray, encoding: str = "16UC1
         data = np.where(np.isfinite(f) & (f > 0), f, np.float32(np.nan)).astype("<f4")
     else:
         raise ValueError(f"depth encoding must be '16UC1' or '32FC1', got {encoding!r}")
+    return _image(t, frame_id, data, encoding)
+
+
+def _image(t: float, frame_id: str, data: np.ndarray, encoding: str):
+    """``sensor_msgs/Image`` of the (H, W) little-endian samples ``data``, rows unpadded."""
     h, w = data.shape
     return _t("sensor_msgs/msg/Image")(
         header=header(t, frame_id),
@@ -146,7 +151,7 @@ def image_msg(t: float, frame_id: str, depth: np.ndarray, encoding: str = "16UC1
         encoding=encoding,
         is_bigendian=0,
         step=w * data.itemsize,
-        data=np.frombuffer(data.tobytes(), dtype=np.uint8),
+        data=np.frombuffer(np.ascontiguousarray(data).tobytes(), dtype=np.uint8),
     )
 
 
@@ -155,16 +160,7 @@ def mask_msg(t: float, frame_id: str, mask: np.ndarray):
     m = np.asarray(mask, bool)
     if m.ndim != 2:
         raise ValueError(f"robot mask must be (H, W), got shape {m.shape}")
-    h, w = m.shape
-    return _t("sensor_msgs/msg/Image")(
-        header=header(t, frame_id),
-        height=h,
-        width=w,
-        encoding="mono8",
-        is_bigendian=0,
-        step=w,
-        data=(m.astype(np.uint8) * 255).ravel(),
-    )
+    return _image(t, frame_id, m.astype(np.uint8) * 255, "mono8")
 
 
 def image_to_mask(msg) -> np.ndarray:
