@@ -321,3 +321,37 @@ def test_frame_sets_pair_depth_and_mask_of_one_stamp_whatever_the_arrival_order(
                 assert stamp > last_taken[k], "a frame used twice, or an older one after a newer"
                 last_taken[k] = stamp
             assert t_data <= min(s[0] for s in sets)
+
+
+@given(st.permutations(list(range(5))), st.integers(0, 2**31 - 1), st.sampled_from(["ok", "short", "nan", "extra"]))
+def test_the_simulated_driver_maps_joint_commands_by_name(order, seed, kind):
+    """The ``sim`` node's driver takes a joint command by joint names in any order (as ros2_control does); a
+    command that lacks a joint or holds a non-finite value is refused (``ValueError``: counted, the watchdog
+    then holds the arm), one with extra joints takes only its own."""
+    from depthguard.nodes.sim import joint_command
+
+    names = [f"j{i}" for i in range(5)]
+    rng = np.random.default_rng(seed)
+    q, qd = rng.normal(size=5), rng.normal(size=5)
+    sent = [names[i] for i in order]
+    pos, vel = q[order], qd[order]
+    if kind == "short":
+        sent, pos, vel = sent[1:], pos[1:], vel[1:]
+    elif kind == "nan":
+        pos = pos.copy()
+        pos[int(rng.integers(5))] = np.nan
+    elif kind == "extra":
+        sent, pos, vel = [*sent, "gripper"], np.append(pos, 0.5), np.append(vel, 0.0)
+    msg = ros2.joint_state_msg(1.0, sent, pos, vel)
+    if kind in ("short", "nan"):
+        with pytest.raises(ValueError, match="joint command"):
+            joint_command(msg, names)
+        return
+    got_q, got_qd = joint_command(msg, names)
+    np.testing.assert_array_equal(got_q, q)
+    np.testing.assert_array_equal(got_qd, qd)
+    assert got_q.flags.writeable
+    # without names, by position
+    plain = ros2.joint_state_msg(1.0, names, q, qd)
+    plain.name = []
+    np.testing.assert_array_equal(joint_command(plain, names)[0], q)

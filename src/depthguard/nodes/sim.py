@@ -23,7 +23,32 @@ from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
 from depthguard.nodes.common import JsonLog, StopFlag, Topics, now_s, open_node
 
-__all__ = ["run_sim_node"]
+__all__ = ["run_sim_node", "joint_command"]
+
+
+def joint_command(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """``(q, qdot)`` of a ``sensor_msgs/JointState`` joint command in the driver's joint order ``names``.
+
+    The message's joints are matched by name, in any order, as a ros2_control driver does (by position only
+    when the message names none). Raises ``ValueError`` for a command that names too few joints, whose
+    positions or velocities do not match its names, or that is not finite: the driver keeps its last command
+    and its watchdog holds the arm once that is ``watchdog`` seconds old.
+    """
+    got = [str(x) for x in msg.name]
+    q, qd = np.array(msg.position, float), np.array(msg.velocity, float)
+    if got:
+        if len(q) != len(got) or len(qd) != len(got):
+            raise ValueError(f"joint command: {len(got)} names, {len(q)} positions, {len(qd)} velocities")
+        missing = [n for n in names if n not in got]
+        if missing:
+            raise ValueError(f"joint command names no {missing[:8]} (joints {got[:8]})")
+        idx = [got.index(n) for n in names]
+        q, qd = q[idx], qd[idx]
+    if q.shape != (len(names),) or qd.shape != (len(names),):
+        raise ValueError(f"joint command: {q.size} positions and {qd.size} velocities for {len(names)} joints")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+        raise ValueError("joint command: positions and velocities must be finite")
+    return q, qd
 
 
 def run_sim_node(
@@ -50,16 +75,9 @@ def run_sim_node(
     cmd: dict = {"q": None, "qd": None, "t": -np.inf}
 
     def on_cmd(msg, att, recv_ns):
-        q = np.asarray(msg.position, float)
-        qd = np.asarray(msg.velocity, float)
-        if (
-            q.shape == (len(names),)
-            and qd.shape == (len(names),)
-            and np.all(np.isfinite(q))
-            and np.all(np.isfinite(qd))
-        ):
-            with lock:
-                cmd.update(q=q, qd=qd, t=recv_ns * 1e-9)
+        q, qd = joint_command(msg, names)  # (a ValueError: refused, counted by the subscription)
+        with lock:
+            cmd.update(q=q, qd=qd, t=recv_ns * 1e-9)
 
     allowed = set(cell.network.get("publishers", ["controller"])) if cell.network else None
     sub = node.subscribe(top.command, "sensor_msgs/msg/JointState", on_cmd, allowed=allowed)
