@@ -169,16 +169,20 @@ def test_view_node_draws_what_the_nodes_publish(tmp_path):
 def _drive_camera_node(cell, mm: np.ndarray, q: np.ndarray, out_topic: str, base: int) -> list:
     """A ROS 2 camera driver on rmw_zenoh, written by hand (key expression by string formatting, CDR from a
     fresh rosbags Jazzy store, attachment by ``struct``) publishing the 16UC1 frame ``mm`` and the joint
-    state ``q`` to camera node ``camera0``; returns the node's messages on ``out_topic`` (an Image topic)."""
+    state ``q`` to camera node ``camera0`` (its joints in reverse order, plus a gripper joint the model does
+    not have: the node matches them by name); returns the node's messages on ``out_topic`` (an Image topic)."""
     zenoh = pytest.importorskip("zenoh")
     from rosbags.typesys import Stores, get_typestore
 
     from depthguard.io.zenoh_transport import session_config
     from depthguard.nodes.camera import run_camera_node
     from depthguard.nodes.common import StopFlag
+    from depthguard.runner.chain import load_cell_robot
 
     ts = get_typestore(Stores.ROS2_JAZZY)
     T = ts.types
+    joints = list(load_cell_robot(cell).joint_names)
+    order = list(reversed(range(len(joints))))
     drv = zenoh.open(session_config([f"tcp/127.0.0.1:{base}"], [f"tcp/127.0.0.1:{base + 1}"]))  # the 'sim' port
     got = []
     sub = drv.declare_subscriber(
@@ -197,11 +201,11 @@ def _drive_camera_node(cell, mm: np.ndarray, q: np.ndarray, out_topic: str, base
             now = time.time()
             sec, nsec = int(now), int((now % 1) * 1e9)
             hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="c0")
-            js = T["sensor_msgs/msg/JointState"](
+            js = T["sensor_msgs/msg/JointState"](  # as a joint_state_broadcaster may: its own order, a gripper
                 header=hdr,
-                name=[f"j{i}" for i in range(len(q))],
-                position=np.asarray(q, float),
-                velocity=np.zeros(len(q)),
+                name=[joints[i] for i in order] + ["gripper_finger_joint"],
+                position=np.append(np.asarray(q, float)[order], 0.02),
+                velocity=np.zeros(len(q) + 1),
                 effort=np.zeros(0),
             )
             img = T["sensor_msgs/msg/Image"](

@@ -197,7 +197,7 @@ def test_distance_node_work_answers_or_refuses_any_frame_set(hexagon, data):
     work = h.setdefault("shared", h["work"]())  # (one node for all examples, as in a long run)
     stamp = h.setdefault("stamp", [100.0])
     stamp[0] += 1.0
-    fs = _FrameSets(["camera0", "camera1"], len(h["q"]))
+    fs = _FrameSets(["camera0", "camera1"], h["model"].joint_names)
     depth = data.draw(images(stamp[0]))
     ok_d = _feed(fs, "camera0", depth, False)
     ok_m = _feed(fs, "camera0", data.draw(images(stamp[0], mask=True, size=(depth.width, depth.height))), True)
@@ -246,7 +246,7 @@ def test_distances_carry_the_age_of_the_joint_state_they_were_computed_at(frame_
     coming (while frames still come) age and go stale at the controller like distances from old frames."""
     from depthguard.nodes.distance import _FrameSets
 
-    fs = _FrameSets(["camera0", "camera1"], 2)
+    fs = _FrameSets(["camera0", "camera1"], ["a", "b"])
     att = rz.Attachment(1, 0, b"\x00" * 16)
     for t in joint_stamps:  # (in arrival order; the subscription has already dropped stamps going back)
         fs.on_js(ros2.joint_state_msg(100.0 + t, ["a", "b"], [t, t], [0.0, 0.0]), att, 0)
@@ -292,7 +292,7 @@ def test_frame_sets_pair_depth_and_mask_of_one_stamp_whatever_the_arrival_order(
     """
     from depthguard.nodes.distance import _UNPAIRED_MAX, _FrameSets
 
-    fs = _FrameSets(["camera0", "camera1"], 1)
+    fs = _FrameSets(["camera0", "camera1"], ["a"])
     fs.on_js(ros2.joint_state_msg(0.0, ["a"], [0.0]), rz.Attachment(1, 0, b"\x00" * 16), 0)
     rng = np.random.default_rng(seed)
     next_stamp = {(c, m): 1 for c in (0, 1) for m in (False, True)}
@@ -344,7 +344,7 @@ def test_the_simulated_driver_maps_joint_commands_by_name(order, seed, kind):
         sent, pos, vel = [*sent, "gripper"], np.append(pos, 0.5), np.append(vel, 0.0)
     msg = ros2.joint_state_msg(1.0, sent, pos, vel)
     if kind in ("short", "nan"):
-        with pytest.raises(ValueError, match="joint command"):
+        with pytest.raises(ValueError, match="JointState"):
             joint_command(msg, names)
         return
     got_q, got_qd = joint_command(msg, names)
@@ -355,3 +355,48 @@ def test_the_simulated_driver_maps_joint_commands_by_name(order, seed, kind):
     plain = ros2.joint_state_msg(1.0, names, q, qd)
     plain.name = []
     np.testing.assert_array_equal(joint_command(plain, names)[0], q)
+    plain.velocity = np.zeros(0)  # (a command must say how fast)
+    with pytest.raises(ValueError, match="no velocities"):
+        joint_command(plain, names)
+
+
+@given(
+    st.permutations(list(range(4))),
+    st.lists(st.sampled_from(["gripper_a", "gripper_b", "head_pan"]), unique=True, max_size=3),
+    st.booleans(),
+    st.integers(0, 2**31 - 1),
+)
+def test_joint_states_in_any_order_reach_every_node_in_the_models_order(order, extra, with_velocity, seed):
+    """A joint state as a ros2_control ``joint_state_broadcaster`` may send it (its own joint order, joints the
+    model does not have, velocities or none): the distance node and the controller take the positions in
+    the model's order; the controller refuses one without velocities (it needs them), never taking the
+    positions by place."""
+    from depthguard.nodes.controller import _Inputs
+    from depthguard.nodes.distance import _FrameSets
+
+    names = ["shoulder", "elbow", "wrist_1", "wrist_2"]
+    rng = np.random.default_rng(seed)
+    q, qd = rng.normal(size=4), rng.normal(size=4)
+    sent = [names[i] for i in order] + extra
+    pos = np.append(q[order], rng.normal(size=len(extra)))
+    vel = np.append(qd[order], rng.normal(size=len(extra))) if with_velocity else None
+    msg = ros2.joint_state_msg(2.0, sent, pos, vel)
+    got_q, got_qd = ros2.joints_in_order(msg, names)
+    np.testing.assert_array_equal(got_q, q)
+    assert (got_qd is None) != with_velocity and (got_qd is None or np.array_equal(got_qd, qd))
+    fs = _FrameSets(["camera0"], names)
+    fs.on_js(msg, None, 0)
+    np.testing.assert_array_equal(fs.joint["q"], q)
+    inp = _Inputs(4, 1, None, names)
+    if with_velocity:
+        inp.on_js(msg, None, 0)
+        np.testing.assert_array_equal(inp.st["q"], q)
+        np.testing.assert_array_equal(inp.st["qd"], qd)
+    else:
+        with pytest.raises(ValueError, match="velocities"):
+            inp.on_js(msg, None, 0)
+        assert inp.st["q"] is None
+    short = ros2.joint_state_msg(2.0, sent[1:], pos[1:], None if vel is None else vel[1:])  # (a model joint lost)
+    for f in (lambda m: ros2.joints_in_order(m, names), lambda m: fs.on_js(m, None, 0)):
+        with pytest.raises(ValueError, match="names no"):
+            f(short)

@@ -41,6 +41,7 @@ __all__ = [
     "image_to_mask",
     "camera_info_msg",
     "joint_state_msg",
+    "joints_in_order",
     "tf_msg",
     "distances_msg",
     "status_msg",
@@ -230,6 +231,33 @@ def joint_state_msg(
     return _t("sensor_msgs/msg/JointState")(
         header=header(t, frame_id), name=list(names), position=q, velocity=v, effort=np.zeros(0)
     )
+
+
+def joints_in_order(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(q, qdot)`` of a ``sensor_msgs/msg/JointState`` in the joint order ``names`` (the robot model's),
+    writable float64 copies; ``qdot`` None when the message carries no velocities.
+
+    Joints are matched by name, in any order, and joints the model does not have (a gripper's) are left
+    out: a ros2_control ``joint_state_broadcaster`` orders its joints by its own configuration, not by the
+    URDF. A message that names no joint is taken by position. Raises ``ValueError`` when a joint of
+    ``names`` is missing, the positions or velocities do not match the names, or a value is not finite.
+    """
+    got = [str(x) for x in msg.name]
+    q, qd = np.array(msg.position, dtype=float), np.array(msg.velocity, dtype=float)
+    if got:
+        if len(q) != len(got) or len(qd) not in (0, len(got)):
+            raise ValueError(f"JointState: {len(got)} names, {len(q)} positions, {len(qd)} velocities")
+        where = {n: i for i, n in enumerate(got)}
+        missing = [n for n in names if n not in where]
+        if missing:
+            raise ValueError(f"JointState names no {missing[:8]} (it names {got[:8]})")
+        idx = [where[n] for n in names]
+        q, qd = q[idx], (qd[idx] if len(qd) else qd)
+    if q.shape != (len(names),) or len(qd) not in (0, len(names)):
+        raise ValueError(f"JointState: {q.size} positions and {qd.size} velocities for {len(names)} joints")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+        raise ValueError("JointState: positions and velocities must be finite")
+    return q, (qd if len(qd) else None)
 
 
 def _quat_xyzw(R: np.ndarray) -> np.ndarray:

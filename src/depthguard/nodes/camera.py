@@ -77,10 +77,9 @@ def run_camera_node(
     lock = threading.Lock()
 
     def on_js(msg, att, recv_ns):
-        q = np.array(msg.position, float)  # (a writable copy: the decoded message is read-only)
-        if q.shape == (len(model.joint_names),) and np.all(np.isfinite(q)):
-            with lock:
-                joints.append((ros2.to_seconds(msg.header.stamp), q))
+        q, _ = ros2.joints_in_order(msg, model.joint_names)  # (by name; ValueError: refused and counted)
+        with lock:
+            joints.append((ros2.to_seconds(msg.header.stamp), q))
 
     def on_image(msg, att, recv_ns):
         with lock:

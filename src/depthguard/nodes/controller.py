@@ -33,24 +33,39 @@ __all__ = ["run_controller_node"]
 class _Inputs:
     """The controller's newest inputs, written by the Zenoh callbacks under one lock.
 
-    ``names``: the control points' names, in the controller's order. A distances message for other points
+    ``joint_names``: the robot model's joints; joint states are matched by name, in any order (a
+    ros2_control ``joint_state_broadcaster`` orders them by its own configuration), and must carry
+    velocities. ``names``: the control points' names, in the controller's order. A distances message for other points
     (another number, order or names: a distance node with another cell file) is refused with ``ValueError``,
     which its subscription counts (``refused by the node``): its distances would otherwise be applied to the
     wrong points. The last good distances then go stale and the controller stops the arm.
     """
 
-    def __init__(self, n: int, N: int, names: list[str] | tuple[str, ...] | None = None) -> None:
+    def __init__(
+        self,
+        n: int,
+        N: int,
+        names: list[str] | tuple[str, ...] | None = None,
+        joint_names: list[str] | tuple[str, ...] | None = None,
+    ) -> None:
         self.n, self.N = n, N
         self.names = None if names is None else [str(x) for x in names]
+        self.joint_names = None if joint_names is None else list(joint_names)
         self.lock = threading.Lock()
         self.st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None}
         self.st.update(td=-np.inf, dpub=None, md=None, mdirs=None, tm=np.nan)
 
     def on_js(self, msg, att, recv_ns) -> None:
-        q, qd = np.array(msg.position, float), np.array(msg.velocity, float)  # (writable copies)
-        if q.shape == (self.n,) and qd.shape == (self.n,):
-            with self.lock:
-                self.st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))
+        if self.joint_names is not None:  # (by name, in the model's order; ValueError: refused and counted)
+            q, qd = ros2.joints_in_order(msg, self.joint_names)
+            if qd is None:
+                raise ValueError("JointState without velocities: the controller needs them")
+        else:
+            q, qd = np.array(msg.position, float), np.array(msg.velocity, float)  # (writable copies)
+            if q.shape != (self.n,) or qd.shape != (self.n,):
+                return
+        with self.lock:
+            self.st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))
 
     def on_task(self, msg, att, recv_ns) -> None:
         with self.lock:
@@ -104,7 +119,7 @@ def run_controller_node(
     N, n = points.n_points, len(model.joint_names)
     top = Topics.of(cell)
     node = open_node(cell, "controller", **kw)
-    inp = _Inputs(n, N, points.names)
+    inp = _Inputs(n, N, points.names, model.joint_names)
     on_js, on_task, on_dist, lock, st = inp.on_js, inp.on_task, inp.on_dist, inp.lock, inp.st
 
     allowed = set(cell.network.get("publishers", ["distance"])) if cell.network else None

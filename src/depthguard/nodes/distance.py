@@ -28,10 +28,11 @@ _UNPAIRED_MAX = 32  # frames kept per camera while their depth or mask is missin
 
 
 class _FrameSets:
-    """Pairs each camera's prepared depth and mask by stamp; :attr:`ev` is set when every camera has one."""
+    """Pairs each camera's prepared depth and mask by stamp; :attr:`ev` is set when every camera has one.
+    ``names``: the cameras; ``joint_names``: the robot model's joints (joint states are matched by name)."""
 
-    def __init__(self, names: list[str], n_joints: int) -> None:
-        self.names, self.n_joints = names, n_joints
+    def __init__(self, names: list[str], joint_names: list[str] | tuple[str, ...]) -> None:
+        self.names, self.joint_names = names, list(joint_names)
         self.lock, self.ev = threading.Lock(), threading.Event()
         self.depth: dict[str, dict] = {n: {} for n in names}
         self.mask: dict[str, dict] = {n: {} for n in names}
@@ -73,12 +74,11 @@ class _FrameSets:
         return cb
 
     def on_js(self, msg, att, recv_ns) -> None:
-        q = np.array(msg.position, float)  # (a writable copy: the decoded message is read-only)
-        if q.shape == (self.n_joints,) and np.all(np.isfinite(q)):
-            t = ros2.to_seconds(msg.header.stamp)
-            with self.lock:
-                self.joint.update(q=q, t=t)
-                self.joints.append((t, q))
+        q, _ = ros2.joints_in_order(msg, self.joint_names)  # (by name; ValueError: refused and counted)
+        t = ros2.to_seconds(msg.header.stamp)
+        with self.lock:
+            self.joint.update(q=q, t=t)
+            self.joints.append((t, q))
 
     def take(self, carried: list) -> tuple | None:
         """The next frame set, once every camera has one and a joint state has come: ``(sets, q, t_data,
@@ -190,7 +190,7 @@ def run_distance_node(
     names = [c.name for c in cell.cameras]
     top = Topics.of(cell)
     node = open_node(cell, "distance", **kw)
-    fs = _FrameSets(names, len(model.joint_names))
+    fs = _FrameSets(names, model.joint_names)
 
     subs = [node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", fs.on_js)]
     for n in names:

@@ -30,24 +30,13 @@ def joint_command(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, 
     """``(q, qdot)`` of a ``sensor_msgs/JointState`` joint command in the driver's joint order ``names``.
 
     The message's joints are matched by name, in any order, as a ros2_control driver does (by position only
-    when the message names none). Raises ``ValueError`` for a command that names too few joints, whose
-    positions or velocities do not match its names, or that is not finite: the driver keeps its last command
-    and its watchdog holds the arm once that is ``watchdog`` seconds old.
+    when the message names none; :func:`depthguard.io.ros2.joints_in_order`). Raises ``ValueError`` for a
+    command that lacks a joint, has no velocities, or is not finite: the driver keeps its last command and
+    its watchdog holds the arm once that is ``watchdog`` seconds old.
     """
-    got = [str(x) for x in msg.name]
-    q, qd = np.array(msg.position, float), np.array(msg.velocity, float)
-    if got:
-        if len(q) != len(got) or len(qd) != len(got):
-            raise ValueError(f"joint command: {len(got)} names, {len(q)} positions, {len(qd)} velocities")
-        missing = [n for n in names if n not in got]
-        if missing:
-            raise ValueError(f"joint command names no {missing[:8]} (joints {got[:8]})")
-        idx = [got.index(n) for n in names]
-        q, qd = q[idx], qd[idx]
-    if q.shape != (len(names),) or qd.shape != (len(names),):
-        raise ValueError(f"joint command: {q.size} positions and {qd.size} velocities for {len(names)} joints")
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
-        raise ValueError("joint command: positions and velocities must be finite")
+    q, qd = ros2.joints_in_order(msg, names)
+    if qd is None:
+        raise ValueError("joint command: no velocities")
     return q, qd
 
 

@@ -334,7 +334,7 @@ def run_view_node(
     lock = threading.Lock()
 
     def on_js(msg, att, recv_ns):
-        view.set_joints(np.asarray(msg.position, float))
+        view.set_joints(ros2.joints_in_order(msg, model.joint_names)[0])
 
     def on_depth(n):
         def cb(msg, att, recv_ns):
