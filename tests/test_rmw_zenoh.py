@@ -12,6 +12,7 @@ Zenoh session, the ``struct`` module and a fresh rosbags Jazzy type store, exact
 
 from __future__ import annotations
 
+import json
 import random
 import struct
 import time
@@ -254,3 +255,39 @@ def test_large_images_cross_in_shared_memory_and_arrive_intact():
     finally:
         tx.close()
         rx.close()
+
+
+def test_depthguard_msgs_package_builds_the_types_the_nodes_publish(tmp_path, capsys):
+    """``depthguard ros2-msgs``: the ROS 2 interface package that a workspace builds to echo the nodes' own
+    topics. Its ``.msg`` files, parsed by a fresh rosbags Jazzy store (as rosidl would read them), give the
+    same fields and so the same RIHS01 type hashes as the key expressions the nodes publish on; its
+    package.xml and CMakeLists.txt name every message and dependency. (No ROS 2 here: not built by colcon.)"""
+    import xml.etree.ElementTree as ET
+
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    from depthguard.cli import main
+    from depthguard.io.ros2 import DEPTHGUARD_MSGS
+
+    assert main(["ros2-msgs", "--out", str(tmp_path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    pkg = tmp_path / "depthguard_msgs"
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for f in sorted((pkg / "msg").glob("*.msg")):
+        types.update(get_types_from_msg(f.read_text(), f"depthguard_msgs/msg/{f.stem}"))
+    ts.register(types)
+    assert set(types) == set(DEPTHGUARD_MSGS)
+    for name in DEPTHGUARD_MSGS:
+        assert ts.hash_rihs01(name) == rz.type_hash(name) == out["type_hashes"][name]
+        assert rz.topic_keyexpr(0, "/x", name).endswith(out["type_hashes"][name])
+    root = ET.parse(pkg / "package.xml").getroot()
+    assert root.get("format") == "3" and root.findtext("name") == "depthguard_msgs"
+    assert {e.text for e in root.findall("depend")} == {"std_msgs", "geometry_msgs"}
+    assert root.findtext("member_of_group") == "rosidl_interface_packages"
+    cmake = (pkg / "CMakeLists.txt").read_text()
+    assert all(f'"msg/{n.rsplit("/", 1)[1]}.msg"' in cmake for n in DEPTHGUARD_MSGS)
+    assert "DEPENDENCIES std_msgs geometry_msgs" in cmake
+    assert main(["ros2-msgs", "--out", str(tmp_path)]) == 2  # (an existing package is not overwritten)
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["ros2-msgs", "--out", str(tmp_path), "--overwrite", "--json"]) == 0

@@ -125,6 +125,19 @@ def _cmd_certs(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ros2_msgs(args: argparse.Namespace) -> int:
+    from depthguard.io.ros2_package import write_msgs_package
+
+    out = write_msgs_package(args.out, overwrite=args.overwrite)
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(f"ROS 2 interface package in {out['folder']} ({len(out['files'])} files); in the workspace:")
+    print("  colcon build --packages-select depthguard_msgs && source install/setup.bash")
+    print("then: ros2 topic echo /depthguard/distances")
+    return 0
+
+
 def _zenoh_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-domain", type=int, default=None, metavar="N", help="ROS domain id (default: cell file)")
     p.add_argument(
@@ -195,6 +208,14 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing node certificates")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_certs)
+
+    p = sub.add_parser(
+        "ros2-msgs", help="write the depthguard_msgs ROS 2 interface package (to echo the nodes' own topics in ROS 2)"
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="where the package folder goes (a workspace's src)")
+    p.add_argument("--overwrite", action="store_true", help="replace the files of an existing package folder")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_ros2_msgs)
 
     p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
     p.add_argument("action", choices=["check"])
