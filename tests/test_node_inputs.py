@@ -96,10 +96,19 @@ def test_a_callback_error_is_counted_and_never_raised_into_zenoh(capfd):
         assert len(got) == 1 and got[0].shape == (4, 6)  # the good image after the bad one
         assert sub.dropped == {"refused by the node (ValueError)": 1}
         assert "not a depth encoding" in sub.filter.last_refusal
+        rgb.header = ros2.header(time.time(), "c")
+        pub.publish(rgb)  # the same refusal again: counted, not said again
+        end = time.time() + 5.0
+        while sub.dropped["refused by the node (ValueError)"] < 2 and time.time() < end:
+            time.sleep(0.05)
+        assert sub.dropped == {"refused by the node (ValueError)": 2}
     finally:
         tx.close()
         rx.close()
-    assert "Traceback" not in capfd.readouterr().err
+    err = capfd.readouterr().err
+    assert "Traceback" not in err
+    said = [x for x in err.splitlines() if "refused a message on /img" in x]
+    assert len(said) == 1 and "not a depth encoding" in said[0] and said[0].startswith("depthguard rx:")
 
 
 # ---------------------------------------------------------------- images of every kind through the nodes' work

@@ -52,16 +52,22 @@ class SampleFilter:
         self.dropped: dict[str, int] = {}
         self.rejected_publishers: set[str] = set()
         self.last_refusal: str | None = None
+        self._refusals_said: set[str] = set()
 
     def _drop(self, why: str) -> None:
         self.dropped[why] = self.dropped.get(why, 0) + 1
 
-    def reject(self, exc: Exception) -> None:
+    def reject(self, exc: Exception) -> bool:
         """Count a message that passed this filter but that the node could not use (its callback raised
         ``exc``: an image of another encoding, a size that contradicts the data...), by the error's type;
-        :attr:`last_refusal` keeps the newest error's text."""
+        :attr:`last_refusal` keeps the newest error's text. True the first time this text comes (the
+        subscription says it once, not at every message)."""
         self._drop(f"refused by the node ({type(exc).__name__})")
         self.last_refusal = str(exc)[:300]
+        said = self.last_refusal in self._refusals_said or len(self._refusals_said) >= 20  # (20 kinds at most)
+        if not said:
+            self._refusals_said.add(self.last_refusal)
+        return not said
 
     def accept(self, attachment: bytes | None, payload: bytes, now: float | None = None) -> tuple[Any, Any] | None:
         """The decoded ``(message, attachment)``, or None when the sample is dropped; ``now``: the receiver's

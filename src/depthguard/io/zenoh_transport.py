@@ -20,6 +20,7 @@ and runs when nothing listens.
 from __future__ import annotations
 
 import json
+import sys
 import threading
 import time
 import weakref
@@ -195,7 +196,8 @@ class Subscription:
         try:
             self.callback(got[0], got[1], now)
         except Exception as exc:  # noqa: BLE001 - a message the node cannot use: counted, never raised into Zenoh
-            self.filter.reject(exc)
+            if self.filter.reject(exc):  # (one line per kind of refusal, not one per message)
+                print(f"depthguard {self.node.name}: refused a message on {self.topic}: {exc}", file=sys.stderr)
 
     def close(self) -> None:
         self._sub.undeclare()
