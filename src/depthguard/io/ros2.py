@@ -42,6 +42,7 @@ __all__ = [
     "camera_info_msg",
     "joint_state_msg",
     "joints_in_order",
+    "vector3_stamped_msg",
     "tf_msg",
     "distances_msg",
     "status_msg",
@@ -258,6 +259,14 @@ def joints_in_order(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray
     if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
         raise ValueError("JointState: positions and velocities must be finite")
     return q, (qd if len(qd) else None)
+
+
+def vector3_stamped_msg(t: float, frame_id: str, v: np.ndarray):
+    """``geometry_msgs/msg/Vector3Stamped`` of a 3-vector (the task's desired end-effector velocity, m/s)."""
+    x, y, z = (float(c) for c in np.asarray(v, dtype=float).reshape(3))
+    return _t("geometry_msgs/msg/Vector3Stamped")(
+        header=header(t, frame_id), vector=_t("geometry_msgs/msg/Vector3")(x=x, y=y, z=z)
+    )
 
 
 def _quat_xyzw(R: np.ndarray) -> np.ndarray:

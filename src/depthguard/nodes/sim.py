@@ -57,24 +57,15 @@ def run_sim_node(
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     src = open_source(f"sim:{scenario}", cell, _names(cell), quick=quick)
-    sim, cams, names = src.cell, src.cams, list(src.joint_names)
+    sim, names = src.cell, list(src.joint_names)
     top = Topics.of(cell)
     node = open_node(cell, "sim", **node_kw)
-    lock = threading.Lock()
-    cmd: dict = {"q": None, "qd": None, "t": -np.inf}
-
-    def on_cmd(msg, att, recv_ns):
-        q, qd = joint_command(msg, names)  # (a ValueError: refused, counted by the subscription)
-        with lock:
-            cmd.update(q=q, qd=qd, t=recv_ns * 1e-9)
-
+    latch = _CommandLatch(names, watchdog)
     allowed = set(cell.network.get("publishers", ["controller"])) if cell.network else None
-    sub = node.subscribe(top.command, "sensor_msgs/msg/JointState", on_cmd, allowed=allowed)
+    sub = node.subscribe(top.command, "sensor_msgs/msg/JointState", latch.on_cmd, allowed=allowed)
     pub_js = node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
     pub_task = node.publisher(top.task, "geometry_msgs/msg/Vector3Stamped")
     pub_img = {c.name: node.publisher(top.raw[c.name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA) for c in cell.cameras}
-    V = ros2.typestore().types["geometry_msgs/msg/Vector3"]
-    VS = ros2.typestore().types["geometry_msgs/msg/Vector3Stamped"]
     dt = src.control_dt
     frame_period = 1.0 / float(cell.cameras[0].rate)
     t0 = now_s()
@@ -83,12 +74,8 @@ def run_sim_node(
         while not stop and (duration is None or now_s() - t0 < duration):
             wall = now_s()
             t = wall - t0
-            with lock:
-                q_cmd, qd_cmd, t_cmd = cmd["q"], cmd["qd"], cmd["t"]
-            is_held = q_cmd is None or wall - t_cmd > watchdog
-            if is_held:
-                q_cmd, qd_cmd = sim.q(), np.zeros(len(names))
-                held += 1
+            q_cmd, qd_cmd, is_held = latch.command(wall, sim.q())
+            held += is_held
             n = int(min(max((t - t_phys) / dt, 1), 50))
             sim.update_people(t)
             sim.step(q_cmd, qd_cmd, n)
@@ -97,16 +84,11 @@ def run_sim_node(
             q, qd = sim.q(), sim.qd()
             pub_js.publish(ros2.joint_state_msg(stamp, names, q, qd))
             n_js += 1
-            xd = src.task.velocity(src.kin.evaluate(q).centres[0])
-            pub_task.publish(VS(header=ros2.header(stamp, "world"), vector=V(x=xd[0], y=xd[1], z=xd[2])))
+            xd = src.task.velocity(src.kin.evaluate(q).centres[0])  # the task's desired end-effector velocity
+            pub_task.publish(ros2.vector3_stamped_msg(stamp, "world", xd))
             if t >= next_frame:
                 next_frame = max(next_frame + frame_period, t)
-                sim.forward()
-                ts = now_s()
-                for c, cam in zip(cell.cameras, cams, strict=True):
-                    depth = cam.capture(sim.data)
-                    pub_ns = pub_img[c.name].publish(ros2.image_msg(ts, c.frame_id or c.name, depth, "32FC1"))
-                    jl.write(ev="frame", camera=c.name, stamp=ts, pub=pub_ns * 1e-9)
+                _publish_frames(sim, src.cams, cell, pub_img, jl)
                 frames += 1
             jl.write(ev="js", t=stamp, qd_max=float(np.max(np.abs(qd))), held=bool(is_held))
             spare = dt - (now_s() - wall)
@@ -120,6 +102,41 @@ def run_sim_node(
         src.close()
         jl.close()
     return out
+
+
+class _CommandLatch:
+    """The driver's newest joint command (from its subscription's thread) and its watchdog."""
+
+    def __init__(self, names: list[str], watchdog: float) -> None:
+        self.names, self.watchdog = names, float(watchdog)
+        self.lock = threading.Lock()
+        self.q: np.ndarray | None = None
+        self.qd: np.ndarray | None = None
+        self.t = -np.inf  # receive time of the newest command, s
+
+    def on_cmd(self, msg, att, recv_ns) -> None:
+        q, qd = joint_command(msg, self.names)  # (a ValueError: refused, counted by the subscription)
+        with self.lock:
+            self.q, self.qd, self.t = q, qd, recv_ns * 1e-9
+
+    def command(self, wall: float, q_now: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+        """``(q, qdot, held)`` to servo to at wall time ``wall`` (s): the newest command, or, when none came
+        within the watchdog, the arm held where it is (``q_now``, zero velocity)."""
+        with self.lock:
+            q, qd, t = self.q, self.qd, self.t
+        if q is None or wall - t > self.watchdog:
+            return q_now, np.zeros(len(self.names)), True
+        return q, qd, False
+
+
+def _publish_frames(sim, cams: list, cell: CellFile, pub_img: dict, jl: JsonLog) -> None:
+    """Every camera's raw depth image (32FC1) of the cell as it is now, one stamp for all."""
+    sim.forward()
+    ts = now_s()
+    for c, cam in zip(cell.cameras, cams, strict=True):
+        depth = cam.capture(sim.data)
+        pub_ns = pub_img[c.name].publish(ros2.image_msg(ts, c.frame_id or c.name, depth, "32FC1"))
+        jl.write(ev="frame", camera=c.name, stamp=ts, pub=pub_ns * 1e-9)
 
 
 def _names(cell: CellFile) -> tuple[str, ...]:

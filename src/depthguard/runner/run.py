@@ -67,7 +67,6 @@ class _Recorder:
             for c, cam, parent in zip(cell.cameras, chain.local_cameras, chain.parents, strict=True)
         ]
         self.w.write(cell.topics["tf_static"], "tf2_msgs/msg/TFMessage", ros2.tf_msg(0.0, tfs), 0.0)
-        self.types = ros2.typestore().types
         self.last_marker = -np.inf
 
     def inputs(self, tick, frames) -> None:
@@ -81,10 +80,7 @@ class _Recorder:
                     ros2.camera_info_msg(tick.t_frames, c.frame_id, cam),
                     tick.t,
                 )
-        v = self.types["geometry_msgs/msg/Vector3"](
-            x=float(tick.xdot_d[0]), y=float(tick.xdot_d[1]), z=float(tick.xdot_d[2])
-        )
-        vs = self.types["geometry_msgs/msg/Vector3Stamped"](header=ros2.header(tick.t, "world"), vector=v)
+        vs = ros2.vector3_stamped_msg(tick.t, "world", tick.xdot_d)
         w.write(TASK_TOPIC, "geometry_msgs/msg/Vector3Stamped", vs, tick.t)
         if tick.q is not None:
             js = ros2.joint_state_msg(tick.t_joints, self.chain.joint_names, tick.q, tick.qdot)

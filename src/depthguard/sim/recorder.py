@@ -45,7 +45,6 @@ def record_run(path: str | Path, cell, log, rho: float = 0.4, extra=None) -> Pat
     :class:`~depthguard.io.mcap_ros2.Ros2McapWriter` (e.g. the octree and the reachability grid of
     ``saphari-octree`` as ``visualization_msgs/MarkerArray`` cube lists)."""
     path = Path(path)
-    types = ros2.typestore().types
     with Ros2McapWriter(path) as w:
         tfs = []
         infos = []
@@ -89,10 +88,7 @@ def record_run(path: str | Path, cell, log, rho: float = 0.4, extra=None) -> Pat
             stt = log.status[i] if i < len(log.status) else {}
             sm = ros2.status_msg(t, str(stt.get("status", "")), float(stt.get("scale", 0.0)))
             w.write("/depthguard/status", "depthguard_msgs/msg/ControllerStatus", sm, t)
-            v = np.asarray(log.v_ee[i], float)
-            vec = types["geometry_msgs/msg/Vector3Stamped"](
-                header=ros2.header(t, "world"), vector=types["geometry_msgs/msg/Vector3"](x=v[0], y=v[1], z=v[2])
-            )
+            vec = ros2.vector3_stamped_msg(t, "world", log.v_ee[i])
             w.write("/depthguard/repulsion", "geometry_msgs/msg/Vector3Stamped", vec, t)
             w.write("/depthguard/true_clearance", "std_msgs/msg/Float64", _f64(log.true_min[i]), t)
             w.write("/depthguard/evaluated_min", "std_msgs/msg/Float64", _f64(log.eval_min[i]), t)
