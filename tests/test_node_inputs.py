@@ -409,3 +409,30 @@ def test_joint_states_in_any_order_reach_every_node_in_the_models_order(order, e
     for f in (lambda m: ros2.joints_in_order(m, names), lambda m: fs.on_js(m, None, 0)):
         with pytest.raises(ValueError, match="names no"):
             f(short)
+
+
+@given(st.lists(st.tuples(st.floats(0.0, 0.2), st.booleans(), st.booleans()), min_size=1, max_size=30))
+def test_the_simulated_drivers_watchdog_holds_the_arm_whenever_commands_are_late(steps):
+    """The ``sim`` driver's command latch under any sequence of commands (good or refused) and waits: it
+    follows the newest good command while that is at most ``watchdog`` old, and otherwise holds the arm
+    where it is with zero velocity, whatever came before."""
+    from depthguard.nodes.sim import _CommandLatch
+
+    names, wd = ["a", "b"], 0.05
+    latch = _CommandLatch(names, wd)
+    now, last_good, q_now = 100.0, None, np.array([0.3, -0.2])
+    for k, (wait, send, good) in enumerate(steps):
+        if send:
+            v = float(k) if good else np.nan
+            msg = ros2.joint_state_msg(now, names, [v, v], [1.0, 1.0])
+            try:
+                latch.on_cmd(msg, None, int(now * 1e9))
+                last_good = (now, v)
+            except ValueError:
+                assert not good
+        now += wait
+        q, qd, held = latch.command(now, q_now)
+        if last_good is not None and now - last_good[0] <= wd:
+            assert not held and q.tolist() == [last_good[1]] * 2 and qd.tolist() == [1.0, 1.0]
+        else:
+            assert held and q is q_now and not qd.any()
