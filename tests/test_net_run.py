@@ -322,7 +322,7 @@ def test_controller_node_pairs_the_monitors_distances_by_stamp():
     from depthguard.nodes.controller import _Inputs
 
     N, names = 2, ["a", "b"]
-    inp = _Inputs(7, N)
+    inp = _Inputs([f"j{i}" for i in range(7)], N)
     c, r = np.zeros((N, 3)), np.full(N, 0.1)
 
     def msg(t, d):
@@ -344,7 +344,8 @@ def test_controller_node_pairs_the_monitors_distances_by_stamp():
     with pytest.raises(ValueError, match="control points"):  # a wrong number of points (counted by the subscription)
         inp.on_monitor(three, att, 0)
     np.testing.assert_array_equal(inp.cycle_input(dict(inp.st), 1.12).monitor_distances, [0.4, 0.6])
-    named = _Inputs(7, N, names)  # with the controller's names: other names or another order are refused too
+    # with the controller's names: other names or another order are refused too
+    named = _Inputs([f"j{i}" for i in range(7)], N, names)
     for other in (["a", "x"], ["b", "a"]):
         with pytest.raises(ValueError, match="control points"):
             named.on_dist(ros2.distances_msg(1.2, other, c, r, np.full(N, 0.1), np.zeros((N, 3))), att, 0)

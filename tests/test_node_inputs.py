@@ -396,7 +396,7 @@ def test_joint_states_in_any_order_reach_every_node_in_the_models_order(order, e
     fs = _FrameSets(["camera0"], names)
     fs.on_js(msg, None, 0)
     np.testing.assert_array_equal(fs.joint["q"], q)
-    inp = _Inputs(4, 1, None, names)
+    inp = _Inputs(names, 1)
     if with_velocity:
         inp.on_js(msg, None, 0)
         np.testing.assert_array_equal(inp.st["q"], q)

@@ -17,12 +17,29 @@ rotation ``R^T`` and translation ``-R^T t``.
 
 from __future__ import annotations
 
-from functools import cache
 from typing import Any
 
 import numpy as np
 
-from depthguard.kernels.depthimage import metres_or_nan
+from depthguard.io.ros2_images import (  # (re-exported: one module for every message)
+    camera_info_msg,
+    image_msg,
+    image_to_depth,
+    image_to_mask,
+    mask_msg,
+    rgb_image_msg,
+)
+from depthguard.io.ros2_types import (
+    DEPTHGUARD_MSGS,
+    _t,
+    deserialize,
+    header,
+    msgdef,
+    serialize,
+    stamp,
+    to_seconds,
+    typestore,
+)
 
 #: The task velocity (``geometry_msgs/msg/Vector3Stamped``, m/s of the end effector): recorded in bags and
 #: recordings, published by the ``sim`` node.
@@ -56,171 +73,6 @@ __all__ = [
     "deserialize",
     "msgdef",
 ]
-
-#: DepthGuard's own ROS 2 message definitions (package ``depthguard_msgs``).
-DEPTHGUARD_MSGS: dict[str, str] = {
-    "depthguard_msgs/msg/ControlPointDistance": """\
-# One control sphere and its distance to the nearest obstacle (people and unseen space included).
-string name
-geometry_msgs/Point centre          # sphere centre, world frame, m
-float64 radius                      # m
-float64 distance                    # from the sphere surface, m; +inf = nothing within rho; NaN = unknown
-geometry_msgs/Vector3 direction     # unit repulsive direction (from the obstacle towards the point)
-geometry_msgs/Point nearest         # nearest obstacle point, world frame, m (NaN if none)
-""",
-    "depthguard_msgs/msg/ControlPointDistances": """\
-# All control points of one distance query.
-std_msgs/Header header
-float64 rho                         # radius of surveillance, m
-depthguard_msgs/ControlPointDistance[] points
-""",
-    "depthguard_msgs/msg/ControllerStatus": """\
-# One control cycle's outcome.
-std_msgs/Header header
-string status                       # CycleStatus name (OK, SCALED, STOP_STALE_DISTANCES, ...)
-float64 scale                       # SNS task scale in [0, 1]
-string monitor_state                # SSM state, empty when SSM is off
-float64 ssm_scale                   # SSM speed scale in [0, 1] (1 when off)
-""",
-}
-
-
-@cache
-def typestore():
-    """The ROS 2 Jazzy type store with :data:`DEPTHGUARD_MSGS` registered (built once)."""
-    try:
-        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-    except ImportError as exc:  # pragma: no cover - depends on the installation
-        raise ImportError(f"ROS 2 messages need the 'cell' extra: pip install 'depthguard[cell]' ({exc})") from None
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    types: dict[str, Any] = {}
-    for name, text in DEPTHGUARD_MSGS.items():
-        types.update(get_types_from_msg(text, name))
-    ts.register(types)
-    return ts
-
-
-def _t(name: str):
-    return typestore().types[name]
-
-
-def stamp(t: float):
-    """``builtin_interfaces/msg/Time`` for ``t`` seconds (t >= 0)."""
-    ns = int(round(max(float(t), 0.0) * 1e9))
-    return _t("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
-def to_seconds(st) -> float:
-    """Seconds of a ``builtin_interfaces/msg/Time``."""
-    return float(st.sec) + 1e-9 * float(st.nanosec)
-
-
-def header(t: float, frame_id: str):
-    """``std_msgs/msg/Header``."""
-    return _t("std_msgs/msg/Header")(stamp=stamp(t), frame_id=str(frame_id))
-
-
-def image_msg(t: float, frame_id: str, depth: np.ndarray, encoding: str = "16UC1"):
-    """Depth image (H, W) as ``sensor_msgs/msg/Image``.
-
-    Args:
-        depth: metres (float; 0/NaN/inf = no reading) or, for ``16UC1``, already uint16 millimetres.
-        encoding: ``16UC1`` (uint16 mm, 0 = no reading) or ``32FC1`` (float32 m, NaN = no reading).
-    """
-    d = np.asarray(depth)
-    if d.ndim != 2:
-        raise ValueError(f"depth image must be (H, W), got shape {d.shape}")
-    if encoding == "16UC1":
-        if d.dtype != np.uint16:
-            m = np.nan_to_num(np.asarray(d, float), nan=0.0, posinf=0.0, neginf=0.0) * 1000.0
-            d = np.clip(np.round(m), 0, 65535).astype(np.uint16)
-        data = d.astype("<u2")
-    elif encoding == "32FC1":
-        f = np.asarray(d, dtype=np.float32)
-        data = np.where(np.isfinite(f) & (f > 0), f, np.float32(np.nan)).astype("<f4")
-    else:
-        raise ValueError(f"depth encoding must be '16UC1' or '32FC1', got {encoding!r}")
-    return _image(t, frame_id, data, encoding)
-
-
-def _image(t: float, frame_id: str, data: np.ndarray, encoding: str):
-    """``sensor_msgs/Image`` of the (H, W) little-endian samples ``data``, rows unpadded."""
-    h, w = data.shape
-    return _t("sensor_msgs/msg/Image")(
-        header=header(t, frame_id),
-        height=h,
-        width=w,
-        encoding=encoding,
-        is_bigendian=0,
-        step=w * data.itemsize,
-        data=np.frombuffer(np.ascontiguousarray(data).tobytes(), dtype=np.uint8),
-    )
-
-
-def mask_msg(t: float, frame_id: str, mask: np.ndarray):
-    """``sensor_msgs/Image`` mono8 of a robot mask (H, W) bool: 255 = robot pixel."""
-    m = np.asarray(mask, bool)
-    if m.ndim != 2:
-        raise ValueError(f"robot mask must be (H, W), got shape {m.shape}")
-    return _image(t, frame_id, m.astype(np.uint8) * 255, "mono8")
-
-
-def image_to_mask(msg) -> np.ndarray:
-    """(H, W) bool robot mask from a mono8 ``sensor_msgs/msg/Image`` (non-zero = robot pixel; rows may be
-    padded to ``step`` bytes). Raises ``ValueError`` for another encoding, a row step shorter than a row or
-    fewer bytes than the size says."""
-    if str(msg.encoding) != "mono8":
-        raise ValueError(f"robot mask must be a mono8 Image, got {msg.encoding!r}")
-    h, w = int(msg.height), int(msg.width)
-    raw = np.asarray(msg.data, np.uint8).reshape(-1)
-    step = int(msg.step) or w
-    if step < w or raw.size < step * h:
-        raise ValueError(f"robot mask {w}x{h} holds {raw.size} bytes with step {msg.step}: too few")
-    return raw[: step * h].reshape(h, step)[:, :w] > 0
-
-
-def image_to_depth(msg) -> np.ndarray:
-    """(H, W) float32 depth in metres from a ``sensor_msgs/msg/Image`` (NaN = no reading).
-
-    Raises ``ValueError`` for encodings other than 16UC1 / 32FC1 or a size that contradicts the data.
-    """
-    enc = str(msg.encoding).upper()
-    h, w = int(msg.height), int(msg.width)
-    dtype = {"16UC1": np.uint16, "MONO16": np.uint16, "32FC1": np.float32}.get(enc)
-    if dtype is None:
-        raise ValueError(f"Image encoding {msg.encoding!r} is not a depth encoding (expected 16UC1 or 32FC1)")
-    item = np.dtype(dtype).itemsize
-    raw = np.ascontiguousarray(np.asarray(msg.data, dtype=np.uint8)).reshape(-1)
-    step = int(msg.step) or w * item
-    if step < w * item or raw.size < step * h:
-        raise ValueError(f"Image {w}x{h} {msg.encoding} holds {raw.size} bytes with step {msg.step}: too few")
-    order = ">" if msg.is_bigendian else "<"
-    typ = np.dtype(dtype).newbyteorder(order)
-    if step == w * item:  # (the usual layout: read the samples where they lie, one pass to the output)
-        img = np.frombuffer(raw, dtype=typ, count=h * w).reshape(h, w)
-    else:
-        img = np.ascontiguousarray(raw[: step * h].reshape(h, step)[:, : w * item]).view(typ).reshape(h, w)
-    return metres_or_nan(img, 1000.0 if dtype == np.uint16 else 1.0)
-
-
-def camera_info_msg(t: float, frame_id: str, camera) -> Any:
-    """``sensor_msgs/msg/CameraInfo`` of a :class:`depthguard.camera.Camera` (no distortion)."""
-    K = [camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0]
-    P = [camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
-    roi = _t("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return _t("sensor_msgs/msg/CameraInfo")(
-        header=header(t, frame_id),
-        height=int(camera.height),
-        width=int(camera.width),
-        distortion_model="plumb_bob",
-        d=np.zeros(5),
-        k=np.array(K, dtype=float),
-        r=np.eye(3).ravel(),
-        p=np.array(P, dtype=float),
-        binning_x=0,
-        binning_y=0,
-        roi=roi,
-    )
 
 
 def joint_state_msg(
@@ -476,35 +328,3 @@ def labelled_array_msg(fields: dict[str, Any]):
     layout = _t("std_msgs/msg/MultiArrayLayout")(dim=dims, data_offset=0)
     flat = np.concatenate(data) if data else np.zeros(0)
     return _t("std_msgs/msg/Float64MultiArray")(layout=layout, data=flat)
-
-
-def rgb_image_msg(t: float, frame_id: str, rgb: np.ndarray):
-    """(H, W, 3) uint8 image as ``sensor_msgs/msg/Image`` (``rgb8``)."""
-    img = np.ascontiguousarray(np.asarray(rgb, dtype=np.uint8))
-    if img.ndim != 3 or img.shape[2] != 3:
-        raise ValueError(f"an rgb8 image must be (H, W, 3), got shape {img.shape}")
-    h, w, _ = img.shape
-    return _t("sensor_msgs/msg/Image")(
-        header=header(t, frame_id),
-        height=h,
-        width=w,
-        encoding="rgb8",
-        is_bigendian=0,
-        step=3 * w,
-        data=img.reshape(-1),
-    )
-
-
-def serialize(msg, typename: str) -> bytes:
-    """CDR bytes (with the 4-byte encapsulation header) of ``msg``."""
-    return bytes(typestore().serialize_cdr(msg, typename))
-
-
-def deserialize(data: bytes | memoryview, typename: str):
-    """Message from CDR bytes."""
-    return typestore().deserialize_cdr(data, typename)
-
-
-def msgdef(typename: str) -> str:
-    """The ROS 2 message definition text of ``typename`` with its dependencies (MCAP ``ros2msg`` schema)."""
-    return typestore().generate_msgdef(typename, ros_version=2)[0]

@@ -40,12 +40,11 @@ def prepare_frame(msg, cam0, cc, model, q: np.ndarray) -> tuple[np.ndarray, np.n
     cam = camera_at_size(cam0, depth.shape[1], depth.shape[0])
     if cc.parent != "world":  # carried by the robot: where the link was at this frame
         cam = carried_camera(cam, model, q, cc.parent)
-    margin = None
+    kw = {}
     if cc.noise_coeff > 0:  # the margin covers the depth noise (runner.chain.self_filter_margins)
         from depthguard.sim.pipeline import model_filter_margin
 
-        margin = model_filter_margin(cam, q, model, cc.noise_coeff)
-    kw = {} if margin is None else {"margin": margin}
+        kw["margin"] = model_filter_margin(cam, q, model, cc.noise_coeff)
     return depth, np.asarray(self_filter(cam, depth, q, model, with_depth=False, **kw)[0])
 
 

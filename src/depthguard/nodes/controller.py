@@ -42,28 +42,18 @@ class _Inputs:
     """
 
     def __init__(
-        self,
-        n: int,
-        N: int,
-        names: list[str] | tuple[str, ...] | None = None,
-        joint_names: list[str] | tuple[str, ...] | None = None,
+        self, joint_names: list[str] | tuple[str, ...], N: int, names: list[str] | tuple[str, ...] | None = None
     ) -> None:
-        self.n, self.N = n, N
+        self.joint_names, self.N = list(joint_names), N
         self.names = None if names is None else [str(x) for x in names]
-        self.joint_names = None if joint_names is None else list(joint_names)
         self.lock = threading.Lock()
         self.st: dict = {"q": None, "qd": None, "tj": -np.inf, "xd": np.zeros(3), "d": None, "dirs": None}
         self.st.update(td=-np.inf, dpub=None, md=None, mdirs=None, tm=np.nan)
 
     def on_js(self, msg, att, recv_ns) -> None:
-        if self.joint_names is not None:  # (by name, in the model's order; ValueError: refused and counted)
-            q, qd = ros2.joints_in_order(msg, self.joint_names)
-            if qd is None:
-                raise ValueError("JointState without velocities: the controller needs them")
-        else:
-            q, qd = np.array(msg.position, float), np.array(msg.velocity, float)  # (writable copies)
-            if q.shape != (self.n,) or qd.shape != (self.n,):
-                return
+        q, qd = ros2.joints_in_order(msg, self.joint_names)  # (by name, in the model's order; ValueError: refused)
+        if qd is None:
+            raise ValueError("JointState without velocities: the controller needs them")
         with self.lock:
             self.st.update(q=q, qd=qd, tj=ros2.to_seconds(msg.header.stamp))
 
@@ -116,20 +106,11 @@ def run_controller_node(
     w0 = time.perf_counter()
     jl.write(ev="warm_up", statuses=warm_up(points, config, model), s=time.perf_counter() - w0)
     ctrl = AvoidanceController(points, config)
-    N, n = points.n_points, len(model.joint_names)
+    N = points.n_points
     top = Topics.of(cell)
     node = open_node(cell, "controller", **kw)
-    inp = _Inputs(n, N, points.names, model.joint_names)
-    on_js, on_task, on_dist, lock, st = inp.on_js, inp.on_task, inp.on_dist, inp.lock, inp.st
-
-    allowed = set(cell.network.get("publishers", ["distance"])) if cell.network else None
-    sub_d = node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist, allowed=allowed)
-    subs = [
-        sub_d,
-        node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js),
-        node.subscribe(top.task, "geometry_msgs/msg/Vector3Stamped", on_task),
-        node.subscribe(top.monitor_distances, sub_d.typename, inp.on_monitor, allowed=allowed),
-    ]
+    inp = _Inputs(model.joint_names, N, points.names)
+    subs = _subscribe(node, top, inp, cell)
     pub_cmd = node.publisher(top.command, "sensor_msgs/msg/JointState")
     pub_arr = node.publisher(top.command_array, "std_msgs/msg/Float64MultiArray")
     pub_traj = node.publisher(top.command_trajectory, "trajectory_msgs/msg/JointTrajectory")
@@ -145,8 +126,8 @@ def run_controller_node(
         while not stop and (duration is None or now_s() - t_start < duration):
             w0 = time.perf_counter()
             t = now_s()
-            with lock:
-                s = dict(st)
+            with inp.lock:
+                s = dict(inp.st)
             out = ctrl.step(inp.cycle_input(s, t))
             p = pub_cmd.publish(ros2.joint_state_msg(t, names, out.q_cmd, out.qdot_cmd)) * 1e-9
             name = out.status.name
@@ -170,17 +151,36 @@ def run_controller_node(
             elif spare < -0.1:
                 next_t = now_s()  # fell far behind (overloaded machine): do not try to catch up
     finally:
-        cw = np.asarray(cycle_wall) * 1e3
-        out_d = {
-            "cycles": cycles,
-            "statuses": statuses,
-            "cycle_ms_median": float(np.median(cw)) if cw.size else None,
-            "cycle_ms_p99": float(np.percentile(cw, 99)) if cw.size else None,
-            "dropped": dict(sub_d.dropped),  # (the distances')
-            "dropped_by_topic": {x.topic: dict(x.dropped) for x in subs if x.dropped},
-            "rejected_publishers": sorted(sub_d.rejected_publishers),
-            "unlisted_publishers": sorted(sub_d.unlisted_publishers),
-        }
+        out_d = _report(cycles, statuses, cycle_wall, subs)
         node.close()
         jl.close()
     return out_d
+
+
+def _subscribe(node, top: Topics, inp: _Inputs, cell: CellFile) -> list:
+    """The controller's subscriptions, the distances' first: distances and the monitor's distances only from
+    the cell's ``network.publishers``; joint states and the task from anyone."""
+    allowed = set(cell.network.get("publishers", ["distance"])) if cell.network else None
+    sub_d = node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", inp.on_dist, allowed=allowed)
+    return [
+        sub_d,
+        node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", inp.on_js),
+        node.subscribe(top.task, "geometry_msgs/msg/Vector3Stamped", inp.on_task),
+        node.subscribe(top.monitor_distances, sub_d.typename, inp.on_monitor, allowed=allowed),
+    ]
+
+
+def _report(cycles: int, statuses: dict, cycle_wall: list[float], subs: list) -> dict:
+    """The node's final report: cycles, statuses, cycle times (ms) and what its subscriptions dropped."""
+    cw = np.asarray(cycle_wall) * 1e3
+    sub_d = subs[0]
+    return {
+        "cycles": cycles,
+        "statuses": statuses,
+        "cycle_ms_median": float(np.median(cw)) if cw.size else None,
+        "cycle_ms_p99": float(np.percentile(cw, 99)) if cw.size else None,
+        "dropped": dict(sub_d.dropped),  # (the distances')
+        "dropped_by_topic": {x.topic: dict(x.dropped) for x in subs if x.dropped},
+        "rejected_publishers": sorted(sub_d.rejected_publishers),
+        "unlisted_publishers": sorted(sub_d.unlisted_publishers),
+    }
