@@ -90,7 +90,7 @@ def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndar
 
 def _plain_array(x: object) -> bool:
     """``x`` is a writable float64 C-contiguous array (what :func:`as_vector` returns as it is)."""
-    return type(x) is np.ndarray and x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable
+    return type(x) is np.ndarray and x.dtype == np.float64 and x.flags.carray  # (C-contiguous, aligned, writable)
 
 
 def _plain(x: object, n: int) -> bool:
