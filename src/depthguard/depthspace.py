@@ -40,6 +40,7 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.kernels.holefill import column_window_min, use_column_minima, window_min_at
 from depthguard.kernels.pixels import query_many, query_many_parallel
 from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
@@ -146,9 +147,9 @@ def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, ou
     """Missing-depth policy (docs/conventions.md). Returns (filled, unknown) counts.
 
     A missing non-robot pixel takes the minimum valid non-robot depth of its (2 r + 1)^2 window (or, with
-    none there, the near limit: unknown). One pass writes the valid depths (inf elsewhere); sparse holes then
-    read their windows of it directly, dense ones (more than one pixel in 2 r + 1 missing) read one column of
-    the rows' running minima (the window minimum is separable)."""
+    none there, the near limit: unknown). One pass writes the valid depths (inf elsewhere); then each hole's
+    window minimum (:mod:`depthguard.kernels.holefill`: sparse holes read their windows, dense ones one
+    column of the rows' window minima)."""
     H, W = depth.shape
     r = fill_radius
     filled = 0
@@ -164,27 +165,15 @@ def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, ou
             holes += ms and not rb
     if not conservative or holes == 0:
         return filled, unknown
-    dense = holes * (2 * r + 1) > H * W
-    src = val
+    dense = use_column_minima(holes, H, W, r)
+    colmin = np.empty((H, W) if dense else (1, 1), np.float32)
     if dense:
-        src = np.empty((H, W), np.float32)  # src[v, u] = min val[v, u - r .. u + r]
-        for v in range(H):
-            for u in range(W):
-                m = np.float32(np.inf)
-                for uu in range(max(0, u - r), min(W, u + r + 1)):
-                    m = min(m, val[v, uu])
-                src[v, u] = m
+        column_window_min(val, r, colmin, np.empty((H, W), np.float32), np.empty((H, W), np.float32))
     for v in range(H):
         for u in range(W):
             if robot[v, u] or not missing[v, u]:
                 continue
-            best = np.float32(np.inf)
-            for vv in range(max(0, v - r), min(H, v + r + 1)):
-                if dense:
-                    best = min(best, src[vv, u])
-                else:
-                    for uu in range(max(0, u - r), min(W, u + r + 1)):
-                        best = min(best, val[vv, uu])
+            best = window_min_at(val, colmin, dense, v, u, r)
             if best < np.inf:
                 out[v, u] = best
                 filled += 1

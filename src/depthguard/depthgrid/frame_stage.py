@@ -39,8 +39,20 @@ def update_principal(fusion: DepthGridFusion, depth, mask, conservative: bool) -
     d = _image(cam, depth, "depth", np.float32)
     has_mask = mask is not None
     robot = _image(cam, mask, "mask", np.bool_) if has_mask else np.zeros((1, 1), dtype=np.bool_)
+    if fusion._fill_scratch.shape[1:] != d.shape:
+        fusion._fill_scratch = np.empty((3, *d.shape), np.float32)
+        fusion._hole_at = np.empty(d.size, np.int32)
     prepare_principal(
-        d, robot, has_mask, fusion.fill_radius, np.float32(cam.min_depth), conservative, fusion._start, fusion._kind
+        d,
+        robot,
+        has_mask,
+        fusion.fill_radius,
+        np.float32(cam.min_depth),
+        conservative,
+        fusion._start,
+        fusion._kind,
+        fusion._fill_scratch,
+        fusion._hole_at,
     )
     fusion._tmin = tile_min(fusion._start, TILE)
     fusion._tmax = tile_max_start(fusion._start, fusion._kind, TILE)

@@ -13,21 +13,9 @@ import numba as nb
 import numpy as np
 
 from depthguard.depthgrid import records as K
+from depthguard.kernels.holefill import column_window_min, use_column_minima, window_min_at
 
 __all__ = ["prepare_principal", "prepare_secondary", "write_windows"]
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _filled(depth, missing, robot, has_mask, v, u, r):
-    """Hole filling (``docs/conventions.md``), as :func:`depthguard.depthspace.prepare_frame`: the minimum valid,
-    non-robot depth in the (2r+1)^2 window around (v, u); inf when there is none."""
-    H, W = depth.shape
-    best = np.inf
-    for vv in range(max(0, v - r), min(H, v + r + 1)):
-        for uu in range(max(0, u - r), min(W, u + r + 1)):
-            if not missing[vv, uu] and not (has_mask and robot[vv, uu]) and depth[vv, uu] < best:
-                best = depth[vv, uu]
-    return best
 
 
 @nb.njit(cache=True, nogil=True)
@@ -43,10 +31,13 @@ def missing_pixels(depth):
 
 
 @nb.njit(cache=True, nogil=True)
-def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind):
-    """One pass over the principal image: start depth and kind of every pixel (module docstring)."""
+def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservative, start, kind, scratch, hole_at):
+    """One pass over the principal image: start depth and kind of every pixel (module docstring); then the
+    holes' window minima (:mod:`depthguard.kernels.holefill`). ``scratch``: (3, H, W) float32, ``hole_at``:
+    (H W,) int32, reused from frame to frame (fresh pages would cost more than the pass itself)."""
     H, W = depth.shape
     missing = missing_pixels(depth)
+    holes = 0  # (their flat indices: hole_at[:holes])
     for v in range(H):
         for u in range(W):
             d = depth[v, u]
@@ -67,16 +58,28 @@ def prepare_principal(depth, robot, has_mask, fill_radius, near_limit, conservat
                 start[v, u] = np.inf
                 kind[v, u] = K.KIND_NONE
             else:
-                best = _filled(depth, missing, robot, has_mask, v, u, fill_radius)
-                if best < np.inf:
-                    # a filled hole is not a measured surface: nothing before the nearest neighbouring
-                    # depth (the filling assumption), unknown from there on, so the other cameras may
-                    # clear its cells (a surface cell is occupied without a vote)
-                    start[v, u] = best
-                    kind[v, u] = K.KIND_UNKNOWN
-                else:
-                    start[v, u] = near_limit
-                    kind[v, u] = K.KIND_UNKNOWN
+                # a filled hole is not a measured surface: nothing before the nearest neighbouring depth
+                # (the filling assumption), unknown from there on, so the other cameras may clear its cells
+                # (a surface cell is occupied without a vote); without a neighbour, from the near limit
+                start[v, u] = near_limit
+                kind[v, u] = K.KIND_UNKNOWN
+                hole_at[holes] = v * W + u
+                holes += 1
+    if holes == 0:
+        return
+    val = scratch[0]  # the hole filling's source: the measured non-robot depths, inf elsewhere
+    for v in range(H):
+        for u in range(W):
+            val[v, u] = start[v, u] if kind[v, u] == K.KIND_SURFACE else np.float32(np.inf)
+    r = fill_radius
+    dense = use_column_minima(holes, H, W, r)
+    if dense:
+        column_window_min(val, r, val, scratch[1], scratch[2])  # (val now holds the column minima)
+    for i in range(holes):
+        v, u = divmod(hole_at[i], W)
+        best = window_min_at(val, val, dense, v, u, r)
+        if best < np.inf:
+            start[v, u] = best
 
 
 @nb.njit(cache=True, nogil=True)

@@ -193,6 +193,8 @@ class DepthGridFusion:
         cam0 = cameras[0]
         self._start = np.full(cam0.shape, np.inf, dtype=np.float32)
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
+        self._fill_scratch = np.empty((3, *cam0.shape), np.float32)  # (hole filling, depthgrid.frames)
+        self._hole_at = np.empty(cam0.shape[0] * cam0.shape[1], np.int32)
         self._tmin = tile_min(self._start, TILE)
         self._tmax = tile_max_start(self._start, self._kind, TILE)
         self._chunks = True  # per-tile chunk tests (False: the plain block-by-block search, for tests)
