@@ -23,7 +23,7 @@ from depthguard.depthgrid.records import KIND_SURFACE, KIND_UNKNOWN, TILE_BLOCK
 from depthguard.depthgrid.votes import tile_block_cleared
 from depthguard.kernels import FASTMATH
 
-__all__ = ["tile_max_start", "tile_chunk_cleared", "tile_chunk_prepare"]
+__all__ = ["tile_bounds", "tile_max_start", "tile_chunk_cleared", "tile_chunk_prepare"]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -42,6 +42,33 @@ def tile_max_start(start, kind, tile):
                     m = max(m, x)
                 out[tv, tu] = m
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def tile_bounds(start, kind, tile):
+    """``(tile_min(start), tile_max_start(start, kind))`` in one pass over the principal image: per tile the
+    smallest start depth (inf when none) and the largest start depth of its non-robot pixels (-inf when
+    none), (ceil(H/tile), ceil(W/tile)) float32 each."""
+    H, W = start.shape
+    th = (H + tile - 1) // tile
+    tw = (W + tile - 1) // tile
+    tmin = np.full((th, tw), np.inf, dtype=np.float32)
+    tmax = np.full((th, tw), -np.inf, dtype=np.float32)
+    ninf = np.float32(-np.inf)
+    for tv in range(th):
+        for v in range(tv * tile, min(H, tv * tile + tile)):
+            for tu in range(tw):
+                lo = tmin[tv, tu]
+                hi = tmax[tv, tu]
+                for u in range(tu * tile, min(W, tu * tile + tile)):
+                    s = start[v, u]
+                    k = kind[v, u]
+                    lo = s if s < lo else lo
+                    x = s if (k == KIND_SURFACE or k == KIND_UNKNOWN) else ninf
+                    hi = x if x > hi else hi
+                tmin[tv, tu] = lo
+                tmax[tv, tu] = hi
+    return tmin, tmax
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False)  # called, not inlined: see module docstring

@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from depthguard.depthgrid.chunks import tile_max_start
+from depthguard.depthgrid.chunks import tile_bounds
 from depthguard.depthgrid.frames import limit_robot_votes, prepare_principal, prepare_secondary, write_windows
 from depthguard.depthgrid.pyramid import build_pyramid, window_aware_votes
-from depthguard.depthspace import TILE, tile_min
+from depthguard.depthspace import TILE
 
 if TYPE_CHECKING:
     from depthguard.depthgrid.fusion import DepthGridFusion
@@ -54,8 +54,7 @@ def update_principal(fusion: DepthGridFusion, depth, mask, conservative: bool) -
         fusion._fill_scratch,
         fusion._hole_at,
     )
-    fusion._tmin = tile_min(fusion._start, TILE)
-    fusion._tmax = tile_max_start(fusion._start, fusion._kind, TILE)
+    fusion._tmin, fusion._tmax = tile_bounds(fusion._start, fusion._kind, TILE)
 
 
 def update_secondary(fusion: DepthGridFusion, depths, masks, conservative: bool, windows) -> None:

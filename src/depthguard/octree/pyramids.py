@@ -13,6 +13,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from depthguard.kernels.holefill import column_window_min, use_column_minima, window_min_at
+
 __all__ = ["min_pyramid", "min_negmax_pyramids", "camera_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
 
 
@@ -83,46 +85,27 @@ def min_negmax_pyramids(img):
     return lo, neg, offs, hs, ws
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _window_min(val, W, H, v, u, r):
-    """Minimum of the flat (H * W) image ``val`` over the (2 r + 1)^2 window about (v, u), clipped."""
-    best = np.float32(np.inf)
-    for vv in range(max(0, v - r), min(H, v + r + 1)):
-        row = vv * W
-        for uu in range(max(0, u - r), min(W, u + r + 1)):
-            best = min(best, val[row + uu])
-    return best
-
-
 @nb.njit(cache=True, nogil=True)
 def _fill_holes(lo, robot, nh, r, near):
     """Fill the ``nh`` holes of level 0 of ``lo`` (inf on missing and robot pixels): each takes the minimum of
-    its (2 r + 1)^2 window, else ``near``; sparse holes read their windows, dense ones (more than one pixel
-    in 2 r + 1 a hole) one column of the rows' running minima."""
+    its (2 r + 1)^2 window, else ``near`` (the window minima of :mod:`depthguard.kernels.holefill`)."""
     H, W = robot.shape
     inf = np.float32(np.inf)
+    img = lo[: H * W].reshape((H, W))
     holes = np.empty(nh, np.int64)
     h = 0
     for v in range(H):
         for u in range(W):
-            if lo[v * W + u] == inf and not robot[v, u]:  # inf: missing or robot
+            if img[v, u] == inf and not robot[v, u]:  # inf: missing or robot
                 holes[h] = v * W + u
                 h += 1
+    dense = use_column_minima(nh, H, W, r)
+    colmin = np.empty((H, W) if dense else (1, 1), np.float32)
+    if dense:
+        column_window_min(img, r, colmin, np.empty((H, W), np.float32), np.empty((H, W), np.float32))
     fill = np.empty(nh, np.float32)
-    if nh * (2 * r + 1) > H * W:
-        rowmin = np.empty(H * W, np.float32)
-        for v in range(H):
-            for u in range(W):
-                rowmin[v * W + u] = _row_min(lo, W, v, u, r)
-        for h in range(nh):
-            v, u = holes[h] // W, holes[h] % W
-            best = inf
-            for vv in range(max(0, v - r), min(H, v + r + 1)):
-                best = min(best, rowmin[vv * W + u])
-            fill[h] = best
-    else:
-        for h in range(nh):
-            fill[h] = _window_min(lo, W, H, holes[h] // W, holes[h] % W, r)
+    for h in range(nh):
+        fill[h] = window_min_at(img, colmin, dense, holes[h] // W, holes[h] % W, r)
     for h in range(nh):  # after all windows are read: a filled hole is no source
         lo[holes[h]] = fill[h] if fill[h] < inf else near
 
@@ -168,15 +151,6 @@ def camera_pyramids(depth, robot, fill_radius, near, conservative):
     _reduce_levels(neg, offs, hs, ws)
     _reduce_levels(rob, offs, hs, ws)
     return lo, neg, rob, offs, hs, ws
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _row_min(val, W, v, u, r):
-    """Minimum of row ``v`` of the flat image ``val`` (width W) over columns u - r .. u + r, clipped."""
-    best = np.float32(np.inf)
-    for uu in range(max(0, u - r), min(W, u + r + 1)):
-        best = min(best, val[v * W + uu])
-    return best
 
 
 @nb.njit(cache=True, nogil=True)
