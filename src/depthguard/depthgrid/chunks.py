@@ -23,32 +23,14 @@ from depthguard.depthgrid.records import KIND_SURFACE, KIND_UNKNOWN, TILE_BLOCK
 from depthguard.depthgrid.votes import tile_block_cleared
 from depthguard.kernels import FASTMATH
 
-__all__ = ["tile_bounds", "tile_max_start", "tile_chunk_cleared", "tile_chunk_prepare"]
-
-
-@nb.njit(cache=True, nogil=True)
-def tile_max_start(start, kind, tile):
-    """Per tile, the largest start depth of its non-robot pixels (surface or unknown); -inf when none."""
-    H, W = start.shape
-    th = (H + tile - 1) // tile
-    tw = (W + tile - 1) // tile
-    out = np.full((th, tw), -np.inf, dtype=np.float32)
-    for tv in range(th):
-        for v in range(tv * tile, min(H, tv * tile + tile)):
-            for tu in range(tw):
-                m = out[tv, tu]
-                for u in range(tu * tile, min(W, tu * tile + tile)):
-                    x = start[v, u] if (kind[v, u] == KIND_SURFACE or kind[v, u] == KIND_UNKNOWN) else -np.inf
-                    m = max(m, x)
-                out[tv, tu] = m
-    return out
+__all__ = ["tile_bounds", "tile_chunk_cleared", "tile_chunk_prepare"]
 
 
 @nb.njit(cache=True, nogil=True)
 def tile_bounds(start, kind, tile):
-    """``(tile_min(start), tile_max_start(start, kind))`` in one pass over the principal image: per tile the
-    smallest start depth (inf when none) and the largest start depth of its non-robot pixels (-inf when
-    none), (ceil(H/tile), ceil(W/tile)) float32 each."""
+    """``(tmin, tmax)`` in one pass over the principal image: per tile the smallest start depth (inf when
+    none) and the largest start depth of its non-robot pixels, surface or unknown (-inf when none),
+    (ceil(H/tile), ceil(W/tile)) float32 each."""
     H, W = start.shape
     th = (H + tile - 1) // tile
     tw = (W + tile - 1) // tile

@@ -95,7 +95,7 @@ from concurrent.futures import Executor
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.depthgrid.chunks import tile_max_start
+from depthguard.depthgrid.chunks import tile_bounds
 from depthguard.depthgrid.frame_stage import update_principal, update_secondary
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
@@ -109,7 +109,6 @@ from depthguard.depthspace import (
     PointDistances,
     prepare_frame,
     query_distances,
-    tile_min,
     to_world,
 )
 from depthguard.kernels.records import direction_stride as resolve_stride
@@ -195,8 +194,7 @@ class DepthGridFusion:
         self._kind = np.zeros(cam0.shape, dtype=np.uint8)
         self._fill_scratch = np.empty((3, *cam0.shape), np.float32)  # (hole filling, depthgrid.frames)
         self._hole_at = np.empty(cam0.shape[0] * cam0.shape[1], np.int32)
-        self._tmin = tile_min(self._start, TILE)
-        self._tmax = tile_max_start(self._start, self._kind, TILE)
+        self._tmin, self._tmax = tile_bounds(self._start, self._kind, TILE)
         self._chunks = True  # per-tile chunk tests (False: the plain block-by-block search, for tests)
         # the cell states decided so far in this frame (depthgrid.column), shared by every query of it;
         # allocated at the first query, a new generation per frame

@@ -9,6 +9,7 @@ controller's own robot model. Nothing here reads the simulator's state.
 
 from __future__ import annotations
 
+import contextlib
 import os
 
 import numpy as np
@@ -183,13 +184,14 @@ os.register_at_fork(after_in_child=_SIDE.clear)  # a forked child has no worker 
 
 
 def _side_thread():
-    """One worker thread for the frame stage's independent kernels (None on a single core)."""
+    """One worker thread for the frame stage's independent kernels, run on another CPU than the caller's
+    (:class:`depthguard.sidethread.SideThread`; None on a single core)."""
     if (os.cpu_count() or 1) < 2:
         return None
     if not _SIDE:
-        from concurrent.futures import ThreadPoolExecutor
+        from depthguard.sidethread import SideThread
 
-        _SIDE.append(ThreadPoolExecutor(max_workers=1, thread_name_prefix="depthguard-frame"))
+        _SIDE.append(SideThread("depthguard-frame"))
     return _SIDE[0]
 
 
@@ -274,7 +276,9 @@ class DistanceStage:
 
                 # the secondary cameras' part (windows, votes, pyramid) on a side thread, beside the principal
                 # camera's (robot pixels, segments): disjoint arrays, kernels without the GIL
-                self.fusion.update(depths, masks, windows=secondary_windows, side=_side_thread(), principal=principal)
+                side = _side_thread()
+                with side.beside() if side is not None else contextlib.nullcontext() as ex:
+                    self.fusion.update(depths, masks, windows=secondary_windows, side=ex, principal=principal)
             else:
                 self.fusion.update(depths, masks)
         else:
