@@ -75,7 +75,8 @@ def test_camera_carried_by_the_robot_runs_in_run_only(tmp_path):
     """A camera on a link is read; ``run``'s chain and the nodes check the link; calibrate refuses it on the
     simulated cell (whose cameras stand in the world)."""
     from depthguard.runner.calibrate import calibrate_cell
-    from depthguard.runner.chain import Chain, carried_camera, check_camera_parents
+    from depthguard.runner.carried import carried_camera, check_camera_parents
+    from depthguard.runner.chain import Chain
 
     text = (EXAMPLES / "realsense-d435.toml").read_text()
     text = text.replace("rate = 30.0\nmatrix", 'rate = 30.0\nparent = "lwr_link_7"\nmatrix', 1)
@@ -209,7 +210,7 @@ def test_distance_node_places_the_cameras_the_robot_carries():
     """The distance node's cameras of one frame set: world cameras at the image size, a carried one where its
     link was at its frame's joint state, and none at all without that joint state (no distances)."""
     from depthguard.nodes.distance import frame_set_cameras
-    from depthguard.runner.chain import carried_camera
+    from depthguard.runner.carried import carried_camera
 
     cell = read_cell(EXAMPLES / "sim-hexagon.toml")
     model = load_cell_robot(cell)
@@ -230,7 +231,8 @@ def test_live_view_draws_a_carried_camera_where_its_link_is(tmp_path):
     """A camera carried by a link (pose given in the link's frame) is drawn at the pose of the latest joint
     state; without a usable joint state its cloud is not drawn at all (None), rather than misplaced."""
     pytest.importorskip("viser")
-    from depthguard.runner.chain import carried_camera, cell_control_points, load_cell_robot
+    from depthguard.runner.carried import carried_camera
+    from depthguard.runner.chain import cell_control_points, load_cell_robot
     from depthguard.viz.live import LiveView
 
     text = (EXAMPLES / "sim-hexagon.toml").read_text()

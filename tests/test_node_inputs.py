@@ -166,7 +166,8 @@ def hexagon():
     from depthguard.io.cellfile import read_cell
     from depthguard.nodes.bench import _frames
     from depthguard.nodes.distance import FrameSetWork
-    from depthguard.runner.chain import cell_control_points, check_camera_parents, load_cell_robot
+    from depthguard.runner.carried import check_camera_parents
+    from depthguard.runner.chain import cell_control_points, load_cell_robot
 
     cell = read_cell(ROOT / "examples/cells/sim-hexagon.toml")
     _, sets = _frames(True, cell, 1)

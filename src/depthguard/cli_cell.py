@@ -49,7 +49,8 @@ def _cmd_commission(args: argparse.Namespace) -> int:
 def _cmd_cell(args: argparse.Namespace) -> int:
     from depthguard.io.cell_describe import describe_cell
     from depthguard.io.cellfile import read_cell
-    from depthguard.runner.chain import check_camera_parents, load_cell_robot
+    from depthguard.runner.carried import check_camera_parents
+    from depthguard.runner.chain import load_cell_robot
 
     cell = read_cell(args.cell)
     check_camera_parents(cell, load_cell_robot(cell))  # the links named by attachments and cameras exist

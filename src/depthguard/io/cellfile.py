@@ -65,6 +65,7 @@ from typing import Any
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.io.cell_network import PER_NODE, network_section, node_names, node_tls_files, per_node_certificates
 from depthguard.io.cell_schema import (
     _NUM,
     _TOP,
@@ -90,9 +91,6 @@ __all__ = [
     "per_node_certificates",
     "node_tls_files",
 ]
-
-#: In ``network.tls_certificate`` and ``tls_private_key``: the node's name (one certificate per node).
-PER_NODE = "{node}"
 
 
 @dataclass(frozen=True)
@@ -347,26 +345,9 @@ def read_cell(path: str | Path) -> CellFile:
         raise CellError(f"{src}: controller.ssm_range must be a finite number of metres > 0, got {ctrl['ssm_range']}")
     check_background(src, ctrl, cams)
     topics = _section(src, "topics", "topics", data.get("topics", {}))
-    net = _network(src, data.get("network", {}))
+    net = network_section(src, data.get("network", {}))
     robot = _robot(src, data["robot"])
     return CellFile(src, cell["name"], cell["description"], robot, cams, dist, ctrl, topics, data, net)
-
-
-def node_names(cell: CellFile) -> list[str]:
-    """The names of a cell's nodes on Zenoh, in port order (node *k* listens on ``network.base_port + k``):
-    ``sim``, one per camera (the camera's name), ``distance``, ``controller``, ``monitor``, ``run``, ``view``."""
-    return ["sim", *[c.name for c in cell.cameras], "distance", "controller", "monitor", "run", "view"]
-
-
-def per_node_certificates(net: dict[str, Any]) -> bool:
-    """Whether a (read) ``[network]`` table gives each node its own certificate (``{node}`` in the paths)."""
-    return PER_NODE in net.get("tls_certificate", "")
-
-
-def node_tls_files(net: dict[str, Any], name: str) -> tuple[str, str]:
-    """Node ``name``'s certificate and private key paths from a (read) ``[network]`` table: the shared pair,
-    or with ``{node}`` in the paths the node's own."""
-    return net["tls_certificate"].replace(PER_NODE, name), net["tls_private_key"].replace(PER_NODE, name)
 
 
 def ssm_range(cell: CellFile) -> float | None:
@@ -374,36 +355,3 @@ def ssm_range(cell: CellFile) -> float | None:
     if not cell.controller["ssm"]:
         return None
     return max(float(cell.controller["ssm_range"]), float(cell.distance["rho"]))
-
-
-def _network(src: Path, table: Any) -> dict[str, Any]:
-    net = _section(src, "network", "network", table)
-    if not 0 <= net["domain"] <= 232:
-        raise CellError(f"{src}: network.domain must be a ROS domain id in [0, 232], got {net['domain']}")
-    if not 1024 <= net["base_port"] <= 65000 or net["base_port"] == 7447:
-        raise CellError(f"{src}: network.base_port must be in [1024, 65000] and not 7447, got {net['base_port']}")
-    for key in ("connect", "publishers"):
-        if not all(isinstance(x, str) and x for x in net[key]):
-            raise CellError(f"{src}: network.{key} must be an array of non-empty strings")
-    tls = [net[k] for k in ("tls_root_ca", "tls_certificate", "tls_private_key")]
-    if net["host"] not in ("127.0.0.1", "localhost", "::1") and not all(tls):
-        raise CellError(
-            f"{src}: network.host {net['host']!r} is not loopback: give tls_root_ca, tls_certificate and"
-            " tls_private_key (Zenoh TLS) to open a network endpoint"
-        )
-    per_node = [PER_NODE in net[k] for k in ("tls_certificate", "tls_private_key")]
-    if PER_NODE in net["tls_root_ca"] or per_node[0] != per_node[1]:
-        raise CellError(
-            f"{src}: network.tls_certificate and tls_private_key take {{node}} (one certificate per node)"
-            " both or neither, and tls_root_ca never"
-        )
-    for k in ("tls_root_ca", "tls_certificate", "tls_private_key"):
-        if net[k]:
-            path = (src.parent / net[k]).resolve()
-            if PER_NODE in net[k]:  # (each node's own file is checked when the node starts)
-                if PER_NODE not in str(path.parent) and not path.parent.is_dir():
-                    raise CellError(f"{src}: network.{k} '{net[k]}': no folder {path.parent}")
-            elif not path.is_file():
-                raise CellError(f"{src}: network.{k} '{net[k]}' is not a file (looked at {path})")
-            net[k] = str(path)
-    return net

@@ -34,7 +34,7 @@ def prepare_frame(msg, cam0, cc, model, q: np.ndarray) -> tuple[np.ndarray, np.n
     bytes than its size says, or a size that is not a scaled image of the camera's.
     """
     from depthguard.robot.selffilter import self_filter
-    from depthguard.runner.chain import carried_camera
+    from depthguard.runner.carried import carried_camera
 
     depth = ros2.image_to_depth(msg)
     cam = camera_at_size(cam0, depth.shape[1], depth.shape[0])
@@ -58,7 +58,8 @@ def run_camera_node(
     **kw,
 ) -> dict:
     """Run camera node ``name`` until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.runner.chain import check_camera_parents, load_cell_robot
+    from depthguard.runner.carried import check_camera_parents
+    from depthguard.runner.chain import load_cell_robot
 
     cc = {c.name: c for c in cell.cameras}.get(name)
     if cc is None:

@@ -113,7 +113,7 @@ def frame_set_cameras(cams0: list, depths: list, model, carried: list, q_cams: d
     """The cameras of one frame set in the world frame: each one at the size of its image, and each one that
     the robot carries (``carried``: ``(index, link)``) where its link was at the joint state of its frame
     (``q_cams[index]``); None when such a joint state is missing."""
-    from depthguard.runner.chain import carried_camera
+    from depthguard.runner.carried import carried_camera
 
     cams = [camera_at_size(c, d.shape[1], d.shape[0]) for c, d in zip(cams0, depths, strict=True)]
     for k, link in carried:
@@ -176,7 +176,8 @@ def run_distance_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the distance node until ``duration`` s or SIGTERM; returns counters."""
-    from depthguard.runner.chain import cell_control_points, check_camera_parents, check_chain_support, load_cell_robot
+    from depthguard.runner.carried import check_camera_parents
+    from depthguard.runner.chain import cell_control_points, check_chain_support, load_cell_robot
 
     check_chain_support(cell)
     stop = stop if stop is not None else StopFlag()

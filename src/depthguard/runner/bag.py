@@ -123,13 +123,48 @@ class BagSource:
     def _scan(self) -> None:
         cams: list[CellCamera] = list(self.cell.cameras)
         topics = self.cell.topics
+        seen, infos, sizes, tf_tree = self._index(cams)
+        name = self.path
+        if not seen.get(topics["joint_states"]):
+            raise ValueError(
+                f"{name}: no sensor_msgs/JointState on '{topics['joint_states']}' (cell topics.joint_states)"
+            )
+        self.cameras: list[Camera] = []
+        self.camera_parents: list[str] = []  # "world" or the robot link that carries the camera
+        self._maps: list[tuple[np.ndarray, np.ndarray] | None] = []
+        for c in cams:
+            if not seen.get(c.topic):
+                raise ValueError(f"{name}: no depth images on '{c.topic}' (camera '{c.name}' topic)")
+            info = infos.get(c.info_topic)
+            params = _camera_params(name, c, *sizes[c.topic], info)
+            parent = c.parent
+            if c.extrinsics == "tf":
+                pose = _pose_from_tf(tf_tree, c.frame_id, links=self.links)
+                if pose is None:
+                    raise ValueError(
+                        f"{name}: TF never connects 'world' to camera frame '{c.frame_id}' (topics"
+                        f" {topics['tf']}, {topics['tf_static']}); known frames: {sorted(tf_tree)}"
+                    )
+                parent, Rw, pw = pose
+                cam = c.build(**params).with_pose(Rw.T, -Rw.T @ pw)
+            else:
+                cam = c.build(**params)
+            self.cameras.append(cam)
+            self.camera_parents.append(parent)
+            self._maps.append(_undistortion(name, c, cam, info))
+        self.has_task = bool(seen.get(TASK_TOPIC))
+
+    def _index(self, cams: list[CellCamera]) -> tuple[dict, dict, dict, dict]:
+        """One pass over the bag's topics of interest: ``(messages per topic, first CameraInfo per topic,
+        first image size per topic, TF tree child -> (parent, R, t))``; sets :attr:`duration`."""
+        topics = self.cell.topics
         wanted = {c.topic for c in cams} | {c.info_topic for c in cams} | {topics["joint_states"], TASK_TOPIC}
         wanted |= {topics["tf"], topics["tf_static"]}
         seen: dict[str, int] = {}
         infos: dict[str, object] = {}
         sizes: dict[str, tuple[int, int]] = {}
         tf_tree: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
-        t0 = None
+        t0 = t = None
         for topic, _, t, msg in read_messages(self.path, topics=sorted(wanted)):
             t0 = t if t0 is None else t0
             seen[topic] = seen.get(topic, 0) + 1
@@ -146,65 +181,8 @@ class BagSource:
             elif any(topic == c.topic for c in cams) and topic not in sizes:
                 sizes[topic] = (int(msg.width), int(msg.height))
                 ros2.image_to_depth(msg)  # encoding check now: a clear error rather than mid-run
-        name = self.path
-        if not seen.get(topics["joint_states"]):
-            raise ValueError(
-                f"{name}: no sensor_msgs/JointState on '{topics['joint_states']}' (cell topics.joint_states)"
-            )
-        self.cameras: list[Camera] = []
-        self.camera_parents: list[str] = []  # "world" or the robot link that carries the camera
-        self._maps: list[tuple[np.ndarray, np.ndarray] | None] = []
-        for c in cams:
-            if not seen.get(c.topic):
-                raise ValueError(f"{name}: no depth images on '{c.topic}' (camera '{c.name}' topic)")
-            w, h = sizes[c.topic]
-            info = infos.get(c.info_topic)
-            params: dict = {}
-            if c.intrinsics == "camera_info" or (c.intrinsics == "device" and info is not None):
-                if info is None:
-                    raise ValueError(
-                        f"{name}: camera '{c.name}' takes its intrinsics from '{c.info_topic}', which is empty"
-                    )
-                if (int(info.width), int(info.height)) != (w, h):
-                    raise ValueError(
-                        f"{name}: CameraInfo on '{c.info_topic}' says {info.width}x{info.height} but the images on"
-                        f" '{c.topic}' are {w}x{h}"
-                    )
-                K = np.asarray(info.k, float)
-                params = dict(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
-            elif c.params.get("width") not in (None, w) or c.params.get("height") not in (None, h):
-                sx, sy = w / c.params["width"], h / c.params["height"]
-                if abs(sx - sy) > 1e-9:
-                    raise ValueError(
-                        f"{name}: camera '{c.name}' is {c.params['width']}x{c.params['height']} in the cell file but"
-                        f" the images on '{c.topic}' are {w}x{h} (not the same sensor at a reduced resolution)"
-                    )
-                p = c.params  # the same sensor at a reduced resolution: scale the intrinsics
-                params = dict(width=w, height=h, fx=p["fx"] * sx, fy=p["fy"] * sx, cx=p["cx"] * sx, cy=p["cy"] * sx)
-            parent = c.parent
-            if c.extrinsics == "tf":
-                pose = _pose_from_tf(tf_tree, c.frame_id, links=self.links)
-                if pose is None:
-                    raise ValueError(
-                        f"{name}: TF never connects 'world' to camera frame '{c.frame_id}' (topics"
-                        f" {topics['tf']}, {topics['tf_static']}); known frames: {sorted(tf_tree)}"
-                    )
-                parent, Rw, pw = pose
-                cam = c.build(**params).with_pose(Rw.T, -Rw.T @ pw)
-            else:
-                cam = c.build(**params)
-            self.cameras.append(cam)
-            self.camera_parents.append(parent)
-            dm = str(getattr(info, "distortion_model", "")) if info is not None else ""
-            D = np.asarray(getattr(info, "d", np.zeros(0)), float) if info is not None else np.zeros(0)
-            if info is not None and np.any(D != 0):
-                self._maps.append(undistort_map(cam, dm, D))
-            else:
-                if info is not None and dm not in ("", "plumb_bob", "rational_polynomial", "equidistant"):
-                    raise ValueError(f"{name}: CameraInfo on '{c.info_topic}': unsupported distortion_model {dm!r}")
-                self._maps.append(None)
         self.duration = 0.0 if t0 is None else float(t - t0)
-        self.has_task = bool(seen.get(TASK_TOPIC))
+        return seen, infos, sizes, tf_tree
 
     # ------------------------------------------------------------------ replay
     def _reorder(self, msg) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -272,3 +250,40 @@ class BagSource:
 
     def close(self) -> None:
         pass
+
+
+def _camera_params(name: str, c: CellCamera, w: int, h: int, info) -> dict:
+    """Intrinsics that override the cell file's for camera ``c`` whose images are ``w`` x ``h``: the
+    CameraInfo's (``intrinsics = "camera_info"``, or ``"device"`` with a CameraInfo), or the cell file's scaled
+    to a reduced resolution of the same sensor; ``{}`` when the cell file's apply as they are."""
+    if c.intrinsics == "camera_info" or (c.intrinsics == "device" and info is not None):
+        if info is None:
+            raise ValueError(f"{name}: camera '{c.name}' takes its intrinsics from '{c.info_topic}', which is empty")
+        if (int(info.width), int(info.height)) != (w, h):
+            raise ValueError(
+                f"{name}: CameraInfo on '{c.info_topic}' says {info.width}x{info.height} but the images on"
+                f" '{c.topic}' are {w}x{h}"
+            )
+        K = np.asarray(info.k, float)
+        return dict(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
+    if c.params.get("width") not in (None, w) or c.params.get("height") not in (None, h):
+        sx, sy = w / c.params["width"], h / c.params["height"]
+        if abs(sx - sy) > 1e-9:
+            raise ValueError(
+                f"{name}: camera '{c.name}' is {c.params['width']}x{c.params['height']} in the cell file but"
+                f" the images on '{c.topic}' are {w}x{h} (not the same sensor at a reduced resolution)"
+            )
+        p = c.params  # the same sensor at a reduced resolution: scale the intrinsics
+        return dict(width=w, height=h, fx=p["fx"] * sx, fy=p["fy"] * sx, cx=p["cx"] * sx, cy=p["cy"] * sx)
+    return {}
+
+
+def _undistortion(name: str, c: CellCamera, cam: Camera, info) -> tuple[np.ndarray, np.ndarray] | None:
+    """The undistortion map of camera ``c`` from its CameraInfo's distortion (None when there is none)."""
+    dm = str(getattr(info, "distortion_model", "")) if info is not None else ""
+    D = np.asarray(getattr(info, "d", np.zeros(0)), float) if info is not None else np.zeros(0)
+    if info is not None and np.any(D != 0):
+        return undistort_map(cam, dm, D)
+    if info is not None and dm not in ("", "plumb_bob", "rational_polynomial", "equidistant"):
+        raise ValueError(f"{name}: CameraInfo on '{c.info_topic}': unsupported distortion_model {dm!r}")
+    return None

@@ -93,7 +93,8 @@ def calibrate_cell(
     """Calibrate every camera of the cell; write the calibration file (default: ``<cell>.calibration.toml``)
     when every camera is accepted. Returns a JSON-ready summary; raises ``ValueError`` when refused."""
     from depthguard.robot.calibration import calibrate_extrinsics
-    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
+    from depthguard.runner.carried import refuse_carried_cameras
+    from depthguard.runner.chain import load_cell_robot
 
     cell = read_cell(cell_path)
     model = load_cell_robot(cell)
@@ -183,7 +184,8 @@ def _chain_effect(cell: CellFile, model, cam, frames, robot, link) -> tuple[int,
     """With the camera ``cam`` (its pose in ``link``'s frame when ``link``): the robot pixels of ``robot``
     (per frame (H, W) bool) that the self-filter leaves, summed over the frames, and the control points'
     distances per frame (F, N), m, capped at rho (nothing within rho: rho)."""
-    from depthguard.runner.chain import carried_camera, cell_control_points, cell_distance_stage
+    from depthguard.runner.carried import carried_camera
+    from depthguard.runner.chain import cell_control_points, cell_distance_stage
 
     points = cell_control_points(cell, model)
     rho = float(cell.distance["rho"])

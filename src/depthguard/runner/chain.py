@@ -24,6 +24,7 @@ from depthguard.robot.model import RobotModel, load_lwr4
 from depthguard.robot.selffilter import self_filter
 from depthguard.robot.shapes import Shape
 from depthguard.robot.spheres import shape_cover
+from depthguard.runner.carried import check_camera_parents, place_carried
 
 __all__ = [
     "Chain",
@@ -203,49 +204,6 @@ def _distance_stage(cell: CellFile, cameras: list[Camera], with_ssm_range: bool 
         raise CellError(f"{cell.path}: distance: {exc}") from None
 
 
-def carried_camera(local: Camera, model: RobotModel, q: np.ndarray, link: str) -> Camera:
-    """The world-frame camera of ``local`` (its pose ``P_C = R P_L + t`` in ``link``'s frame) at joint
-    positions ``q`` (n,): with the link's pose ``P_W = R_l P_L + p_l``, ``P_C = (R R_lᵀ) P_W + t - R R_lᵀ p_l``."""
-    R_l, p_l = model.frame_pose(q, link)
-    R = local.R @ R_l.T
-    return local.with_pose(R, local.t - R @ p_l)
-
-
-def place_carried(
-    cameras: list[Camera], carried: list[tuple[int, str]], model: RobotModel, q: np.ndarray
-) -> list[Camera]:
-    """``cameras`` with each carried one (``carried``: ``(index, link)``, its pose in the link's frame) placed
-    where its link is at joint positions ``q`` (:func:`carried_camera`); a new list."""
-    out = list(cameras)
-    for i, link in carried:
-        out[i] = carried_camera(cameras[i], model, q, link)
-    return out
-
-
-def check_camera_parents(cell: CellFile, model: RobotModel, parents: list[str] | None = None) -> list[tuple[int, str]]:
-    """``(index, link)`` of every camera carried by a robot link (``parents``: default the cell file's);
-    a parent that is neither ``"world"`` nor a frame of ``model`` raises :class:`CellError` naming the key."""
-    parents = list(parents) if parents is not None else [c.parent for c in cell.cameras]
-    carried = []
-    for i, link in enumerate(parents):
-        if link == "world":
-            continue
-        if not model.model.existFrame(link):
-            raise CellError(
-                f"{cell.path}: cameras[{i}].parent = {link!r} is not a link of the robot; links:"
-                f" {[f.name for f in model.model.frames]}"
-            )
-        carried.append((i, link))
-    return carried
-
-
-def refuse_carried_cameras(cell: CellFile, what: str, why: str) -> None:
-    """Refuse a camera carried by a robot link where ``what`` takes world cameras only, saying ``why``."""
-    carried = [f"cameras[{i}].parent = {c.parent!r}" for i, c in enumerate(cell.cameras) if c.parent != "world"]
-    if carried:
-        raise CellError(f"{cell.path}: {', '.join(carried)}: {what} takes cameras fixed in the world only ({why})")
-
-
 def check_chain_support(cell: CellFile) -> None:
     """Refuse what the chain (``depthguard run``, the nodes, the live view) cannot do yet, instead of
     running something else: ``distance.backend = "octree"`` (the scenarios and ``depthguard distance`` have
@@ -356,7 +314,7 @@ class Chain:
         return masks
 
     def _place_carried_cameras(self, q: np.ndarray) -> None:
-        """World pose of every camera carried by a link at joint positions ``q`` (:func:`carried_camera`)."""
+        """World pose of every camera carried by a link at joint positions ``q`` (:mod:`depthguard.runner.carried`)."""
         self.cameras[:] = place_carried(self.local_cameras, self._carried, self.model, q)  # (in place: shared)
         for i, _ in self._carried:
             self.health[i].camera = self.cameras[i]

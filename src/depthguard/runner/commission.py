@@ -216,7 +216,8 @@ def commission_cell(
     ``sim:SCENARIO``: its people-free cell, ``realsense``) over ``frames`` frame sets and write it to ``out``
     (default ``<cell>.background.npz``). Returns a JSON-ready summary; raises ``ValueError`` naming the problem."""
     from depthguard.runner import open_source
-    from depthguard.runner.chain import load_cell_robot, refuse_carried_cameras
+    from depthguard.runner.carried import refuse_carried_cameras
+    from depthguard.runner.chain import load_cell_robot
 
     t0 = time.perf_counter()
     frames = _check_options(frames, margin, noise_coeff)

@@ -137,7 +137,7 @@ def _stage_ms(log, stage) -> dict[str, float]:
 
 
 def _summary(log, task, cfg, stage) -> dict[str, Any]:
-    from depthguard.sim.scenarios import compute_metrics
+    from depthguard.sim.scenario_metrics import compute_metrics
 
     m = compute_metrics(log, task, cfg)
     m["stage_ms"] = _stage_ms(log, stage)

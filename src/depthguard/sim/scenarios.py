@@ -6,23 +6,7 @@ keyframed people. :func:`run_scenario` builds the cell, runs the three-rate loop
 (:mod:`depthguard.sim.loop`) and returns the metrics as one JSON-ready dict; with ``out_dir`` it also
 writes ``metrics.json``, the plots and ``recording.mcap`` there.
 
-Metrics (ground truth from ``mj_geomDistance``, never seen by the pipeline):
-
-* ``min_clearance`` (m), overall and per robot link (``min_clearance_per_link``);
-* ``collision_steps``: 1 ms physics steps with a true clearance <= 0;
-* ``time_below_margin_s``: time with a true clearance below 5 cm;
-* ``path_error`` (m): RMS distance of the end effector from the nominal task path
-  (the polyline through the waypoints; for a "hold" task the hold point); ``path_error_max``;
-* ``task_completion``: fraction of the task's waypoints reached (hold task: 1 if the end effector is
-  back within 3 cm at the end);
-* ``distance_hz_median`` / ``distance_hz_p99``: wall-clock rate of the distance stage, ``1 / t`` for the
-  median and the 99th-percentile call time ``t`` (control points + distances + repulsion);
-* ``control_ms_p99``: 99th-percentile wall time of one control cycle; frame-stage timings likewise;
-* ``max_over_report``, ``median_under_report``, ``time_at_zero_s``, ``declared_tolerance``: evaluated
-  against true distances per control point and distance-stage call (:mod:`depthguard.sim.accuracy`);
-* ``measured_bound``: on 24 sampled calls, the under-report split into what no camera measures and what
-  the distance stage adds (:func:`depthguard.sim.accuracy.measured_bound_metrics`,
-  :mod:`depthguard.sim.measured_bound`).
+Metrics: :mod:`depthguard.sim.scenario_metrics`.
 """
 
 from __future__ import annotations
@@ -35,14 +19,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from depthguard.sim.accuracy import accuracy_metrics
+from depthguard.sim.scenario_metrics import compute_metrics, ssm_keys
 from depthguard.sim.scenario_setup import build_scenario_cell, scenario_task, with_ssm_cameras
 
 __all__ = ["list_scenarios", "load_scenario", "run_scenario", "compute_metrics"]
-
-MARGIN = 0.05
 
 
 def _scenario_dir():
@@ -89,65 +69,6 @@ def _set_path(d: dict, dotted: str, value: Any) -> None:
     for k in keys[:-1]:
         d = d.setdefault(k, {})
     d[keys[-1]] = value
-
-
-def _path_distance(points: np.ndarray, path: np.ndarray) -> np.ndarray:
-    """Distance from each of (T, 3) points to the polyline (P, 3)."""
-    if len(path) == 1:
-        return np.linalg.norm(points - path[0], axis=1)
-    best = np.full(len(points), np.inf)
-    for a, b in zip(path[:-1], path[1:], strict=True):
-        ab = b - a
-        s = np.clip((points - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(points - (a + s[:, None] * ab), axis=1))
-    return best
-
-
-def compute_metrics(log, task, cfg) -> dict[str, Any]:
-    """Metrics of one run from its :class:`~depthguard.sim.loop.SimLog` (see the module docstring)."""
-    steps = np.asarray(log.step_true_min)
-    links = np.asarray(log.true_links)
-    ee = np.asarray(log.ee)
-    pe = _path_distance(ee, task.path())
-    if task.kind == "hold":
-        completion = 1.0 if pe[-1] < 0.03 else 0.0
-    else:
-        completion = min(task.reached, len(task.waypoints) if task.kind == "points" else task.reached) / (
-            len(task.waypoints)
-        )
-        completion = float(min(completion, 1.0))
-
-    def hz(ts: list[float], q: float) -> float:
-        return float(1.0 / np.percentile(ts, q)) if ts else 0.0
-
-    wd, wc, wf = log.wall_distance, log.wall_control, log.wall_frame
-    t_dist = np.asarray(log.t_distance)
-    out = {
-        "collision_steps": int(np.sum(steps <= 0.0)),
-        "min_clearance": float(np.min(steps)) if len(steps) else None,
-        "min_clearance_per_link": {n: float(v) for n, v in zip(log.links, links.min(axis=0), strict=True)},
-        "min_clearance_people_boxes": float(np.min(log.true_dynamic)) if log.true_dynamic else None,
-        "time_below_margin_s": float(np.sum(steps < MARGIN) * cfg.control_dt),
-        "path_error": float(np.sqrt(np.mean(pe**2))),
-        "path_error_max": float(np.max(pe)),
-        "task_completion": completion,
-        "waypoints_reached": int(task.reached),
-        "distance_hz_median": hz(wd, 50),
-        "distance_hz_p99": hz(wd, 99),
-        "distance_ms_median": float(np.median(wd) * 1e3) if wd else None,
-        "distance_stage_sim_hz": float(1.0 / np.median(np.diff(t_dist))) if len(t_dist) > 1 else 0.0,
-        "control_ms_median": float(np.median(wc) * 1e3),
-        "control_ms_p99": float(np.percentile(wc, 99) * 1e3),
-        "frame_ms_median": float(np.median(wf) * 1e3) if wf else None,
-        "frame_ms_p99": float(np.percentile(wf, 99) * 1e3) if wf else None,
-        "camera_ms_median": float(np.median(log.wall_camera) * 1e3) if log.wall_camera else None,
-        "frames": len(log.wall_frame),
-        "sim_seconds": cfg.duration,
-        "wall_seconds": round(log.wall_total, 2),
-        "collided_with": dict(log.nearest_obstacle),
-    }
-    out.update(accuracy_metrics(log, cfg.rho, cfg.distance_period))
-    return out
 
 
 def _run_one(
@@ -299,13 +220,7 @@ def run_scenario(
         ``path_error``, ``distance_hz_median`` and the rest of the metrics.
     """
 
-    sc = load_scenario(name)
-    if placement is not None:
-        from depthguard.sim.depthcam import PLACEMENTS
-
-        if placement not in PLACEMENTS:
-            raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {placement!r}")
-        sc = {**sc, "cameras": placement}
+    sc = _with_placement(load_scenario(name), placement)
     if out_dir is not None:  # check the output folder before the run, not after it
         from depthguard.io.files import prepare_out_dir
 
@@ -317,7 +232,32 @@ def run_scenario(
     )  # fmt: skip
     label = f"{sc['name']} ({'avoid' if avoidance else 'no avoid'})"
     cell, log, task, cfg = _run_one(sc, label=label, demo=demo, view=view, **run_kw)
-    result: dict[str, Any] = {
+    result = _result_header(sc, cell, log, quick, avoidance)
+    result.update(compute_metrics(log, task, cfg))
+    result.update(ssm_keys(log, cfg, ssm and avoidance))
+    runs = {"main": (log, task)}
+    if variants and avoidance:
+        result["variants"] = _run_variants(sc, run_kw, runs)
+    result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)
+    if out_dir is not None:
+        _write_outputs(Path(out_dir), sc, cell, log, runs, result)
+    return result
+
+
+def _with_placement(sc: dict, placement: str | None) -> dict:
+    """The scenario with another camera placement (:data:`depthguard.sim.depthcam.PLACEMENTS`; None: its own)."""
+    if placement is None:
+        return sc
+    from depthguard.sim.depthcam import PLACEMENTS
+
+    if placement not in PLACEMENTS:
+        raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {placement!r}")
+    return {**sc, "cameras": placement}
+
+
+def _result_header(sc: dict, cell, log, quick: bool, avoidance: bool) -> dict[str, Any]:
+    """The keys of :func:`run_scenario`'s result that describe the run rather than measure it."""
+    return {
         "scenario": sc["name"],
         "placement": sc.get("cameras"),
         "description": sc.get("description", ""),
@@ -329,15 +269,6 @@ def run_scenario(
         "parameters": sc.get("avoidance", {}),
         "people_max_hand_speed": {p.name: round(p.max_hand_speed(), 3) for p in cell.spec.people},
     }
-    result.update(compute_metrics(log, task, cfg))
-    result.update(_ssm_keys(log, cfg, ssm and avoidance))
-    runs = {"main": (log, task)}
-    if variants and avoidance:
-        result["variants"] = _run_variants(sc, run_kw, runs)
-    result["wall_seconds_total"] = round(time.perf_counter() - t0, 2)
-    if out_dir is not None:
-        _write_outputs(Path(out_dir), sc, cell, log, runs, result)
-    return result
 
 
 def _run_variants(sc: dict, run_kw: dict, runs: dict) -> dict[str, Any]:
@@ -353,7 +284,7 @@ def _run_variants(sc: dict, run_kw: dict, runs: dict) -> dict[str, Any]:
         if v.get("remove_boxes"):
             sv["boxes"] = []
         _, vlog, vtask, vcfg = _run_one(sv, label=f"{sc['name']} [{v['name']}]", **run_kw)
-        out[v["name"]] = {**compute_metrics(vlog, vtask, vcfg), **_ssm_keys(vlog, vcfg, run_kw["ssm"])}
+        out[v["name"]] = {**compute_metrics(vlog, vtask, vcfg), **ssm_keys(vlog, vcfg, run_kw["ssm"])}
         runs[v["name"]] = (vlog, vtask)
     return out
 
@@ -400,12 +331,3 @@ def _ssm_config(av: dict, backend: str = "depthspace"):
 
     rng = _ssm_range(av) if backend == "depthspace" else float(av.get("rho", 0.4))
     return SsmConfig(sensing_range=rng)
-
-
-def _ssm_keys(log, cfg, on: bool) -> dict[str, Any]:
-    """The SSM keys of a run (:func:`depthguard.sim.ssm_metrics.ssm_metrics`); ``{"ssm": False}`` when off."""
-    if not on or getattr(log, "ssm", None) is None:
-        return {"ssm": False}
-    from depthguard.sim.ssm_metrics import ssm_metrics
-
-    return ssm_metrics(log.ssm, cfg.control_dt, log.point_names)

@@ -14,7 +14,7 @@ only motion of the robot can cause contact.
   it stays stopped while the person stands within ``S_p`` and resumes after the person has left.
 * With ``--no-avoidance`` the robot keeps sweeping into the halted person: the scenario collides.
 
-The metrics are those of :func:`depthguard.sim.scenarios.compute_metrics` and
+The metrics are those of :func:`depthguard.sim.scenario_metrics.compute_metrics` and
 :func:`depthguard.sim.ssm_metrics.ssm_metrics` (``min_separation_margin``, ``time_reduced_s``,
 ``time_stopped_s``, ``resumed``, the SSM parameters with their sources).
 """
@@ -149,7 +149,8 @@ def run(name: str = "ssm-approach", quick: bool = False, avoidance: bool = True,
 
     ``options`` may hold ``duration`` (s, shortens the run; used by the tests), besides the CLI's keys.
     """
-    from depthguard.sim.scenarios import _run_one, compute_metrics
+    from depthguard.sim.scenario_metrics import compute_metrics
+    from depthguard.sim.scenarios import _run_one
     from depthguard.sim.ssm_metrics import plot_ssm, ssm_metrics, ssm_parameters
 
     sc = dict(SCENARIO, people=[])

@@ -239,7 +239,7 @@ class LiveView:
         placed (no usable joint state yet)."""
         if not self._carried:
             return self.cameras
-        from depthguard.runner.chain import place_carried
+        from depthguard.runner.carried import place_carried
 
         try:
             return place_carried(self.cameras, self._carried, self.model, np.asarray(q, float))
