@@ -1,26 +1,17 @@
-"""The ``[network]`` table of a cell file (nodes on Zenoh, ``docs/nodes.md``) and the nodes' names and TLS
-files (:mod:`depthguard.io.cellfile` reads the rest of the file and re-exports these names)."""
+"""The ``[network]`` table of a cell file (nodes on Zenoh, ``docs/nodes.md``) and the nodes' TLS files
+(:mod:`depthguard.io.cellfile` reads the rest of the file and re-exports these names)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from depthguard.io.cell_schema import CellError, _section
 
-if TYPE_CHECKING:
-    from depthguard.io.cellfile import CellFile
-
-__all__ = ["PER_NODE", "network_section", "node_names", "per_node_certificates", "node_tls_files"]
+__all__ = ["PER_NODE", "network_section", "per_node_certificates", "node_tls_files"]
 
 #: In ``network.tls_certificate`` and ``tls_private_key``: the node's name (one certificate per node).
 PER_NODE = "{node}"
-
-
-def node_names(cell: CellFile) -> list[str]:
-    """The names of a cell's nodes on Zenoh, in port order (node *k* listens on ``network.base_port + k``):
-    ``sim``, one per camera (the camera's name), ``distance``, ``controller``, ``monitor``, ``run``, ``view``."""
-    return ["sim", *[c.name for c in cell.cameras], "distance", "controller", "monitor", "run", "view"]
 
 
 def per_node_certificates(net: dict[str, Any]) -> bool:

@@ -65,7 +65,7 @@ from typing import Any
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.io.cell_network import PER_NODE, network_section, node_names, node_tls_files, per_node_certificates
+from depthguard.io.cell_network import PER_NODE, network_section, node_tls_files, per_node_certificates
 from depthguard.io.cell_schema import (
     _NUM,
     _TOP,
@@ -348,6 +348,12 @@ def read_cell(path: str | Path) -> CellFile:
     net = network_section(src, data.get("network", {}))
     robot = _robot(src, data["robot"])
     return CellFile(src, cell["name"], cell["description"], robot, cams, dist, ctrl, topics, data, net)
+
+
+def node_names(cell: CellFile) -> list[str]:
+    """The names of a cell's nodes on Zenoh, in port order (node *k* listens on ``network.base_port + k``):
+    ``sim``, one per camera (the camera's name), ``distance``, ``controller``, ``monitor``, ``run``, ``view``."""
+    return ["sim", *[c.name for c in cell.cameras], "distance", "controller", "monitor", "run", "view"]
 
 
 def ssm_range(cell: CellFile) -> float | None:
