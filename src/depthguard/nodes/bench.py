@@ -8,7 +8,8 @@ time stamps of the rmw_zenoh attachments (publication times, one clock) come fro
   published -> the distance node published the distances computed from it (transport between two
   processes, CDR decoding, fusion and queries);
 * ``distances_to_command``: distances published -> the controller node published the first joint command
-  that used them; ``frame_to_command``: both;
+  that used them; ``frame_to_command``: both; ``command_statuses``: the controller's status at those
+  commands (``OK`` when it moved the arm);
 * baseline: the distance stage's own compute time (fusion + queries) in the distance node, same run;
 * ``frame_to_distances_parts``: where the time goes, from the distance node's log: ``transport`` (frame set
   published -> its last message reaches the node's callback), ``wait`` (CDR decoding, pairing by stamp and
@@ -30,6 +31,7 @@ import json
 import os
 import random
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -43,6 +45,7 @@ from depthguard.bench.timing import machine_info
 __all__ = ["run_net_latency_benchmark"]
 
 _CELL = Path(__file__).resolve().parents[3] / "examples" / "cells" / "sim-hexagon.toml"
+_IMAGE = "sensor_msgs/msg/Image"
 
 
 def _stats(x: list[float]) -> dict[str, float | int | None]:
@@ -80,11 +83,36 @@ def _frames(quick: bool, cell, n_sets: int):
     return model.joint_names, out
 
 
+def _restamped(payload: bytes, t: float) -> bytes:
+    """A serialised message whose first field is a ``std_msgs/Header`` (an Image), with its stamp set to ``t``:
+    the stamp's ``sec`` (int32) and ``nanosec`` (uint32) follow the 4-byte CDR encapsulation header."""
+    ns = int(round(t * 1e9))
+    out = bytearray(payload)
+    out[4:12] = struct.pack("<iI" if payload[1] == 1 else ">iI", ns // 1_000_000_000, ns % 1_000_000_000)
+    return bytes(out)
+
+
+def _frame_set_cdr(cell, frames: list, masks: list) -> tuple[list[bytes], list[bytes]]:
+    """The serialised masks and depth images (32FC1) of one frame set, stamped 0 (:func:`_restamped`)."""
+    from depthguard.io import ros2
+
+    cams = cell.cameras
+    mask_cdr = [ros2.serialize(ros2.mask_msg(0.0, c.name, m), _IMAGE) for c, m in zip(cams, masks, strict=True)]
+    depth_cdr = [
+        ros2.serialize(ros2.image_msg(0.0, c.name, d, "32FC1"), _IMAGE) for c, d in zip(cams, frames, strict=True)
+    ]
+    return mask_cdr, depth_cdr
+
+
 def _publish(cell, names, sets, duration: float, stop_when) -> None:
-    """Publish the prepared frames (as the camera nodes do) at the cameras' rate and joint states at 500 Hz."""
+    """Publish the prepared frames (as the camera nodes do) at the cameras' rate and joint states at 500 Hz.
+
+    The images are serialised once per frame set and only restamped when published, so that this loop never
+    holds the joint states back by more than the 5 ms joint timeout of the controller (serialising four
+    640x480 images per frame in this loop did: the controller then stopped on stale joint states at every
+    frame and never reached ``OK``)."""
     from depthguard.io import ros2
     from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
-    from depthguard.io.ros2 import mask_msg
     from depthguard.nodes.common import Topics, open_node
 
     top = Topics.of(cell)
@@ -92,20 +120,22 @@ def _publish(cell, names, sets, duration: float, stop_when) -> None:
     pd = {c.name: node.publisher(top.depth[c.name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA) for c in cell.cameras}
     pm = {c.name: node.publisher(top.mask[c.name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA) for c in cell.cameras}
     pj = node.publisher(top.joint_states, "sensor_msgs/msg/JointState")
+    cdr = [_frame_set_cdr(cell, frames, masks) for _, frames, masks in sets]
     period = 1.0 / float(cell.cameras[0].rate)
     t0 = time.time()
     k, next_frame = 0, t0 + 1.0
     try:
         while time.time() - t0 < duration and not stop_when():
-            q, frames, masks = sets[k % len(sets)]
+            q = sets[k % len(sets)][0]
             now = time.time()
             pj.publish(ros2.joint_state_msg(now, names, q, np.zeros_like(q)))
             if now >= next_frame:
                 next_frame += period
-                for c, m in zip(cell.cameras, masks, strict=True):
-                    pm[c.name].publish(mask_msg(now, c.name, m))
-                for c, d in zip(cell.cameras, frames, strict=True):
-                    pd[c.name].publish(ros2.image_msg(now, c.name, d, "32FC1"))
+                mask_cdr, depth_cdr = cdr[k % len(sets)]
+                for c, m in zip(cell.cameras, mask_cdr, strict=True):
+                    pm[c.name].put_cdr(_restamped(m, now))
+                for c, d in zip(cell.cameras, depth_cdr, strict=True):
+                    pd[c.name].put_cdr(_restamped(d, now))
                 k += 1
             time.sleep(0.002)
     finally:
@@ -175,6 +205,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
         "frame_to_distances": _stats([r["pub"] - r["frame_pub"] for r in dist]),
         "distances_to_command": _stats([r["pub"] - r["dist_pub"] for r in cmds]),
         "frame_to_command": _stats(_chain(dist, cmds)),
+        "command_statuses": _count(c.get("status") for c in cmds),
         "baseline_distance_compute": _stats([r["compute"] for r in dist]),
         "frame_to_distances_parts": {
             "transport": _stats([r["recv"] - r["frame_pub"] for r in dist]),
@@ -227,6 +258,14 @@ def _shm_fraction(log: list[dict]) -> float | None:
     got = [v for k, v in summary[-1]["shared_memory_samples"].items() if "joint" not in k]
     n = sum(v[1] for v in got)
     return sum(v[0] for v in got) / n if n else None
+
+
+def _count(names) -> dict[str, int]:
+    """How often each controller status came with the first command after new distances."""
+    out: dict[str, int] = {}
+    for n in names:
+        out[str(n)] = out.get(str(n), 0) + 1
+    return out
 
 
 def _chain(dist: list[dict], cmds: list[dict]) -> list[float]:

@@ -134,7 +134,7 @@ def run_controller_node(
             statuses[name] = statuses.get(name, 0) + 1
             if s["dpub"] is not None and s["dpub"] != last_dpub:
                 last_dpub = s["dpub"]
-                jl.write(ev="command", dist_pub=last_dpub, pub=p)
+                jl.write(ev="command", dist_pub=last_dpub, pub=p, status=name)
             if cycles % 10 == 0 or name != last_status:
                 pub_st.publish(ros2.status_msg(t, name, out.scale))
                 jl.write(ev="status", t=t, status=name, qd_max=float(np.max(np.abs(out.qdot_cmd))))
