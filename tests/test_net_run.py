@@ -380,3 +380,41 @@ def test_a_node_whose_set_up_fails_exits_instead_of_hanging(tmp_path):
     res = subprocess.run([sys.executable, "-c", _FAILING_SETUP, str(cell)], env=env, capture_output=True,
                          text=True, timeout=60)  # fmt: skip
     assert res.returncode == 3 and "subscription refused" in res.stdout, res.stderr[-1500:]
+
+
+@pytest.mark.parametrize("bad", [0, 100, -3, True, 1.5, "5"])
+def test_rt_priority_outside_1_to_99_is_refused_naming_the_option(bad):
+    from depthguard.nodes.common import realtime_scheduling
+
+    with pytest.raises(ValueError, match="--rt-priority"):
+        realtime_scheduling(bad)
+
+
+def test_a_refused_rt_priority_leaves_the_default_policy_and_says_why(monkeypatch):
+    from depthguard.nodes import common
+
+    def refuse(pid, policy, param):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    assert common.realtime_scheduling(None) == "SCHED_OTHER"
+    said = common.realtime_scheduling(20)
+    assert said.startswith("SCHED_OTHER") and "SCHED_FIFO 20 refused" in said and "not permitted" in said
+
+
+def test_node_rt_priority_reports_what_the_node_got(tmp_path):
+    """A real node process with --rt-priority: its summary says SCHED_FIFO at that priority where the
+    system grants it, else the default policy and why, with one line on stderr."""
+    cell = _cell(tmp_path, f"base_port = {random.randint(36001, 40000)}\nconnect = []\n")
+    cmd = [sys.executable, "-m", "depthguard.cli", "node", "monitor", "--cell", str(cell), "--duration", "0.5"]
+    r = subprocess.run([*cmd, "--rt-priority", "7"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    got = json.loads(r.stdout.strip().splitlines()[-1])["scheduling"]
+    if got.startswith("SCHED_FIFO"):
+        assert got == "SCHED_FIFO 7" and "--rt-priority" not in r.stderr
+    else:
+        assert "SCHED_FIFO 7 refused" in got and "--rt-priority 7" in r.stderr
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert json.loads(r.stdout.strip().splitlines()[-1])["scheduling"] == "SCHED_OTHER"

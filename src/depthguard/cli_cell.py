@@ -97,6 +97,7 @@ def _cmd_node(args: argparse.Namespace) -> int:
         domain=args.zenoh_domain,
         connect=args.zenoh_connect,
         watchdog=args.watchdog,
+        rt_priority=args.rt_priority,
     )
     print(json.dumps({"node": args.name, **out}, default=float))
     return 0
@@ -185,6 +186,10 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
     p.add_argument("--log", default=None, metavar="FILE", help="JSON-lines event log (timings)")
     p.add_argument("--watchdog", type=float, default=0.05, metavar="S", help="sim node: driver watchdog timeout")
+    p.add_argument(
+        "--rt-priority", type=int, default=None, metavar="N",
+        help="run the node's threads with SCHED_FIFO priority N (1-99) where allowed (the controller: docs/nodes.md)",
+    )  # fmt: skip
     _zenoh_flags(p)
     p.set_defaults(func=_cmd_node)
 

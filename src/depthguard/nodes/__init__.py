@@ -13,6 +13,7 @@ The wire format is rmw_zenoh's (:mod:`depthguard.io.rmw_zenoh`); topics and rate
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 from depthguard.io.cellfile import read_cell
@@ -31,13 +32,24 @@ def run_node(
     domain: int | None = None,
     connect: list[str] | None = None,
     watchdog: float = 0.05,
+    rt_priority: int | None = None,
 ) -> dict[str, Any]:
-    """Run node ``name`` of the cell file until ``duration`` s (None: until SIGTERM / Ctrl-C)."""
+    """Run node ``name`` of the cell file until ``duration`` s (None: until SIGTERM / Ctrl-C).
+
+    ``rt_priority``: run the node's threads with ``SCHED_FIFO`` at this priority (1-99) where the system
+    allows it (:func:`~depthguard.nodes.common.realtime_scheduling`); the summary's ``scheduling`` says what
+    the node got."""
+    from depthguard.nodes.common import realtime_scheduling
+
+    scheduling = realtime_scheduling(rt_priority)
+    if rt_priority is not None and not scheduling.startswith("SCHED_FIFO"):
+        print(f"depthguard node {name}: --rt-priority {rt_priority}: {scheduling}", file=sys.stderr)
     try:
-        return _run_node(name, cell_path, source, quick, duration, log, domain, connect, watchdog)
+        out = _run_node(name, cell_path, source, quick, duration, log, domain, connect, watchdog)
     except BaseException:
         _close_sessions()  # (a node that failed in its set-up leaves no Zenoh session keeping the process)
         raise
+    return {**out, "scheduling": scheduling}
 
 
 def _close_sessions() -> None:

@@ -22,7 +22,10 @@ time stamps of the rmw_zenoh attachments (publication times, one clock) come fro
   shared memory (Zenoh puts messages over 3 KB there by default between processes of one host).
 
 The frames come from this process (rendered once from the simulated cell, self-filtered, then published at
-the cameras' rate with fresh stamps), so that the simulator's rendering does not load the machine.
+the cameras' rate with fresh stamps), so that the simulator's rendering does not load the machine. As
+``docs/nodes.md`` advises, the controller node runs with ``SCHED_FIFO`` (``--rt-priority 80``) and this
+process's publishing loop, the robot driver's stand-in, with ``SCHED_FIFO`` 70, where the system allows it;
+``parameters.scheduling`` says what each got.
 """
 
 from __future__ import annotations
@@ -46,6 +49,10 @@ __all__ = ["run_net_latency_benchmark"]
 
 _CELL = Path(__file__).resolve().parents[3] / "examples" / "cells" / "sim-hexagon.toml"
 _IMAGE = "sensor_msgs/msg/Image"
+# SCHED_FIFO priorities where the system allows them: the controller above the robot driver (here: this
+# process, which publishes the joint states), both above the distance node (docs/nodes.md, "Latency and CPUs")
+_RT_CONTROLLER = 80
+_RT_DRIVER = 70
 
 
 def _stats(x: list[float]) -> dict[str, float | int | None]:
@@ -165,7 +172,9 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     nodes = ["distance", "controller"]
     for n in nodes:
         cmd = [sys.executable, "-m", "depthguard.cli", "node", n, "--cell", str(cpath), "--log", str(tmp / f"{n}.log")]
-        procs.append(subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        rt = ["--rt-priority", str(_RT_CONTROLLER)] if n == "controller" else []  # (as docs/nodes.md advises)
+        with open(tmp / f"{n}.out", "wb") as out:
+            procs.append(subprocess.Popen(cmd + rt, env=env, stdout=out, stderr=subprocess.DEVNULL))
     marks: dict[str, float] = {}
 
     def warmed() -> bool:  # (the controller node logs its warm-up, which compiles its kernels on a new machine)
@@ -174,6 +183,9 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
                 marks["t"] = time.time()
         return "t" in marks and time.time() - marks["t"] > duration
 
+    from depthguard.nodes.common import realtime_scheduling
+
+    scheduling = {"frames and joint states (this process)": realtime_scheduling(_RT_DRIVER)}
     try:
         _publish(cellf, names, sets, 180.0 + duration, warmed)
     finally:
@@ -201,6 +213,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             + (", access control" if per_node_certificates(cellf.network) else ""),
             "measured_s": duration,
             "load_1min": os.getloadavg()[0],
+            "scheduling": {**scheduling, "controller": _summary(tmp / "controller.out").get("scheduling")},
         },
         "frame_to_distances": _stats([r["pub"] - r["frame_pub"] for r in dist]),
         "distances_to_command": _stats([r["pub"] - r["dist_pub"] for r in cmds]),
@@ -258,6 +271,15 @@ def _shm_fraction(log: list[dict]) -> float | None:
     got = [v for k, v in summary[-1]["shared_memory_samples"].items() if "joint" not in k]
     n = sum(v[1] for v in got)
     return sum(v[0] for v in got) / n if n else None
+
+
+def _summary(path: Path) -> dict:
+    """A node's JSON summary (the last line it printed), or {} when there is none."""
+    lines = path.read_text().splitlines() if path.exists() else []
+    try:
+        return json.loads(lines[-1]) if lines else {}
+    except json.JSONDecodeError:
+        return {}
 
 
 def _count(names) -> dict[str, int]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import threading
 import time
@@ -220,3 +221,23 @@ class JsonLog:
 def now_s() -> float:
     """Wall-clock time, s since the Unix epoch: the clock of every stamp between nodes."""
     return time.time()
+
+
+def realtime_scheduling(priority: int | None) -> str:
+    """Ask for ``SCHED_FIFO`` at ``priority`` (1-99) for the calling thread and the threads it starts later
+    (call it before the Zenoh session opens); returns what the thread runs with, for the node's summary.
+
+    A refusal (no ``CAP_SYS_NICE``, a container, not Linux) is not an error: the node runs with the default
+    policy and the returned text says why (``docs/nodes.md``, "Latency and CPUs")."""
+    if priority is None:
+        return "SCHED_OTHER"
+    if isinstance(priority, bool) or not isinstance(priority, int) or not 1 <= priority <= 99:
+        raise ValueError(f"--rt-priority must be an integer in [1, 99] (SCHED_FIFO), got {priority!r}")
+    if not hasattr(os, "sched_setscheduler"):
+        return f"SCHED_OTHER (SCHED_FIFO {priority} refused: not available on this system)"
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        return f"SCHED_OTHER (SCHED_FIFO {priority} refused: {exc.strerror or exc})"
+    got = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority  # (what the thread runs with now)
+    return f"SCHED_FIFO {got[1]}" if got[0] == os.SCHED_FIFO else f"policy {got[0]} (SCHED_FIFO {priority} not taken)"
