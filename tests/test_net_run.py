@@ -418,3 +418,31 @@ def test_node_rt_priority_reports_what_the_node_got(tmp_path):
         assert "SCHED_FIFO 7 refused" in got and "--rt-priority 7" in r.stderr
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert json.loads(r.stdout.strip().splitlines()[-1])["scheduling"] == "SCHED_OTHER"
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="needs POSIX scheduling policies")
+def test_realtime_block_gives_the_threads_policy_back():
+    """On its own thread (the policy is per thread): inside the block SCHED_FIFO where granted, afterwards the
+    policy and priority from before, also when the block raises."""
+    from depthguard.nodes.common import realtime
+
+    seen = {}
+
+    def body():
+        seen["before"] = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+        with realtime(9) as got:
+            seen["got"] = got
+            seen["inside"] = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+        seen["after"] = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+        try:
+            with realtime(9):
+                raise KeyError("x")
+        except KeyError:
+            seen["after_raise"] = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+    t = threading.Thread(target=body)
+    t.start()
+    t.join(10)
+    if seen["got"] == "SCHED_FIFO 9":
+        assert seen["inside"] == (os.SCHED_FIFO, 9)
+    assert seen["after"] == seen["before"] == seen["after_raise"]

@@ -183,11 +183,12 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
                 marks["t"] = time.time()
         return "t" in marks and time.time() - marks["t"] > duration
 
-    from depthguard.nodes.common import realtime_scheduling
+    from depthguard.nodes.common import realtime
 
-    scheduling = {"frames and joint states (this process)": realtime_scheduling(_RT_DRIVER)}
     try:
-        _publish(cellf, names, sets, 180.0 + duration, warmed)
+        with realtime(_RT_DRIVER) as got:  # (this thread's policy comes back afterwards)
+            scheduling = {"frames and joint states (this process)": got}
+            _publish(cellf, names, sets, 180.0 + duration, warmed)
     finally:
         for p in procs:
             p.send_signal(signal.SIGTERM)

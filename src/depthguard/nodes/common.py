@@ -8,12 +8,14 @@ DepthGuard's nodes talk peer to peer on loopback without a router and a ROS 2 sy
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
 import signal
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -241,3 +243,18 @@ def realtime_scheduling(priority: int | None) -> str:
         return f"SCHED_OTHER (SCHED_FIFO {priority} refused: {exc.strerror or exc})"
     got = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority  # (what the thread runs with now)
     return f"SCHED_FIFO {got[1]}" if got[0] == os.SCHED_FIFO else f"policy {got[0]} (SCHED_FIFO {priority} not taken)"
+
+
+@contextlib.contextmanager
+def realtime(priority: int | None) -> Iterator[str]:
+    """:func:`realtime_scheduling` for the length of a ``with`` block (yields its text); the calling thread's
+    previous policy and priority come back afterwards."""
+    before = (os.sched_getscheduler(0), os.sched_getparam(0)) if hasattr(os, "sched_getscheduler") else None
+    try:
+        yield realtime_scheduling(priority)
+    finally:
+        if before is not None:
+            try:
+                os.sched_setscheduler(0, *before)
+            except OSError:
+                pass
