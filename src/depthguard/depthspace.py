@@ -40,7 +40,7 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.kernels.holefill import column_window_min, use_column_minima, window_min_at
+from depthguard.kernels.holefill import column_minima_if_dense, window_min_at
 from depthguard.kernels.pixels import query_many, query_many_parallel
 from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
@@ -148,8 +148,8 @@ def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, ou
 
     A missing non-robot pixel takes the minimum valid non-robot depth of its (2 r + 1)^2 window (or, with
     none there, the near limit: unknown). One pass writes the valid depths (inf elsewhere); then each hole's
-    window minimum (:mod:`depthguard.kernels.holefill`: sparse holes read their windows, dense ones one
-    column of the rows' window minima)."""
+    window minimum (:mod:`depthguard.kernels.holefill`: sparse holes read their windows, dense ones the
+    column minima of their row)."""
     H, W = depth.shape
     r = fill_radius
     filled = 0
@@ -165,10 +165,7 @@ def _fill_holes(depth, missing, robot, fill_radius, near_limit, conservative, ou
             holes += ms and not rb
     if not conservative or holes == 0:
         return filled, unknown
-    dense = use_column_minima(holes, H, W, r)
-    colmin = np.empty((H, W) if dense else (1, 1), np.float32)
-    if dense:
-        column_window_min(val, r, colmin, np.empty((H, W), np.float32), np.empty((H, W), np.float32))
+    dense, colmin = column_minima_if_dense(val, holes, r)
     for v in range(H):
         for u in range(W):
             if robot[v, u] or not missing[v, u]:

@@ -39,9 +39,6 @@ def update_principal(fusion: DepthGridFusion, depth, mask, conservative: bool) -
     d = _image(cam, depth, "depth", np.float32)
     has_mask = mask is not None
     robot = _image(cam, mask, "mask", np.bool_) if has_mask else np.zeros((1, 1), dtype=np.bool_)
-    if fusion._fill_scratch.shape[1:] != d.shape:
-        fusion._fill_scratch = np.empty((3, *d.shape), np.float32)
-        fusion._hole_at = np.empty(d.size, np.int32)
     prepare_principal(
         d,
         robot,

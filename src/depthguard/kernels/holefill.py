@@ -8,7 +8,8 @@ over blocks of ``2 r + 1`` rows, then one comparison per pixel), whatever ``r``,
 each hole then reads the ``2 r + 1`` column minima of its row. Sparse holes read their windows directly.
 
 At 640x480 with 5 % holes and r = 4 (the ``ral-hexagon`` principal frame) the direct reads took 1.7 ms and
-this 0.4 ms (BENCHMARKS.md, "Frame stage: separable hole filling").
+the whole preparation of the frame went from 2.0 to 0.6 ms (BENCHMARKS.md, stop 43, "Frame stage: separable
+hole filling, ...").
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["column_window_min", "window_min_at", "use_column_minima"]
+__all__ = ["column_window_min", "column_minima_if_dense", "window_min_at", "use_column_minima"]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -76,3 +77,15 @@ def use_column_minima(holes, H, W, r):
     """Whether the column minima (three vectorised passes over the image) cost less than reading each hole's
     window (measured: a pass costs about a tenth of a read per pixel)."""
     return holes * (2 * r + 1) * (2 * r + 1) > H * W // 3
+
+
+@nb.njit(cache=True, nogil=True)
+def column_minima_if_dense(val, holes, r):
+    """``(dense, colmin)`` for :func:`window_min_at` with ``holes`` holes in (H, W) ``val``: the column minima
+    in fresh arrays when :func:`use_column_minima`, else a (1, 1) placeholder."""
+    H, W = val.shape
+    dense = use_column_minima(holes, H, W, r)
+    colmin = np.empty((H, W) if dense else (1, 1), np.float32)
+    if dense:
+        column_window_min(val, r, colmin, np.empty((H, W), np.float32), np.empty((H, W), np.float32))
+    return dense, colmin

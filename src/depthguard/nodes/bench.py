@@ -30,6 +30,7 @@ process's publishing loop, the robot driver's stand-in, with ``SCHED_FIFO`` 70, 
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import random
@@ -166,15 +167,8 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     cellf = read_cell(cpath)
     names, sets = _frames(quick, cellf, 6)
     in_process = _in_process_compute(cellf, sets, n=40 if quick else 90)
-    env = {**os.environ}
-    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[2]), env.get("PYTHONPATH", "")])
-    procs = []
     nodes = ["distance", "controller"]
-    for n in nodes:
-        cmd = [sys.executable, "-m", "depthguard.cli", "node", n, "--cell", str(cpath), "--log", str(tmp / f"{n}.log")]
-        rt = ["--rt-priority", str(_RT_CONTROLLER)] if n == "controller" else []  # (as docs/nodes.md advises)
-        with open(tmp / f"{n}.out", "wb") as out:
-            procs.append(subprocess.Popen(cmd + rt, env=env, stdout=out, stderr=subprocess.DEVNULL))
+    procs = [_start_node(n, cpath, tmp) for n in nodes]
     marks: dict[str, float] = {}
 
     def warmed() -> bool:  # (the controller node logs its warm-up, which compiles its kernels on a new machine)
@@ -190,12 +184,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             scheduling = {"frames and joint states (this process)": got}
             _publish(cellf, names, sets, 180.0 + duration, warmed)
     finally:
-        for p in procs:
-            p.send_signal(signal.SIGTERM)
-            try:
-                p.wait(15)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        _stop(procs)
     t_meas = marks.get("t", np.inf)
     dist = [r for r in _read(tmp / "distance.log") if r.get("ev") == "distances" and r["pub"] >= t_meas]
     cmds = [r for r in _read(tmp / "controller.log") if r.get("ev") == "command" and r["pub"] >= t_meas]
@@ -219,7 +208,7 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
         "frame_to_distances": _stats([r["pub"] - r["frame_pub"] for r in dist]),
         "distances_to_command": _stats([r["pub"] - r["dist_pub"] for r in cmds]),
         "frame_to_command": _stats(_chain(dist, cmds)),
-        "command_statuses": _count(c.get("status") for c in cmds),
+        "command_statuses": dict(collections.Counter(str(c.get("status")) for c in cmds)),
         "baseline_distance_compute": _stats([r["compute"] for r in dist]),
         "frame_to_distances_parts": {
             "transport": _stats([r["recv"] - r["frame_pub"] for r in dist]),
@@ -235,6 +224,37 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     p = out["frame_to_distances"]["median_ms"]
     out["ratio_frame_to_distances_vs_compute"] = (p / b) if (p and b) else None
     return out
+
+
+def _start_node(name: str, cell_path: Path, tmp: Path) -> subprocess.Popen:
+    """``depthguard node NAME`` as a process of this checkout, its event log and summary in ``tmp``; the
+    controller with ``--rt-priority`` (as docs/nodes.md advises)."""
+    env = {**os.environ}
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[2]), env.get("PYTHONPATH", "")])
+    cmd = [
+        sys.executable,
+        "-m",
+        "depthguard.cli",
+        "node",
+        name,
+        "--cell",
+        str(cell_path),
+        "--log",
+        str(tmp / f"{name}.log"),
+    ]
+    rt = ["--rt-priority", str(_RT_CONTROLLER)] if name == "controller" else []
+    with open(tmp / f"{name}.out", "wb") as out:
+        return subprocess.Popen(cmd + rt, env=env, stdout=out, stderr=subprocess.DEVNULL)
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    """SIGTERM each node process (they print their summary), then kill what has not ended after 15 s."""
+    for p in procs:
+        p.send_signal(signal.SIGTERM)
+        try:
+            p.wait(15)
+        except subprocess.TimeoutExpired:
+            p.kill()
 
 
 def _in_process_compute(cell, sets, n: int) -> dict:
@@ -281,14 +301,6 @@ def _summary(path: Path) -> dict:
         return json.loads(lines[-1]) if lines else {}
     except json.JSONDecodeError:
         return {}
-
-
-def _count(names) -> dict[str, int]:
-    """How often each controller status came with the first command after new distances."""
-    out: dict[str, int] = {}
-    for n in names:
-        out[str(n)] = out.get(str(n), 0) + 1
-    return out
 
 
 def _chain(dist: list[dict], cmds: list[dict]) -> list[float]:

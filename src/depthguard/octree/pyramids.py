@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from depthguard.kernels.holefill import column_window_min, use_column_minima, window_min_at
+from depthguard.kernels.holefill import column_minima_if_dense, window_min_at
 
 __all__ = ["min_pyramid", "min_negmax_pyramids", "camera_pyramids", "max_pyramid", "any_le", "mask_pyramid"]
 
@@ -99,10 +99,7 @@ def _fill_holes(lo, robot, nh, r, near):
             if img[v, u] == inf and not robot[v, u]:  # inf: missing or robot
                 holes[h] = v * W + u
                 h += 1
-    dense = use_column_minima(nh, H, W, r)
-    colmin = np.empty((H, W) if dense else (1, 1), np.float32)
-    if dense:
-        column_window_min(img, r, colmin, np.empty((H, W), np.float32), np.empty((H, W), np.float32))
+    dense, colmin = column_minima_if_dense(img, nh, r)
     fill = np.empty(nh, np.float32)
     for h in range(nh):
         fill[h] = window_min_at(img, colmin, dense, holes[h] // W, holes[h] % W, r)
