@@ -309,7 +309,7 @@ def test_replayed_and_reordered_distances_do_not_keep_the_arm_moving(system):
 
 
 def test_slow_distance_node_works_on_the_newest_frames(system):
-    """A slow consumer: the distance node runs 0.1 s in every 0.5 s (SIGSTOP / SIGCONT) for 4 s, far slower
+    """A slow consumer: the distance node runs 0.1 s in every 0.7 s (SIGSTOP / SIGCONT) for 4 s, far slower
     than the frames come. The controller stops the arm on stale distances and keeps running; the node builds
     no backlog: once it runs freely again its results are about one frame set old, not the queued frames of
     the slow phase; and the controller resumes through its latch."""
@@ -320,7 +320,7 @@ def test_slow_distance_node_works_on_the_newest_frames(system):
     try:
         while time.time() - t_slow < 4.0:
             os.kill(pid, signal.SIGSTOP)
-            time.sleep(0.4)
+            time.sleep(0.6)  # (twice the distance timeout: the results of the short runs are stale)
             os.kill(pid, signal.SIGCONT)
             time.sleep(0.1)
     finally:

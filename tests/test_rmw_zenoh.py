@@ -23,6 +23,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from depthguard.io import rmw_zenoh as rz
+from depthguard.io import ros2
 
 STRING_KEY = (
     "0/chatter/std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
@@ -186,6 +187,51 @@ def test_subscription_drops_duplicates_reordered_and_unlisted():
         time.sleep(0.5)
         assert -1 not in seen and sub2.dropped == {"publisher not allowed": 1}
         assert sub2.rejected_publishers == {"friend"}
+    finally:
+        tx.close()
+        rx.close()
+
+
+def test_a_pull_subscription_waits_for_drain_keeps_the_newest_and_filters_alike():
+    """``pull``: nothing runs until :meth:`drain`, which runs the callback in the caller's thread on the newest
+    ``pull`` samples, oldest first, through the same filter (a duplicate and a reordered stamp dropped)."""
+    pytest.importorskip("zenoh")
+    import threading
+
+    from depthguard.io.zenoh_transport import ZenohNode
+
+    pa, pb = _ports(2)
+    rx = ZenohNode("rx", domain=12, listen=[f"tcp/127.0.0.1:{pa}"], connect=[f"tcp/127.0.0.1:{pb}"])
+    tx = ZenohNode("tx", domain=12, listen=[f"tcp/127.0.0.1:{pb}"], connect=[f"tcp/127.0.0.1:{pa}"])
+    try:
+        seen, threads = [], set()
+
+        def on_js(m, a, t):
+            seen.append(ros2.to_seconds(m.header.stamp))
+            threads.add(threading.get_ident())
+
+        sub = rx.subscribe("/js", "sensor_msgs/msg/JointState", on_js, pull=5)
+        pub = tx.publisher("/js", "sensor_msgs/msg/JointState")
+        time.sleep(1.5)
+        cdr = {
+            t: ros2.serialize(ros2.joint_state_msg(t, ["a"], [0.0]), "sensor_msgs/msg/JointState") for t in range(1, 9)
+        }
+        pub.put_cdr(cdr[1])
+        pub.put_cdr(cdr[2])
+        time.sleep(0.5)
+        assert seen == []  # (waiting in the ring)
+        assert sub.drain() == 2 and seen == [1.0, 2.0] and threads == {threading.get_ident()}
+        assert sub.drain() == 0
+        for t in (3, 4, 5, 6, 7):
+            pub.put_cdr(cdr[t])
+        pub.put_cdr(cdr[7], seq=pub.seq)  # a duplicate sequence number
+        pub.put_cdr(cdr[6])  # a reordered stamp
+        time.sleep(0.5)
+        assert sub.drain() == 5  # the ring's five newest: 5, 6, 7, the duplicate, the reordered one
+        assert seen == [1.0, 2.0, 5.0, 6.0, 7.0]
+        assert sub.dropped == {"duplicate or reordered sequence number": 1, "stale or reordered stamp": 1}
+        plain = rx.subscribe("/js3", "sensor_msgs/msg/JointState", on_js)
+        assert plain.drain() == 0  # (a callback subscription has nothing to drain)
     finally:
         tx.close()
         rx.close()

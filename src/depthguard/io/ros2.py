@@ -94,23 +94,41 @@ def joints_in_order(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray
     out: a ros2_control ``joint_state_broadcaster`` orders its joints by its own configuration, not by the
     URDF. A message that names no joint is taken by position. Raises ``ValueError`` when a joint of
     ``names`` is missing, the positions or velocities do not match the names, or a value is not finite.
+    (The order found for a list of names is kept: a driver sends the same names at every message.)
     """
-    got = [str(x) for x in msg.name]
+    got = tuple(str(x) for x in msg.name)
     q, qd = np.array(msg.position, dtype=float), np.array(msg.velocity, dtype=float)
     if got:
         if len(q) != len(got) or len(qd) not in (0, len(got)):
             raise ValueError(f"JointState: {len(got)} names, {len(q)} positions, {len(qd)} velocities")
-        where = {n: i for i, n in enumerate(got)}
-        missing = [n for n in names if n not in where]
-        if missing:
-            raise ValueError(f"JointState names no {missing[:8]} (it names {got[:8]})")
-        idx = [where[n] for n in names]
-        q, qd = q[idx], (qd[idx] if len(qd) else qd)
+        idx = _joint_order(got, tuple(names))
+        if idx is not None:
+            q, qd = q[idx], (qd[idx] if len(qd) else qd)
     if q.shape != (len(names),) or len(qd) not in (0, len(names)):
         raise ValueError(f"JointState: {q.size} positions and {qd.size} velocities for {len(names)} joints")
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd))):
+    if not (np.isfinite(q).all() and np.isfinite(qd).all()):
         raise ValueError("JointState: positions and velocities must be finite")
     return q, (qd if len(qd) else None)
+
+
+_JOINT_ORDERS: dict[tuple, np.ndarray | None] = {}
+
+
+def _joint_order(got: tuple[str, ...], names: tuple[str, ...]) -> np.ndarray | None:
+    """Where each of ``names`` lies in a message naming ``got`` (None: the same list, nothing to reorder);
+    ``ValueError`` when one is missing. Kept per pair of lists (a few per node)."""
+    key = (got, names)
+    if key in _JOINT_ORDERS:
+        return _JOINT_ORDERS[key]
+    where = {n: i for i, n in enumerate(got)}
+    missing = [n for n in names if n not in where]
+    if missing:
+        raise ValueError(f"JointState names no {missing[:8]} (it names {list(got[:8])})")
+    idx = None if got == names else np.array([where[n] for n in names], dtype=np.intp)
+    if len(_JOINT_ORDERS) >= 64:  # (never let it grow without end)
+        _JOINT_ORDERS.clear()
+    _JOINT_ORDERS[key] = idx
+    return idx
 
 
 def vector3_stamped_msg(t: float, frame_id: str, v: np.ndarray):

@@ -145,7 +145,13 @@ def _in_shared_memory(payload) -> bool:
 
 class Subscription:
     """One ROS 2 subscription; ``callback(msg, attachment, receive_ns)`` runs on Zenoh's thread for every
-    sample that :class:`SampleFilter` lets through."""
+    sample that :class:`SampleFilter` lets through.
+
+    With ``pull`` > 0 the samples wait instead in a ring of that many (the oldest dropped when it is full),
+    without waking a Python thread, until :meth:`drain` runs the callback on them in the caller's thread;
+    ``receive_ns`` is then the time of the drain. For a topic at a high rate that a node needs only now
+    and then (the distance node's joint states at the driver's rate, read once per frame set).
+    """
 
     def __init__(
         self,
@@ -156,6 +162,7 @@ class Subscription:
         eid: int,
         allowed: set[str] | None,
         check_order: bool,
+        pull: int = 0,
     ) -> None:
         self.node, self.topic, self.typename, self.callback = node, topic, typename, callback
         self.key = topic_keyexpr(node.domain, topic, typename)
@@ -164,7 +171,9 @@ class Subscription:
         self.filter = SampleFilter(typename, node.publisher_node, allowed, check_order)
         self.received = 0
         self.shm_received = 0  # of them, how many came through Zenoh's shared memory
-        self._sub = node.session.declare_subscriber(self.key, self._on_sample)
+        self.pull = int(pull)
+        handler = _zenoh().handlers.RingChannel(self.pull) if self.pull > 0 else self._on_sample
+        self._sub = node.session.declare_subscriber(self.key, handler)
 
     @property
     def dropped(self) -> dict[str, int]:
@@ -198,6 +207,18 @@ class Subscription:
         except Exception as exc:  # noqa: BLE001 - a message the node cannot use: counted, never raised into Zenoh
             if self.filter.reject(exc):  # (one line per kind of refusal, not one per message)
                 print(f"depthguard {self.node.name}: refused a message on {self.topic}: {exc}", file=sys.stderr)
+
+    def drain(self) -> int:
+        """Run the callback on every sample waiting in a ``pull`` subscription's ring, oldest first, in this
+        thread; returns how many there were (0 at once for a subscription that is not ``pull``)."""
+        n = 0
+        while self.pull > 0:
+            sample = self._sub.try_recv()
+            if sample is None:
+                break
+            self._on_sample(sample)
+            n += 1
+        return n
 
     def close(self) -> None:
         self._sub.undeclare()
@@ -342,10 +363,12 @@ class ZenohNode:
         *,
         allowed: set[str] | None = None,
         check_order: bool = True,
+        pull: int = 0,
     ) -> Subscription:
-        """Subscribe; ``allowed``: node names that may publish on this topic (None = anyone)."""
+        """Subscribe; ``allowed``: node names that may publish on this topic (None = anyone); ``pull``: keep
+        up to that many samples for :meth:`Subscription.drain` instead of a callback per sample."""
         self._check_acl(topic, typename)
-        s = Subscription(self, topic, typename, callback, self._next_eid(), allowed, check_order)
+        s = Subscription(self, topic, typename, callback, self._next_eid(), allowed, check_order, pull)
         self.entities.append(s)
         return s
 

@@ -13,11 +13,13 @@ time stamps of the rmw_zenoh attachments (publication times, one clock) come fro
 * baseline: the distance stage's own compute time (fusion + queries) in the distance node, same run;
 * ``frame_to_distances_parts``: where the time goes, from the distance node's log: ``transport`` (frame set
   published -> its last message reaches the node's callback), ``wait`` (CDR decoding, pairing by stamp and
-  the node's thread waking up -> the distance stage starts on it), ``compute`` and ``publish`` (-> the
-  distances published);
+  the node's thread waking up -> the distance stage starts on it; split into ``decode_and_pair``, the last
+  message's callback, and ``wake_and_take``), ``compute`` and ``publish`` (-> the distances published);
 * ``in_process``: the same computation on the same frame sets in this process, before the nodes start:
   ``back_to_back`` (one frame set after the other) and ``paced`` (one per camera period, the process idle in
   between, as in the node); their difference is what idling between frames costs on the machine;
+* ``cpu_percent_of_one_core``: the CPU time (user + system) each process used over the measurement, per
+  second of it, from ``/proc`` (empty where there is none);
 * ``shared_memory``: of the image samples the distance node received, the fraction that came through Zenoh's
   shared memory (Zenoh puts messages over 3 KB there by default between processes of one host).
 
@@ -171,11 +173,21 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
     procs = [_start_node(n, cpath, tmp) for n in nodes]
     marks: dict[str, float] = {}
 
+    pids = {
+        **{n: p.pid for n, p in zip(nodes, procs, strict=True)},
+        "frames and joint states (this process)": os.getpid(),
+    }
+    cpu: dict[str, tuple] = {}
+
     def warmed() -> bool:  # (the controller node logs its warm-up, which compiles its kernels on a new machine)
         if "t" not in marks and len(_read(tmp / "distance.log")) >= 10:
             if any(r.get("ev") == "warm_up" for r in _read(tmp / "controller.log")):
                 marks["t"] = time.time()
-        return "t" in marks and time.time() - marks["t"] > duration
+                cpu["start"] = (time.monotonic(), _cpu_seconds(pids))
+        done = "t" in marks and time.time() - marks["t"] > duration
+        if done and "end" not in cpu:
+            cpu["end"] = (time.monotonic(), _cpu_seconds(pids))
+        return done
 
     from depthguard.nodes.common import realtime
 
@@ -215,8 +227,12 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             "wait": _stats([r["start"] - r["recv"] for r in dist]),
             "compute": _stats([r["compute"] for r in dist]),
             "publish": _stats([r["pub"] - r["start"] - r["compute"] for r in dist]),
+            # (the wait's two parts: the last message's decoding and pairing; the node's thread taking the set)
+            "decode_and_pair": _stats([r["ready"] - r["recv"] for r in dist if "ready" in r]),
+            "wake_and_take": _stats([r["start"] - r["ready"] for r in dist if "ready" in r]),
         },
         "in_process": in_process,
+        "cpu_percent_of_one_core": _cpu_percent(cpu),
         "shared_memory": _shm_fraction(_read(tmp / "distance.log")),
         "frame_sets": len(dist),
     }
@@ -282,6 +298,27 @@ def _in_process_compute(cell, sets, n: int) -> dict:
             time.sleep(max(0.0, pause - dt))
         out[name] = _stats(times)
     return out
+
+
+def _cpu_seconds(pids: dict[str, int]) -> dict[str, float]:
+    """CPU time (user + system, s) used so far by each process, from ``/proc`` (Linux; {} elsewhere)."""
+    out = {}
+    for name, pid in pids.items():
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        out[name] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # (utime, stime)
+    return out
+
+
+def _cpu_percent(cpu: dict[str, tuple]) -> dict[str, float]:
+    """Each process's CPU use over the measurement, in % of one core (from :func:`_cpu_seconds` at its
+    start and end)."""
+    if "start" not in cpu or "end" not in cpu:
+        return {}
+    (t0, a), (t1, b) = cpu["start"], cpu["end"]
+    return {k: 100.0 * (b[k] - a[k]) / (t1 - t0) for k in a if k in b and t1 > t0}
 
 
 def _shm_fraction(log: list[dict]) -> float | None:

@@ -25,6 +25,8 @@ from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, c
 __all__ = ["run_distance_node", "frame_set_cameras", "FrameSetWork"]
 
 _UNPAIRED_MAX = 32  # frames kept per camera while their depth or mask is missing
+_JOINT_RING = 400  # joint states kept between two reads (0.4 s at 1 kHz)
+_JOINT_DRAIN_S = 0.005  # while waiting for a frame set, the joint states are read this often (s)
 
 
 class _FrameSets:
@@ -40,6 +42,8 @@ class _FrameSets:
         self.ready: dict[str, tuple] = {}
         self.joint: dict = {"q": None, "t": -np.inf}  # the newest joint positions and their stamp (s)
         self.joints: deque = deque(maxlen=400)  # (stamp s, q): the joint state of each frame set
+        self.t_ready = 0.0  # when the newest frame set became complete (s since the epoch)
+        self.taken_ready = 0.0  # when the frame set that :meth:`take` returned last became complete
 
     def _pair(self, n: str, t: float, pub: float, recv_ns: int) -> None:
         depth, mask, recv = self.depth[n], self.mask[n], self.recv[n]
@@ -53,6 +57,7 @@ class _FrameSets:
             while len(d) > _UNPAIRED_MAX:
                 d.pop(min(d))
             if len(self.ready) == len(self.names):
+                self.t_ready = time.time()
                 self.ev.set()
 
     def on_depth(self, n: str):
@@ -95,6 +100,7 @@ class _FrameSets:
             if len(self.ready) < len(self.names) or self.joint["q"] is None:
                 return None
             sets = [self.ready.pop(n) for n in self.names]
+            self.taken_ready = self.t_ready
             q, t_q = self.joint["q"].copy(), self.joint["t"]
             q_frames = self.q_at(sets[0][0])  # the robot where the principal frame saw it
             q_cams = {k: self.q_at(sets[k][0]) for k, _ in carried}
@@ -193,7 +199,10 @@ def run_distance_node(
     node = open_node(cell, "distance", **kw)
     fs = _FrameSets(names, model.joint_names)
 
-    subs = [node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", fs.on_js)]
+    # the joint states (at the driver's rate, 500-1000 Hz) wait in a ring and are read between frame sets, in
+    # this thread: no Python thread wakes for each of them while the distance stage computes
+    sub_js = node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", fs.on_js, pull=_JOINT_RING)
+    subs = [sub_js]
     for n in names:
         subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", fs.on_depth(n)))
         subs.append(node.subscribe(top.mask[n], "sensor_msgs/msg/Image", fs.on_mask(n)))
@@ -204,8 +213,10 @@ def run_distance_node(
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
-            if not fs.ev.wait(0.05):
+            sub_js.drain()
+            if not fs.ev.wait(_JOINT_DRAIN_S):
                 continue
+            sub_js.drain()
             got_set = fs.take(carried)
             if got_set is None:
                 continue
@@ -230,7 +241,7 @@ def run_distance_node(
             queries += 1
             jl.write(
                 ev="distances", stamp=t_data, frame_pub=max(s[3] for s in sets), recv=max(s[4] for s in sets),
-                start=t_start_compute, pub=p, compute=w1 - w0,
+                ready=fs.taken_ready, start=t_start_compute, pub=p, compute=w1 - w0,
             )  # fmt: skip
     finally:
         out = {"queries": queries, "dropped": {s.topic: dict(s.dropped) for s in subs if s.dropped}}

@@ -13,6 +13,7 @@ from typing import Any
 
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
+from depthguard.io.joint_state_cdr import joint_state_cdr
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
 from depthguard.io.ros2 import mask_msg
 from depthguard.nodes.common import Topics, now_s, open_node
@@ -47,7 +48,11 @@ class ZenohRunPublisher:
         self._last_status = None
 
     def _put(self, what: str, pub, msg) -> None:
-        pub.publish(msg)
+        """Publish ``msg`` (a message, or CDR bytes ready to put) and count it under ``what``."""
+        if isinstance(msg, bytes):
+            pub.put_cdr(msg)
+        else:
+            pub.publish(msg)
         self.count[what] = self.count.get(what, 0) + 1
 
     def inputs(self, tick, frames) -> None:
@@ -59,7 +64,7 @@ class ZenohRunPublisher:
                     ros2.image_msg(self.t0 + tick.t_frames, c.frame_id or c.name, d, "32FC1"),
                 )
         if tick.q is not None:
-            js = ros2.joint_state_msg(self.t0 + tick.t_joints, self.chain.joint_names, tick.q, tick.qdot)
+            js = joint_state_cdr(self.t0 + tick.t_joints, self.chain.joint_names, tick.q, tick.qdot)
             self._put("joint_states", self.p_js, js)
 
     def masks(self, t: float, masks) -> None:
@@ -77,7 +82,7 @@ class ZenohRunPublisher:
 
     def command(self, t: float, out) -> None:
         names, ts = self.chain.joint_names, self.t0 + t
-        self._put("commands", self.p_cmd, ros2.joint_state_msg(ts, names, out.q_cmd, out.qdot_cmd))
+        self._put("commands", self.p_cmd, joint_state_cdr(ts, names, out.q_cmd, out.qdot_cmd))
         if self._k % 10 == 0:
             self.p_arr.publish(ros2.float64_array_msg(out.qdot_cmd))
             self.p_traj.publish(ros2.joint_trajectory_msg(ts, names, out.q_cmd, out.qdot_cmd, self.chain.config.dt))

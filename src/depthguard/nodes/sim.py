@@ -20,6 +20,7 @@ import numpy as np
 
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
+from depthguard.io.joint_state_cdr import joint_state_cdr
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
 from depthguard.nodes.common import JsonLog, StopFlag, Topics, now_s, open_node
 
@@ -82,7 +83,7 @@ def run_sim_node(
             t_phys += n * dt
             stamp = now_s()
             q, qd = sim.q(), sim.qd()
-            pub_js.publish(ros2.joint_state_msg(stamp, names, q, qd))
+            pub_js.put_cdr(joint_state_cdr(stamp, names, q, qd))
             n_js += 1
             xd = src.task.velocity(src.kin.evaluate(q).centres[0])  # the task's desired end-effector velocity
             pub_task.publish(ros2.vector3_stamped_msg(stamp, "world", xd))
