@@ -20,7 +20,16 @@ from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
 from depthguard.io.ros2 import mask_msg
-from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
+from depthguard.nodes.common import (
+    JOINT_RING,
+    MAX_JOINT_SKEW,
+    JsonLog,
+    StopFlag,
+    Topics,
+    camera_at_size,
+    open_node,
+    wait_reading,
+)
 
 __all__ = ["run_camera_node", "mask_msg", "prepare_frame"]
 
@@ -86,7 +95,8 @@ def run_camera_node(
             latest["msg"], latest["pub"] = msg, att.stamp_ns
         ev.set()
 
-    node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
+    # (the joint states wait in a ring, read between frames: no thread wakes for each of them)
+    sub_js = node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js, pull=JOINT_RING)
     sub = node.subscribe(top.raw[name], "sensor_msgs/msg/Image", on_image)
     pub_d = node.publisher(top.depth[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
     pub_m = node.publisher(top.mask[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
@@ -94,7 +104,7 @@ def run_camera_node(
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
-            if not ev.wait(0.05):
+            if not wait_reading(ev, sub_js):
                 continue
             ev.clear()
             with lock:

@@ -34,11 +34,27 @@ __all__ = [
     "StopFlag",
     "JsonLog",
     "now_s",
+    "JOINT_RING",
+    "wait_reading",
 ]
 
 #: A frame is self-filtered (camera nodes) or corrected for the robot's interior (distance node) only with
 #: joint states at most this far (s) from its stamp.
 MAX_JOINT_SKEW = 0.05
+
+#: Joint states kept between two reads by a node that needs them once per frame (0.4 s at 1 kHz).
+JOINT_RING = 400
+
+
+def wait_reading(ev: threading.Event, ring: Any, every: float = 0.005) -> bool:
+    """Wait up to ``every`` s for ``ev`` (a frame came), reading what waits in ``ring`` (a ``pull``
+    :class:`~depthguard.io.zenoh_transport.Subscription`, the joint states) before and after: so that a node
+    that needs the joint states once per frame is not woken for each of them while it computes. Returns
+    whether ``ev`` is set."""
+    ring.drain()
+    got = ev.wait(every)
+    ring.drain()
+    return got
 
 
 def _endpoint(cell: CellFile, port: int) -> str:

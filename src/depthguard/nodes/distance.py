@@ -20,13 +20,20 @@ import numpy as np
 
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
-from depthguard.nodes.common import MAX_JOINT_SKEW, JsonLog, StopFlag, Topics, camera_at_size, open_node
+from depthguard.nodes.common import (
+    JOINT_RING,
+    MAX_JOINT_SKEW,
+    JsonLog,
+    StopFlag,
+    Topics,
+    camera_at_size,
+    open_node,
+    wait_reading,
+)
 
 __all__ = ["run_distance_node", "frame_set_cameras", "FrameSetWork"]
 
 _UNPAIRED_MAX = 32  # frames kept per camera while their depth or mask is missing
-_JOINT_RING = 400  # joint states kept between two reads (0.4 s at 1 kHz)
-_JOINT_DRAIN_S = 0.005  # while waiting for a frame set, the joint states are read this often (s)
 
 
 class _FrameSets:
@@ -201,7 +208,7 @@ def run_distance_node(
 
     # the joint states (at the driver's rate, 500-1000 Hz) wait in a ring and are read between frame sets, in
     # this thread: no Python thread wakes for each of them while the distance stage computes
-    sub_js = node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", fs.on_js, pull=_JOINT_RING)
+    sub_js = node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", fs.on_js, pull=JOINT_RING)
     subs = [sub_js]
     for n in names:
         subs.append(node.subscribe(top.depth[n], "sensor_msgs/msg/Image", fs.on_depth(n)))
@@ -213,10 +220,8 @@ def run_distance_node(
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
-            sub_js.drain()
-            if not fs.ev.wait(_JOINT_DRAIN_S):
+            if not wait_reading(fs.ev, sub_js):
                 continue
-            sub_js.drain()
             got_set = fs.take(carried)
             if got_set is None:
                 continue
