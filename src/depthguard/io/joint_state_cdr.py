@@ -14,7 +14,7 @@ the NUL, the characters, the NUL), ``string[] name`` (``uint32`` count, each str
 values 8-aligned).
 
 The decoder accepts only this canonical layout, consumed to the last byte. Anything else comes back as None,
-and :func:`depthguard.io.ros2_types.deserialize` hands it to ``rosbags``, so that the fast path never
+and :func:`depthguard.io.ros2.deserialize` hands it to ``rosbags``, so that the fast path never
 decides differently from the reference decoder. The tests compare both ways against ``rosbags``.
 """
 

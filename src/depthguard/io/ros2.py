@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from depthguard.io import ros2_types
+from depthguard.io.joint_state_cdr import decode_joint_state
 from depthguard.io.ros2_images import (  # (re-exported: one module for every message)
     camera_info_msg,
     image_msg,
@@ -32,7 +34,6 @@ from depthguard.io.ros2_images import (  # (re-exported: one module for every me
 from depthguard.io.ros2_types import (
     DEPTHGUARD_MSGS,
     _t,
-    deserialize,
     header,
     msgdef,
     serialize,
@@ -73,6 +74,17 @@ __all__ = [
     "deserialize",
     "msgdef",
 ]
+
+
+def deserialize(data: bytes | memoryview, typename: str):
+    """Message from CDR bytes: ``sensor_msgs/msg/JointState`` in its canonical layout through the fast path of
+    :mod:`depthguard.io.joint_state_cdr` (the same message as the generic decoder's), anything else through
+    ``rosbags``."""
+    if typename == "sensor_msgs/msg/JointState":
+        msg = decode_joint_state(data)
+        if msg is not None:
+            return msg
+    return ros2_types.deserialize(data, typename)
 
 
 def joint_state_msg(

@@ -87,21 +87,9 @@ def serialize(msg, typename: str) -> bytes:
 
 
 def deserialize(data: bytes | memoryview, typename: str):
-    """Message from CDR bytes (``sensor_msgs/msg/JointState`` in its canonical layout through the fast path
-    of :mod:`depthguard.io.joint_state_cdr`, the same message as the generic decoder's)."""
-    if typename == "sensor_msgs/msg/JointState":
-        msg = _fast_decoder()(data)
-        if msg is not None:
-            return msg
+    """Message from CDR bytes (the generic decoder; :func:`depthguard.io.ros2.deserialize` adds the fast path
+    of ``sensor_msgs/msg/JointState``)."""
     return typestore().deserialize_cdr(data, typename)
-
-
-@cache
-def _fast_decoder():
-    """:func:`depthguard.io.joint_state_cdr.decode_joint_state` (imported once: that module imports this one)."""
-    from depthguard.io.joint_state_cdr import decode_joint_state
-
-    return decode_joint_state
 
 
 def msgdef(typename: str) -> str:
