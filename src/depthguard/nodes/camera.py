@@ -30,6 +30,7 @@ from depthguard.nodes.common import (
     open_node,
     wait_reading,
 )
+from depthguard.nodes.memory import keep_freed_memory
 
 __all__ = ["run_camera_node", "mask_msg", "prepare_frame"]
 
@@ -77,6 +78,7 @@ def run_camera_node(
     jl = JsonLog(log)
     model = load_cell_robot(cell)
     check_camera_parents(cell, model)
+    heap = keep_freed_memory()  # (each frame's images reuse the pages of the last)
     cam0 = cc.build()  # (in its parent link's frame when the robot carries it)
     top = Topics.of(cell)
     node = open_node(cell, name, **kw)
@@ -130,7 +132,7 @@ def run_camera_node(
             done += 1
             jl.write(ev="prepared", stamp=t, pub_raw=pub_in * 1e-9, pub=p1 * 1e-9)
     finally:
-        out = {"frames": done, "skipped": skipped, "dropped": dict(sub.dropped)}
+        out = {"frames": done, "skipped": skipped, "dropped": dict(sub.dropped), "freed_memory": heap}
         node.close()
         jl.close()
     return out

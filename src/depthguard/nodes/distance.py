@@ -30,6 +30,7 @@ from depthguard.nodes.common import (
     open_node,
     wait_reading,
 )
+from depthguard.nodes.memory import keep_freed_memory
 
 __all__ = ["run_distance_node", "frame_set_cameras", "FrameSetWork"]
 
@@ -193,6 +194,7 @@ def run_distance_node(
     from depthguard.runner.chain import cell_control_points, check_chain_support, load_cell_robot
 
     check_chain_support(cell)
+    heap = keep_freed_memory()  # (the images of one frame set reuse the pages of the last)
     stop = stop if stop is not None else StopFlag()
     jl = JsonLog(log)
     model = load_cell_robot(cell)
@@ -249,7 +251,11 @@ def run_distance_node(
                 ready=fs.taken_ready, start=t_start_compute, pub=p, compute=w1 - w0,
             )  # fmt: skip
     finally:
-        out = {"queries": queries, "dropped": {s.topic: dict(s.dropped) for s in subs if s.dropped}}
+        out = {
+            "queries": queries,
+            "dropped": {s.topic: dict(s.dropped) for s in subs if s.dropped},
+            "freed_memory": heap,
+        }
         out["shared_memory_samples"] = {s.topic: [s.shm_received, s.received] for s in subs}
         jl.write(ev="summary", **out)
         node.close()
