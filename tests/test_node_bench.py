@@ -1,8 +1,16 @@
-"""The net-latency bench's frame publisher: images serialised once, restamped per publication."""
+"""The net-latency bench's frame publisher (images serialised once, restamped per publication) and its CPU
+figures."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -20,3 +28,27 @@ def test_a_restamped_image_decodes_with_the_new_stamp_and_the_same_pixels(t, h, 
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (ns // 1_000_000_000, ns % 1_000_000_000)
     assert msg.header.frame_id == frame_id
     assert np.array_equal(ros2.image_to_depth(msg), depth)
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="CPU times from /proc: Linux only")
+def test_cpu_percent_tells_a_busy_process_from_a_sleeping_one():
+    """``cpu_percent_of_one_core``: this process spinning for 0.5 s uses most of a core; a sleeping child
+    almost none."""
+    from depthguard.nodes.bench import _cpu_percent, _cpu_sample
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(5)"])
+    try:
+        time.sleep(0.3)  # (the child's start-up is over)
+        pids = {"busy": os.getpid(), "sleeping": child.pid}
+        start = _cpu_sample(pids)
+        end_at = time.monotonic() + 0.5
+        while time.monotonic() < end_at:
+            pass
+        got = _cpu_percent({"start": start, "end": _cpu_sample(pids)})
+    finally:
+        child.kill()
+        child.wait()
+    assert set(got) == {"busy", "sleeping"}
+    assert got["busy"] > 30.0, got  # (a loaded 2-core machine may give it well under 100 %)
+    assert got["sleeping"] < 10.0, got
+    assert _cpu_percent({"start": start}) == {}  # (no end: nothing to say)

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from depthguard.io.ros2_types import _t
+from depthguard.io.ros2_types import _t, stamp_parts
 
 __all__ = ["JointStateEncoder", "joint_state_cdr", "decode_joint_state"]
 
@@ -47,12 +47,6 @@ def _string(body: bytearray, text: str) -> None:
         raise ValueError(f"JointState string {text!r} holds a NUL character")
     body += bytes(_pad(len(body), 4))
     body += struct.pack("<I", len(raw) + 1) + raw + b"\x00"
-
-
-def _stamp(t: float) -> tuple[int, int]:
-    """``(sec, nanosec)`` of ``t`` seconds, as :func:`depthguard.io.ros2_types.stamp` rounds it."""
-    ns = int(round(max(float(t), 0.0) * 1e9))
-    return ns // 1_000_000_000, ns % 1_000_000_000
 
 
 class JointStateEncoder:
@@ -94,7 +88,7 @@ class JointStateEncoder:
         if q.shape[0] != n:
             raise ValueError(f"JointState positions: expected {n} values for {n} joints, got {q.shape[0]}")
         out = bytearray(self._template)
-        struct.pack_into("<iI", out, 4, *_stamp(t))
+        struct.pack_into("<iI", out, 4, *stamp_parts(t))
         o = self._offsets[0]
         out[o : o + 8 * n] = q.tobytes()
         if self.velocities:

@@ -11,6 +11,7 @@ __all__ = [
     "DEPTHGUARD_MSGS",
     "typestore",
     "stamp",
+    "stamp_parts",
     "to_seconds",
     "header",
     "serialize",
@@ -65,10 +66,16 @@ def _t(name: str):
     return typestore().types[name]
 
 
+def stamp_parts(t: float) -> tuple[int, int]:
+    """``(sec, nanosec)`` of ``t`` seconds (negative times clamp to 0), as every stamp DepthGuard writes."""
+    ns = int(round(max(float(t), 0.0) * 1e9))
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
 def stamp(t: float):
     """``builtin_interfaces/msg/Time`` for ``t`` seconds (t >= 0)."""
-    ns = int(round(max(float(t), 0.0) * 1e9))
-    return _t("builtin_interfaces/msg/Time")(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    sec, nanosec = stamp_parts(t)
+    return _t("builtin_interfaces/msg/Time")(sec=sec, nanosec=nanosec)
 
 
 def to_seconds(st) -> float:

@@ -211,11 +211,10 @@ class Subscription:
     def drain(self) -> int:
         """Run the callback on every sample waiting in a ``pull`` subscription's ring, oldest first, in this
         thread; returns how many there were (0 at once for a subscription that is not ``pull``)."""
+        if self.pull <= 0:
+            return 0
         n = 0
-        while self.pull > 0:
-            sample = self._sub.try_recv()
-            if sample is None:
-                break
+        while (sample := self._sub.try_recv()) is not None:
             self._on_sample(sample)
             n += 1
         return n

@@ -183,10 +183,10 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
         if "t" not in marks and len(_read(tmp / "distance.log")) >= 10:
             if any(r.get("ev") == "warm_up" for r in _read(tmp / "controller.log")):
                 marks["t"] = time.time()
-                cpu["start"] = (time.monotonic(), _cpu_seconds(pids))
+                cpu["start"] = _cpu_sample(pids)
         done = "t" in marks and time.time() - marks["t"] > duration
         if done and "end" not in cpu:
-            cpu["end"] = (time.monotonic(), _cpu_seconds(pids))
+            cpu["end"] = _cpu_sample(pids)
         return done
 
     from depthguard.nodes.common import realtime
@@ -217,6 +217,22 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             "load_1min": os.getloadavg()[0],
             "scheduling": {**scheduling, "controller": _summary(tmp / "controller.out").get("scheduling")},
         },
+        **_latencies(dist, cmds),
+        "in_process": in_process,
+        "cpu_percent_of_one_core": _cpu_percent(cpu),
+        "shared_memory": _shm_fraction(_read(tmp / "distance.log")),
+        "frame_sets": len(dist),
+    }
+    b = out["baseline_distance_compute"]["median_ms"]
+    p = out["frame_to_distances"]["median_ms"]
+    out["ratio_frame_to_distances_vs_compute"] = (p / b) if (p and b) else None
+    return out
+
+
+def _latencies(dist: list[dict], cmds: list[dict]) -> dict:
+    """The latency figures (module docstring) from the distance node's ``distances`` and the controller node's
+    ``command`` log events of the measurement."""
+    return {
         "frame_to_distances": _stats([r["pub"] - r["frame_pub"] for r in dist]),
         "distances_to_command": _stats([r["pub"] - r["dist_pub"] for r in cmds]),
         "frame_to_command": _stats(_chain(dist, cmds)),
@@ -228,18 +244,10 @@ def run_net_latency_benchmark(quick: bool = False, cell: str | Path | None = Non
             "compute": _stats([r["compute"] for r in dist]),
             "publish": _stats([r["pub"] - r["start"] - r["compute"] for r in dist]),
             # (the wait's two parts: the last message's decoding and pairing; the node's thread taking the set)
-            "decode_and_pair": _stats([r["ready"] - r["recv"] for r in dist if "ready" in r]),
-            "wake_and_take": _stats([r["start"] - r["ready"] for r in dist if "ready" in r]),
+            "decode_and_pair": _stats([r["ready"] - r["recv"] for r in dist]),
+            "wake_and_take": _stats([r["start"] - r["ready"] for r in dist]),
         },
-        "in_process": in_process,
-        "cpu_percent_of_one_core": _cpu_percent(cpu),
-        "shared_memory": _shm_fraction(_read(tmp / "distance.log")),
-        "frame_sets": len(dist),
     }
-    b = out["baseline_distance_compute"]["median_ms"]
-    p = out["frame_to_distances"]["median_ms"]
-    out["ratio_frame_to_distances_vs_compute"] = (p / b) if (p and b) else None
-    return out
 
 
 def _start_node(name: str, cell_path: Path, tmp: Path) -> subprocess.Popen:
@@ -300,8 +308,9 @@ def _in_process_compute(cell, sets, n: int) -> dict:
     return out
 
 
-def _cpu_seconds(pids: dict[str, int]) -> dict[str, float]:
-    """CPU time (user + system, s) used so far by each process, from ``/proc`` (Linux; {} elsewhere)."""
+def _cpu_sample(pids: dict[str, int]) -> tuple[float, dict[str, float]]:
+    """``(now, CPU seconds)``: a monotonic time (s) and the CPU time (user + system, s) each process has used
+    so far, from ``/proc`` (Linux; none elsewhere)."""
     out = {}
     for name, pid in pids.items():
         try:
@@ -309,12 +318,12 @@ def _cpu_seconds(pids: dict[str, int]) -> dict[str, float]:
         except OSError:
             continue
         out[name] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # (utime, stime)
-    return out
+    return time.monotonic(), out
 
 
 def _cpu_percent(cpu: dict[str, tuple]) -> dict[str, float]:
-    """Each process's CPU use over the measurement, in % of one core (from :func:`_cpu_seconds` at its
-    start and end)."""
+    """Each process's CPU use over the measurement, in % of one core (from :func:`_cpu_sample` at its start
+    and end)."""
     if "start" not in cpu or "end" not in cpu:
         return {}
     (t0, a), (t1, b) = cpu["start"], cpu["end"]
