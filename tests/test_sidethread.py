@@ -74,3 +74,61 @@ def test_without_cpu_affinity_it_is_a_plain_worker(monkeypatch, side):
     monkeypatch.setattr(sidethread, "_SCHED_GETCPU", None)
     with side.beside() as ex:
         assert ex.submit(lambda: 6 * 7).result() == 42
+
+
+# ---------------------------------------------------------------- run_parts
+
+
+def test_run_parts_gives_every_part_once_in_order_from_both_threads():
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    calls, who = [], {}
+
+    def fn(k):
+        calls.append(k)
+        who[k] = threading.get_ident()
+        time.sleep(0.02)  # (long enough for the worker to take parts too)
+        return k * k
+
+    with ThreadPoolExecutor(1) as ex:
+        assert sidethread.run_parts(fn, 6, ex) == [0, 1, 4, 9, 16, 25]
+    assert sorted(calls) == list(range(6))
+    assert len(set(who.values())) == 2  # both threads worked
+    assert sidethread.run_parts(fn, 3) == [0, 1, 4]  # (no side: all here)
+
+
+def test_run_parts_does_not_wait_for_a_busy_worker():
+    """The worker is busy elsewhere for 1 s: this thread does every part and returns at once."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    release = threading.Event()
+    with ThreadPoolExecutor(1) as ex:
+        ex.submit(release.wait, 1.0)
+        t0 = time.perf_counter()
+        assert sidethread.run_parts(lambda k: k + 1, 4, ex) == [1, 2, 3, 4]
+        assert time.perf_counter() - t0 < 0.5
+        release.set()
+
+
+def test_run_parts_raises_the_workers_error():
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    here = threading.get_ident()
+
+    def fn(k):
+        if threading.get_ident() != here:
+            raise ZeroDivisionError(f"part {k}")
+        time.sleep(0.05)  # (this thread is slow: the worker takes a part)
+        return k
+
+    with ThreadPoolExecutor(1) as ex:
+        with pytest.raises(ZeroDivisionError, match="part"):
+            sidethread.run_parts(fn, 2, ex)
+        with pytest.raises(ValueError, match="mine"):
+            sidethread.run_parts(lambda k: (_ for _ in ()).throw(ValueError("mine")), 1, ex)

@@ -17,11 +17,15 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import itertools
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from typing import TypeVar
 
-__all__ = ["SideThread"]
+T = TypeVar("T")
+
+__all__ = ["SideThread", "run_parts"]
 
 
 def _cpu_getter() -> Callable[[], int] | None:
@@ -85,3 +89,28 @@ class SideThread:
     def shutdown(self) -> None:
         """Stop the worker thread (after its jobs)."""
         self._pool.shutdown(wait=True)
+
+
+def run_parts(fn: Callable[[int], T], n: int, side: Executor | None = None) -> list[T]:
+    """``[fn(0), ..., fn(n - 1)]``, computed by this thread and ``side``'s worker together: each takes the next
+    part not yet taken until none is left (``fn`` must release the GIL to gain anything: a numba kernel
+    with ``nogil``). This thread never waits for the worker to start: when it has done every part itself (the
+    worker still asleep, or busy elsewhere), it returns at once and the worker's job finds nothing left.
+    It waits only for a part that the worker took and is computing. Without ``side``: one part after the
+    other here. An exception of ``fn`` is raised here, from either thread."""
+    out: list = [None] * n
+    done = [False] * n
+    take = itertools.count()  # (next() is atomic in CPython: each part is taken once)
+
+    def work() -> None:
+        while (k := next(take)) < n:
+            out[k] = fn(k)
+            done[k] = True
+
+    job = side.submit(work) if side is not None and n > 1 else None
+    try:
+        work()
+    finally:
+        if job is not None and not all(done):
+            job.result()  # (a part the worker took: wait for it, or raise its error)
+    return out

@@ -100,7 +100,7 @@ from depthguard.depthgrid.frame_stage import update_principal, update_secondary
 from depthguard.depthgrid.grid import DepthGrid
 from depthguard.depthgrid.gridmap import GridMap
 from depthguard.depthgrid.pyramid import pyramid_layout
-from depthguard.depthgrid.query import query_many, query_many_parallel
+from depthguard.depthgrid.query import query_many, query_many_parallel, query_part
 from depthguard.depthgrid.records import ColumnCache, Grid, Principal, Votes, column_cache
 from depthguard.depthspace import (
     INVALID_POLICIES,
@@ -111,11 +111,15 @@ from depthguard.depthspace import (
     query_distances,
     to_world,
 )
+from depthguard.kernels.hits import merge_hits
 from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
+from depthguard.sidethread import run_parts
 from depthguard.validation import check_points
 
 __all__ = ["DepthGridFusion", "fused_distances"]
+
+QUERY_PARTS = 4  # parts of the image (rows of tiles) of a query shared with a side thread (query(side=))
 
 
 class DepthGridFusion:
@@ -279,6 +283,8 @@ class DepthGridFusion:
         mode: str = "all",
         alpha: float = 6.0,
         direction_stride: int | str = "auto",
+        *,
+        side: Executor | None = None,
     ) -> PointDistances:
         """Fused distances from N control spheres to the obstacles (RA-L'16 §VI, eq. 11).
 
@@ -290,6 +296,12 @@ class DepthGridFusion:
             alpha: shape factor of the eq. 9 weights.
             direction_stride: the principal pixels of the direction sum (modes ``"all"``, ``"hybrid"``),
                 as :func:`depthguard.depthspace.query_distances`; the distance is the same whatever it is.
+            side: an executor (one worker thread, as for :meth:`update`): the principal image's tile rows
+                are dealt into ``QUERY_PARTS`` parts (:func:`~depthguard.depthgrid.query.sphere_hits`), which
+                this thread and the worker take one by one (:func:`depthguard.sidethread.run_parts`), on one
+                column cache. The distances and counts are those of the query on one thread; the direction
+                sums are added in another order (last-bit differences), and of two pieces at exactly the
+                same distance either may be the nearest. Ignored with ``parallel``.
         Returns:
             :class:`depthguard.depthspace.PointDistances` (world frame); ``distance`` is a lower bound
             of the true clearance within :meth:`tolerance`.
@@ -305,8 +317,7 @@ class DepthGridFusion:
         c, r = check_points(c, r)
         cam = self.cameras[0]
         g = self.grid
-        kernel = query_many_parallel if self.parallel else query_many
-        raw = kernel(
+        args = (
             np.ascontiguousarray(cam.R),
             np.ascontiguousarray(cam.t),
             np.ascontiguousarray(c),
@@ -321,6 +332,11 @@ class DepthGridFusion:
             self._frame_cache(),
             resolve_stride(direction_stride, cam.width),
         )
+        if side is not None and not self.parallel and len(c) > 0:
+            parts = run_parts(lambda k: query_part(*args, k, QUERY_PARTS), QUERY_PARTS, side)
+            raw = merge_hits(np.stack(parts), MODES.index(mode), args[-1])
+        else:
+            raw = (query_many_parallel if self.parallel else query_many)(*args)
         self.last_cells = raw[:, 8].astype(np.int64)
         self.last_votes = raw[:, 9].astype(np.int64)
         return to_world(cam, raw, r, rho)

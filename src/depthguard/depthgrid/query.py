@@ -29,10 +29,10 @@ from depthguard.depthgrid.chunks import tile_chunk_cleared, tile_chunk_prepare
 from depthguard.depthgrid.column import column_search
 from depthguard.depthgrid.records import KIND_NONE, KIND_ROBOT, KIND_SURFACE, PYR_STACK, TILE_BLOCK, Scratch
 from depthguard.kernels import FASTMATH
-from depthguard.kernels.hits import OUT_WIDTH, add_hit, nearer_hit, no_hits, write_hits
+from depthguard.kernels.hits import HITS_WIDTH, OUT_WIDTH, add_hit, nearer_hit, no_hits, store_hits, write_hits
 from depthguard.kernels.region import first_index, next_tile, surveillance_box, tile_lower_bounds, unseen_space
 
-__all__ = ["query_one", "query_many", "query_many_parallel"]
+__all__ = ["sphere_hits", "query_one", "query_many", "query_many_parallel", "query_part"]
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always", fastmath=FASTMATH)
@@ -167,9 +167,15 @@ def _tile_columns(hits, tu, tv, box, P, radius, h, qp, intr, pr, grid, mp, vt, s
 
 
 @nb.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, fastmath=FASTMATH)
-def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out, stride):
-    """Fused distance query for one sphere at P (principal camera frame, a 3-tuple); writes ``out[0:10]``
-    = distance from the centre, direction (3), nearest point (3), count, column searches, votes taken.
+def sphere_hits(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, stride, part, nparts):
+    """The hits of one sphere at P (principal camera frame, a 3-tuple) in part ``part`` of ``nparts`` of the
+    image: the tiles of the rows ``tv % nparts == part``, and the unseen space in part 0. Returns
+    ``(hits, column searches, votes taken)``; :func:`query_one` is part 0 of 1.
+
+    The parts of one sphere share no pixel and no tile, so that threads may run them at once on one
+    :class:`~depthguard.depthgrid.records.ColumnCache` (whose records are per pixel and per tile).
+    Each part prunes its tiles with its own nearest distance, which is never below the whole query's:
+    it may search more, never less, and :func:`~depthguard.kernels.hits.merge_hits` gives the whole answer.
 
     Records: ``qp`` :class:`~depthguard.kernels.records.QueryParams`, ``intr``
     :class:`~depthguard.kernels.records.Intrinsics` (principal camera), ``pr`` / ``grid`` / ``mp`` / ``vt`` /
@@ -180,13 +186,17 @@ def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out, stride):
     reff = qp.rho + radius
     h = 0.5 * math.sqrt(1.0 / (intr.fx * intr.fx) + 1.0 / (intr.fy * intr.fy))
     hits = no_hits(reff)
-    if qp.unseen:
+    if qp.unseen and part == 0:
         hits = unseen_space(hits, px, py, pz, radius, intr, qp)
     box = surveillance_box(px, py, pz, reff, intr)
     cells = tests = 0
     if box[0] <= box[1] and box[2] <= box[3]:
         lbs = sc.lbs
         t_u0, t_v0, ntu, ntiles = tile_lower_bounds(pr.tmin, px, py, pz, reff, box, intr, qp.tile, lbs)
+        if nparts > 1:
+            for k in range(ntiles):
+                if (t_v0 + k // ntu) % nparts != part:
+                    lbs[k] = np.inf  # (another part's tile: never visited here)
         for kk in range(ntiles + 1):
             k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp.mode, stride)
             if k < 0:
@@ -214,6 +224,15 @@ def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out, stride):
             )
             cells += c
             tests += t
+    return hits, cells, tests
+
+
+@nb.njit(cache=True, nogil=True, error_model="numpy", _nrt=False, fastmath=FASTMATH)
+def query_one(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, out, stride):
+    """Fused distance query for one sphere at P (principal camera frame, a 3-tuple); writes ``out[0:10]``
+    = distance from the centre, direction (3), nearest point (3), count, column searches, votes taken.
+    Arguments as :func:`sphere_hits`."""
+    hits, cells, tests = sphere_hits(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, stride, 0, 1)
     write_hits(hits, qp.mode, out)
     if qp.mode != 0:
         out[7] *= stride * stride  # the lattice's count, scaled to the whole image
@@ -241,3 +260,23 @@ def _query_many_py(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cac
 # machine) and numba's threads over the spheres (``DepthGridFusion(parallel=True)``).
 query_many = nb.njit(cache=True, nogil=True)(_query_many_py)
 query_many_parallel = nb.njit(cache=True, nogil=True, parallel=True)(_query_many_py)
+
+
+@nb.njit(cache=True, nogil=True)
+def query_part(R, t, centres, radii, qp, intr, pr, grid, mp, vt, chunks, cache, stride, part, nparts):
+    """Part ``part`` of ``nparts`` of :func:`query_many` (:func:`sphere_hits`): rows of ``HITS_WIDTH``
+    (:func:`~depthguard.kernels.hits.store_hits`), to be merged by :func:`~depthguard.kernels.hits.merge_hits`.
+    The parts may run at once on threads of their own with the same ``cache``."""
+    n = centres.shape[0]
+    out = np.empty((n, HITS_WIDTH))
+    lbs = np.empty(pr.tmin.shape[0] * pr.tmin.shape[1])
+    tstate = np.zeros(grid.n_cells // TILE_BLOCK + 1, dtype=np.uint8)
+    stack = np.empty(3 * PYR_STACK, dtype=np.int64)
+    sc = Scratch(lbs, tstate, stack, cache)
+    for i in range(n):
+        Pc = R @ centres[i] + t
+        hits, cells, tests = sphere_hits(
+            (Pc[0], Pc[1], Pc[2]), radii[i], qp, intr, pr, grid, mp, vt, sc, chunks, stride, part, nparts
+        )
+        store_hits(hits, cells, tests, out[i])
+    return out

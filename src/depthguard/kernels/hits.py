@@ -17,9 +17,20 @@ import numpy as np
 
 from depthguard.kernels import FASTMATH
 
-__all__ = ["Hits", "no_hits", "add_hit", "nearer_hit", "write_hits", "OUT_WIDTH"]
+__all__ = [
+    "Hits",
+    "no_hits",
+    "add_hit",
+    "nearer_hit",
+    "write_hits",
+    "store_hits",
+    "merge_hits",
+    "OUT_WIDTH",
+    "HITS_WIDTH",
+]
 
 OUT_WIDTH = 10  # out row: distance, direction (3), nearest (3), count, column searches, votes
+HITS_WIDTH = 13  # a part's row (store_hits): the Hits fields (11), column searches, votes
 
 
 class Hits(NamedTuple):
@@ -89,3 +100,55 @@ def write_hits(h, mode, out):
     out[5] = h.ny
     out[6] = h.nz
     out[7] = h.count
+
+
+@nb.njit(cache=True, nogil=True, inline="always", _nrt=False)
+def store_hits(h, cells, tests, row):
+    """``row[0:13]`` = the fields of ``h`` in order, then ``cells`` and ``tests`` (a part of a query,
+    :func:`merge_hits`)."""
+    row[0] = h.best
+    row[1] = h.bx
+    row[2] = h.by
+    row[3] = h.bz
+    row[4] = h.nx
+    row[5] = h.ny
+    row[6] = h.nz
+    row[7] = h.count
+    row[8] = h.sx
+    row[9] = h.sy
+    row[10] = h.sz
+    row[11] = cells
+    row[12] = tests
+
+
+@nb.njit(cache=True, nogil=True, fastmath=FASTMATH)
+def merge_hits(parts, mode, stride):
+    """The rows that the whole query writes (N, ``OUT_WIDTH``), from the hits of K disjoint parts of each
+    sphere's pieces: ``parts`` (K, N, ``HITS_WIDTH``) (:func:`store_hits`, each part started from
+    :func:`no_hits`). The nearest piece is that of the part with the smallest ``best`` (the first part on a
+    tie: the one that holds the unseen space, which the whole query visits first); the counts, the direction
+    sums, the column searches and the votes add up. ``stride``: the direction lattice (the count is scaled by
+    ``stride²`` in modes 1 and 2, as the whole query does)."""
+    nparts, n = parts.shape[0], parts.shape[1]
+    out = np.empty((n, OUT_WIDTH))
+    for i in range(n):
+        j = 0
+        for p in range(1, nparts):
+            if parts[p, i, 0] < parts[j, i, 0]:
+                j = p
+        count = sx = sy = sz = cells = tests = 0.0
+        for p in range(nparts):
+            count += parts[p, i, 7]
+            sx += parts[p, i, 8]
+            sy += parts[p, i, 9]
+            sz += parts[p, i, 10]
+            cells += parts[p, i, 11]
+            tests += parts[p, i, 12]
+        r = parts[j, i]
+        h = Hits(r[0], r[1], r[2], r[3], r[4], r[5], r[6], count, sx, sy, sz)
+        write_hits(h, mode, out[i])
+        if mode != 0:
+            out[i, 7] *= stride * stride
+        out[i, 8] = cells
+        out[i, 9] = tests
+    return out

@@ -296,8 +296,14 @@ class DistanceStage:
         """Distance stage: distances of the control spheres to the obstacles."""
         kw = dict(rho=self.rho, mode=self.mode, alpha=self.alpha, direction_stride=self.direction_stride)
         if self.fusion is not None:
-            return self.fusion.query(centres, radii, **kw)
+            return self._fused(centres, radii, kw)
         return query_distances(self.frames[0], centres, radii, **kw)
+
+    def _fused(self, centres, radii, kw: dict) -> PointDistances:
+        """The depth grid's query, shared with the side thread where there is one (``side=``)."""
+        side = _side_thread()
+        with side.beside() if side is not None else contextlib.nullcontext() as ex:
+            return self.fusion.query(centres, radii, side=ex, **kw)
 
     def query_far(self, centres: np.ndarray, radii: np.ndarray, res: PointDistances) -> PointDistances:
         """The distances up to ``ssm_range`` for a speed and separation monitor: ``res`` (the :meth:`query`
@@ -308,7 +314,7 @@ class DistanceStage:
             return res
         c, r = np.atleast_2d(np.asarray(centres, float))[far], np.asarray(radii, float).reshape(-1)[far]
         kw = dict(rho=self.ssm_range, mode="min", alpha=self.alpha, direction_stride=self.direction_stride)
-        more = self.fusion.query(c, r, **kw) if self.fusion is not None else query_distances(self.frames[0], c, r, **kw)
+        more = self._fused(c, r, kw) if self.fusion is not None else query_distances(self.frames[0], c, r, **kw)
         merged = [np.array(a, copy=True) for a in res]
         for a, b in zip(merged, more, strict=True):
             a[far] = b

@@ -1,0 +1,78 @@
+"""The depth grid's query shared with a side thread (``DepthGridFusion.query(side=...)``): the image's tile
+rows dealt into parts, merged (``kernels.hits.merge_hits``), against the query on one thread.
+
+The distances and counts must be bit for bit those of the one-thread query (each piece is visited once,
+by one part; the unseen space by part 0), whatever the number of parts, the mode, the direction lattice
+and the column cache; the directions agree to rounding (the sums are added in another order).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from depthguard.depthgrid import DepthGridFusion
+from depthguard.depthgrid import fusion as fusion_module
+from depthguard.kernels.hits import merge_hits
+from test_depthgrid_properties import RHO, WORKSPACE, setup
+
+
+@pytest.fixture(scope="module")
+def side():
+    with ThreadPoolExecutor(1) as ex:
+        yield ex
+
+
+@settings(
+    max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
+)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    parts=st.sampled_from([2, 3, 4, 7]),
+    stride=st.sampled_from([1, 2, 3]),
+    cached=st.booleans(),
+)
+def test_split_query_answers_as_the_one_thread_query(seed, parts, stride, cached, side, monkeypatch):
+    cams, _, depths, P, radii = setup(seed)
+    rng = np.random.default_rng(seed)
+    masks = [rng.random(c.shape) < 0.05 for c in cams]
+    P = np.vstack([P, cams[0].camera_to_world(np.array([[0.0, 0.0, 0.1]]))])  # (one in the unseen space)
+    radii = np.append(radii, 0.05)
+    one = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    one.update(depths, masks)
+    one.column_cache = False
+    split = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    split.update(depths, masks)
+    split.column_cache = cached
+    monkeypatch.setattr(fusion_module, "QUERY_PARTS", parts)
+    for mode in ("min", "all", "hybrid"):
+        for _ in range(2):  # (the second time on the column cache that the first filled)
+            a = one.query(P, radii, rho=RHO, mode=mode, direction_stride=stride)
+            b = split.query(P, radii, rho=RHO, mode=mode, direction_stride=stride, side=side)
+            np.testing.assert_array_equal(a.distance, b.distance)
+            if mode == "min":  # (the count of min mode depends on the pruning, and the nearest piece on the
+                # order of visit where several lie at the same distance: 0 inside an obstacle)
+                apart = a.distance > 0
+                np.testing.assert_allclose(a.direction[apart], b.direction[apart], atol=1e-9)
+                np.testing.assert_allclose(a.nearest[apart], b.nearest[apart], atol=1e-9)
+            else:
+                np.testing.assert_array_equal(a.obstacle_pixels, b.obstacle_pixels)
+                np.testing.assert_allclose(a.direction, b.direction, atol=1e-9)
+
+
+def test_merge_takes_the_nearest_part_and_adds_the_sums():
+    """Two parts of one sphere by hand: part 1 holds the nearer piece, part 0 ties part 1 on a second sphere."""
+    rows = np.zeros((2, 2, 13))
+    rows[0, 0] = [0.5, 1, 0, 0, 1, 1, 1, 2, 1.0, 0.0, 0.0, 3, 4]
+    rows[1, 0] = [0.2, 0, 1, 0, 2, 2, 2, 1, 0.0, 3.0, 0.0, 5, 6]
+    rows[0, 1] = [0.3, 1, 0, 0, 7, 7, 7, 1, 0.0, 0.0, 2.0, 0, 0]
+    rows[1, 1] = [0.3, 0, 1, 0, 8, 8, 8, 1, 0.0, 0.0, 2.0, 0, 0]
+    out = merge_hits(rows, 2, 2)  # hybrid, lattice stride 2
+    np.testing.assert_allclose(out[0], [0.2, 1 / 10**0.5, 3 / 10**0.5, 0, 2, 2, 2, 3 * 4, 8, 10])
+    np.testing.assert_allclose(out[1, :7], [0.3, 0, 0, 1, 7, 7, 7])  # (the tie: part 0's piece)
+    out = merge_hits(rows, 0, 2)  # min: the nearest piece's direction, the count unscaled
+    np.testing.assert_allclose(out[0, :8], [0.2, 0, 1, 0, 2, 2, 2, 3])
