@@ -52,3 +52,22 @@ def test_cpu_percent_tells_a_busy_process_from_a_sleeping_one():
     assert got["busy"] > 30.0, got  # (a loaded 2-core machine may give it well under 100 %)
     assert got["sleeping"] < 10.0, got
     assert _cpu_percent({"start": start}) == {}  # (no end: nothing to say)
+
+
+def test_the_latency_parts_add_up_from_the_logs():
+    """``_latencies`` on hand-made log rows (times in s, figures in ms): the wait's and the compute's parts
+    add up to their whole, and a row without ``update`` (an older node) counts in ``compute`` only."""
+    from depthguard.nodes.bench import _latencies
+
+    dist = [
+        dict(frame_pub=10.000, recv=10.001, ready=10.0015, start=10.002, compute=0.008, update=0.003, pub=10.0105),
+        dict(frame_pub=10.100, recv=10.101, ready=10.1015, start=10.102, compute=0.008, update=0.005, pub=10.1105),
+        dict(frame_pub=10.200, recv=10.201, ready=10.2015, start=10.202, compute=0.008, pub=10.2105),
+    ]
+    cmds = [dict(dist_pub=10.0105, pub=10.0113, status="OK")]
+    p = _latencies(dist, cmds)["frame_to_distances_parts"]
+    assert p["compute"]["median_ms"] == pytest.approx(8.0)
+    assert p["compute_update"]["median_ms"] == pytest.approx(4.0)  # (3 and 5 ms: the third row has none)
+    assert p["compute_query"]["median_ms"] == pytest.approx(4.0)
+    assert p["decode_and_pair"]["median_ms"] + p["wake_and_take"]["median_ms"] == pytest.approx(p["wait"]["median_ms"])
+    assert p["publish"]["median_ms"] == pytest.approx(0.5)

@@ -14,10 +14,13 @@ time stamps of the rmw_zenoh attachments (publication times, one clock) come fro
 * ``frame_to_distances_parts``: where the time goes, from the distance node's log: ``transport`` (frame set
   published -> its last message reaches the node's callback), ``wait`` (CDR decoding, pairing by stamp and
   the node's thread waking up -> the distance stage starts on it; split into ``decode_and_pair``, the last
-  message's callback, and ``wake_and_take``), ``compute`` and ``publish`` (-> the distances published);
+  message's callback, and ``wake_and_take``), ``compute`` (split into ``compute_update``, the frame stage
+  with the self-filter margins, and ``compute_query``, the queries) and ``publish`` (-> the distances
+  published);
 * ``in_process``: the same computation on the same frame sets in this process, before the nodes start:
   ``back_to_back`` (one frame set after the other) and ``paced`` (one per camera period, the process idle in
   between, as in the node); their difference is what idling between frames costs on the machine;
+  ``back_to_back_update`` and ``paced_update``: their frame stages;
 * ``cpu_percent_of_one_core``: the CPU time (user + system) each process used over the measurement, per
   second of it, from ``/proc`` (empty where there is none);
 * ``shared_memory``: of the image samples the distance node received, the fraction that came through Zenoh's
@@ -242,6 +245,9 @@ def _latencies(dist: list[dict], cmds: list[dict]) -> dict:
             "transport": _stats([r["recv"] - r["frame_pub"] for r in dist]),
             "wait": _stats([r["start"] - r["recv"] for r in dist]),
             "compute": _stats([r["compute"] for r in dist]),
+            # (the compute's two parts: the frame stage, with the self-filter margins; the queries)
+            "compute_update": _stats([r["update"] for r in dist if r.get("update") is not None]),
+            "compute_query": _stats([r["compute"] - r["update"] for r in dist if r.get("update") is not None]),
             "publish": _stats([r["pub"] - r["start"] - r["compute"] for r in dist]),
             # (the wait's two parts: the last message's decoding and pairing; the node's thread taking the set)
             "decode_and_pair": _stats([r["ready"] - r["recv"] for r in dist]),
@@ -294,17 +300,19 @@ def _in_process_compute(cell, sets, n: int) -> dict:
     period = 1.0 / float(cell.cameras[0].rate)
     out = {}
     for name, pause in (("back_to_back", 0.0), ("paced", period)):
-        times = []
+        times, updates = [], []
         for i in range(n + 5):
             q, depths, masks = sets[i % len(sets)]
             depths, masks = [d.copy() for d in depths], [m.copy() for m in masks]  # fresh, as decoded
-            t0 = time.perf_counter()
-            _frame_set_distances(stage, cell, cams, points, depths, masks, q, q)
-            dt = time.perf_counter() - t0
+            marks = [time.perf_counter()]
+            _frame_set_distances(stage, cell, cams, points, depths, masks, q, q, marks)
+            dt = time.perf_counter() - marks[0]
             if i >= 5:
                 times.append(dt)
+                updates.append(marks[1] - marks[0])
             time.sleep(max(0.0, pause - dt))
         out[name] = _stats(times)
+        out[name + "_update"] = _stats(updates)
     return out
 
 

@@ -137,14 +137,17 @@ def frame_set_cameras(cams0: list, depths: list, model, carried: list, q_cams: d
     return cams
 
 
-def _frame_set_distances(stage, cell: CellFile, cams, points, depths, masks, q_frames, q):
+def _frame_set_distances(stage, cell: CellFile, cams, points, depths, masks, q_frames, q, marks=None):
     """Update ``stage`` with one frame set (robot-interior corrections at the frames' joint state
     ``q_frames``, none without one) and query the control spheres at the newest joint positions ``q``:
-    ``(control points, distances up to the monitor's range, the monitor's own distances or None)``."""
+    ``(control points, distances up to the monitor's range, the monitor's own distances or None)``.
+    ``marks``: a list, to which the ``time.perf_counter()`` at the end of the update is appended."""
     from depthguard.runner.chain import self_filter_margins
 
     margins = None if q_frames is None else self_filter_margins(cell, cams, q_frames, points.model)
     stage.update(depths, masks, q_frames, points.model, *([margins] if margins is not None else []))
+    if marks is not None:
+        marks.append(time.perf_counter())
     cps = points.evaluate(q)
     res = stage.query(cps.centres, cps.radii)
     res = stage.query_far(cps.centres, cps.radii, res)  # SSM: beyond rho too (docs/ssm.md)
@@ -167,9 +170,10 @@ class FrameSetWork:
         self.cell, self.cams0, self.points, self.carried = cell, cams0, points, carried
         self.stage, self.sizes, self.cams = None, [], None
 
-    def distances(self, depths: list, masks: list, q_frames, q_cams: dict, q) -> tuple | None:
+    def distances(self, depths: list, masks: list, q_frames, q_cams: dict, q, marks=None) -> tuple | None:
         """``(control points, distances, the monitor's distances or None)`` of one frame set (depths (H, W)
-        metres, masks (H, W) bool, one per camera), or None when a carried camera's joint state is missing."""
+        metres, masks (H, W) bool, one per camera), or None when a carried camera's joint state is missing.
+        ``marks``: as :func:`_frame_set_distances`."""
         from depthguard.runner.chain import cell_distance_stage
 
         try:
@@ -180,7 +184,9 @@ class FrameSetWork:
                 if cams is None:
                     return None
                 self.stage, self.sizes, self.cams = cell_distance_stage(self.cell, cams), sizes, cams
-            return _frame_set_distances(self.stage, self.cell, self.cams, self.points, depths, masks, q_frames, q)
+            return _frame_set_distances(
+                self.stage, self.cell, self.cams, self.points, depths, masks, q_frames, q, marks
+            )
         except ValueError:
             self.stage = None
             raise
@@ -230,9 +236,9 @@ def run_distance_node(
             sets, q, t_data, q_frames, q_cams = got_set
             depths, masks = [s[1] for s in sets], [s[2] for s in sets]
             t_start_compute = time.time()
-            w0 = time.perf_counter()
+            marks = [time.perf_counter()]
             try:
-                got = work.distances(depths, masks, q_frames, q_cams, q)
+                got = work.distances(depths, masks, q_frames, q_cams, q, marks)
             except ValueError as exc:  # a malformed frame set (a mask of another size...): no distances from it
                 jl.write(ev="skipped", reason=str(exc))
                 continue
@@ -240,7 +246,7 @@ def run_distance_node(
                 jl.write(ev="skipped", reason="no joint state for a carried camera's frame")
                 continue  # (no distances from this frame set: they go stale, the controller stops)
             cps, res, mres = got
-            w1 = time.perf_counter()
+            w0, w1 = marks[0], time.perf_counter()
             p = pub.publish(ros2.query_msg(t_data, points.names, cps.centres, cps.radii, res, rho=rho)) * 1e-9
             if mres is not None:
                 rng = getattr(work.stage.monitor, "ssm_range", None) or rho  # (the monitor's range)
@@ -249,6 +255,7 @@ def run_distance_node(
             jl.write(
                 ev="distances", stamp=t_data, frame_pub=max(s[3] for s in sets), recv=max(s[4] for s in sets),
                 ready=fs.taken_ready, start=t_start_compute, pub=p, compute=w1 - w0,
+                update=marks[1] - w0 if len(marks) > 1 else None,
             )  # fmt: skip
     finally:
         out = {
