@@ -84,7 +84,10 @@ machine): about 1.3 kHz in ``"all"`` mode and 7.5 kHz in ``"min"`` mode; ``updat
 pair (with the min pyramid). See ``depthguard.bench.grid``. In the ``ral-shadow`` scenario (a person
 between the principal camera and the robot), the slowest recorded query takes about 18 ms in
 ``"hybrid"`` mode and 7.5 ms in ``"min"`` mode (52 and 35 ms before the chunk tests); a point with no
-obstacle within ρ costs 0.15-0.7 ms (2-5 ms before). See BENCHMARKS.md.
+obstacle within ρ costs 0.15-0.7 ms (2-5 ms before). See BENCHMARKS.md. With a second thread
+(``query(side=...)``, which :class:`depthguard.sim.pipeline.DistanceStage` passes wherever there are two
+CPUs) the ``ral-hexagon`` cell's query of its nine spheres takes 0.61-0.64 of its one-thread time (BENCHMARKS.md,
+stop 45).
 """
 
 from __future__ import annotations
