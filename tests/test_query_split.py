@@ -76,3 +76,18 @@ def test_merge_takes_the_nearest_part_and_adds_the_sums():
     np.testing.assert_allclose(out[1, :7], [0.3, 0, 0, 1, 7, 7, 7])  # (the tie: part 0's piece)
     out = merge_hits(rows, 0, 2)  # min: the nearest piece's direction, the count unscaled
     np.testing.assert_allclose(out[0, :8], [0.2, 0, 1, 0, 2, 2, 2, 3])
+
+
+def test_split_query_of_no_sphere_and_of_a_bad_sphere(side):
+    """No sphere: an empty answer, as on one thread; a bad centre: the same error as on one thread."""
+    cams, _, depths, _, _ = setup(7)
+    fusion = DepthGridFusion(cams, dd=0.01, workspace=WORKSPACE)
+    fusion.update(depths)
+    empty = fusion.query(np.zeros((0, 3)), np.zeros(0), rho=RHO, mode="hybrid", side=side)
+    assert empty.distance.shape == (0,)
+    for bad in (np.array([[0.1, np.nan, 0.5]]), np.array([[0.1, 0.2]])):
+        with pytest.raises(ValueError) as one:
+            fusion.query(bad, 0.05, rho=RHO)
+        with pytest.raises(ValueError) as shared:
+            fusion.query(bad, 0.05, rho=RHO, side=side)
+        assert str(one.value) == str(shared.value)
