@@ -6,7 +6,8 @@ from the camera, a wall at 3.5 m, 2 % missing pixels, Kinect-like noise, 9 contr
 Shadow scene (:func:`depthguard.bench.scenes.shadow_frames`): the ``ral-shadow`` situation, two cameras at
 640x480, a person holding a panel between the principal camera and the robot, ``hybrid`` mode, ρ = 0.4
 (entry ``depthgrid-2cam-shadow-hybrid``; ``scenario ral-shadow`` reports the same stage as
-``distance_hz_median``).
+``distance_hz_median``); ``depthgrid-2cam-shadow-hybrid-first-query`` and its ``-shared`` form: the first query
+of a frame set on one thread and shared with a side thread (``ratio_vs_one_thread``).
 
 Every entry carries ``vs_reference``: its rate over that of the machine-speed reference kernel timed in
 the same run (:func:`depthguard.bench.timing.reference_speed`), so that runs on different machines compare.
@@ -157,7 +158,48 @@ def _shadow_results(quick: bool) -> list[dict]:
                 "cell_votes": int(fusion.last_votes.sum()),
             }
         )
+    out.extend(_first_query_results(fusion, sh, quick))
     out.append(_frame_stage_result(sh, quick))
+    return out
+
+
+def _first_query_results(fusion, sh: dict, quick: bool) -> list[dict]:
+    """The first ``hybrid`` query of a frame set (the column cache empty, as after every update), on this
+    thread alone and shared with a side thread (``DepthGridFusion.query(side=...)``, the distance stage's
+    default on two CPUs or more), alternated in rounds; the entries give the median of the rounds' medians and
+    the shared one its ratio to the one-thread one."""
+    from depthguard.sidethread import SideThread
+
+    side = SideThread("depthguard-bench")
+
+    def first(ex) -> None:
+        fusion._gen += 1  # (a new frame for the column cache, as update() makes, without the update's cost)
+        fusion.query(sh["centres"], sh["radii"], rho=0.4, mode="hybrid", side=ex)
+
+    def shared() -> None:
+        with side.beside() as ex:
+            first(ex)
+
+    n = 10 if quick else 40
+    rounds: dict[str, list] = {"": [], "-shared": []}
+    try:
+        for _ in range(3 if quick else 7):
+            rounds[""].append(time_calls(lambda: first(None), n))
+            rounds["-shared"].append(time_calls(shared, n))
+    finally:
+        side.shutdown()
+    out = []
+    for tag, ts in rounds.items():
+        us = float(np.median([t["us_median"] for t in ts]))
+        row = {
+            "name": f"depthgrid-2cam-shadow-hybrid-first-query{tag}",
+            "rho": 0.4,
+            "hz_median": 1e6 / us,
+            "us_median": us,
+            "us_p99": float(np.median([t["us_p99"] for t in ts])),
+        }
+        out.append(row)
+    out[1]["ratio_vs_one_thread"] = out[1]["us_median"] / out[0]["us_median"]
     return out
 
 
