@@ -8,6 +8,7 @@ and the column cache; the directions agree to rounding (the sums are added in an
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -91,3 +92,34 @@ def test_split_query_of_no_sphere_and_of_a_bad_sphere(side):
         with pytest.raises(ValueError) as shared:
             fusion.query(bad, 0.05, rho=RHO, side=side)
         assert str(one.value) == str(shared.value)
+
+
+@pytest.mark.skipif(
+    not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+    reason="needs Linux CPU affinity and at least two allowed CPUs",
+)
+def test_the_distance_stage_shares_its_query_on_two_cpus_only(monkeypatch):
+    """``DistanceStage.query`` hands the fusion a side executor where this thread may use two CPUs, none on
+    one allowed CPU (``taskset``: the two threads would only take turns), and answers the same either way."""
+    from depthguard.sim.pipeline import DistanceStage
+
+    cams, _, depths, P, radii = setup(11)
+    stage = DistanceStage(cams[:2], rho=RHO, mode="hybrid", workspace=WORKSPACE)
+    stage.update(depths[:2], [None, None])
+    sides = []
+    query = stage.fusion.query
+
+    def spy(*args, side=None, **kw):
+        sides.append(side)
+        return query(*args, side=side, **kw)
+
+    monkeypatch.setattr(stage.fusion, "query", spy)
+    shared = stage.query(P, radii)
+    before = os.sched_getaffinity(0)
+    try:
+        os.sched_setaffinity(0, {min(before)})
+        alone = stage.query(P, radii)
+    finally:
+        os.sched_setaffinity(0, before)
+    assert sides[0] is not None and sides[1] is None
+    np.testing.assert_array_equal(shared.distance, alone.distance)

@@ -25,7 +25,7 @@ from typing import TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["SideThread", "run_parts"]
+__all__ = ["SideThread", "run_parts", "usable_cpus"]
 
 
 def _cpu_getter() -> Callable[[], int] | None:
@@ -89,6 +89,15 @@ class SideThread:
     def shutdown(self) -> None:
         """Stop the worker thread (after its jobs)."""
         self._pool.shutdown(wait=True)
+
+
+def usable_cpus() -> int:
+    """How many CPUs the calling thread may run on: its affinity mask where the system has one (``taskset``,
+    cpusets), else the machine's CPU count."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def run_parts(fn: Callable[[int], T], n: int, side: Executor | None = None) -> list[T]:

@@ -23,6 +23,7 @@ from depthguard.robot.control_points import ControlPointSet, ControlPointState
 from depthguard.robot.interior import interior_capsules, principal_robot_pixels, robot_windows
 from depthguard.robot.robots import load_robot
 from depthguard.robot.selffilter import self_filter as _robot_self_filter
+from depthguard.sidethread import usable_cpus
 
 __all__ = [
     "Kinematics",
@@ -300,8 +301,9 @@ class DistanceStage:
         return query_distances(self.frames[0], centres, radii, **kw)
 
     def _fused(self, centres, radii, kw: dict) -> PointDistances:
-        """The depth grid's query, shared with the side thread where there is one (``side=``)."""
-        side = _side_thread()
+        """The depth grid's query, shared with the side thread where this thread may use two CPUs or more
+        (``side=``; on one allowed CPU the two would only take turns)."""
+        side = _side_thread() if usable_cpus() >= 2 else None
         with side.beside() if side is not None else contextlib.nullcontext() as ex:
             return self.fusion.query(centres, radii, side=ex, **kw)
 
