@@ -123,3 +123,31 @@ def test_the_distance_stage_shares_its_query_on_two_cpus_only(monkeypatch):
         os.sched_setaffinity(0, before)
     assert sides[0] is not None and sides[1] is None
     np.testing.assert_array_equal(shared.distance, alone.distance)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    k=st.integers(1, 5),
+    n=st.integers(0, 6),
+    mode=st.sampled_from([0, 1, 2]),
+    stride=st.integers(1, 3),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_merge_against_a_plain_reference(k, n, mode, stride, seed):
+    """``merge_hits`` on random parts (distances from a few values, so that parts tie) against numpy: the
+    first part with the smallest distance gives the direction and nearest point, the rest adds up."""
+    rng = np.random.default_rng(seed)
+    rows = rng.normal(size=(k, n, 13))
+    rows[:, :, 0] = rng.choice([0.0, 0.1, 0.25, 0.5], size=(k, n))
+    rows[:, :, 7] = rng.integers(0, 50, size=(k, n))
+    rows[:, :, 11:] = rng.integers(0, 1000, size=(k, n, 2))
+    out = merge_hits(rows, mode, stride)
+    assert out.shape == (n, 10)
+    for i in range(n):
+        j = int(np.argmin(rows[:, i, 0]))  # (numpy's argmin: the first of equal minima)
+        s = rows[:, i, 8:11].sum(axis=0)
+        nrm = np.linalg.norm(s)
+        direction = rows[j, i, 1:4] if mode == 0 or nrm <= 1e-9 else s / nrm
+        count = rows[:, i, 7].sum() * (stride * stride if mode != 0 else 1)
+        expected = [rows[j, i, 0], *direction, *rows[j, i, 4:7], count, *rows[:, i, 11:13].sum(axis=0)]
+        np.testing.assert_allclose(out[i], expected, rtol=1e-12, atol=1e-12)
