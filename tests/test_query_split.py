@@ -98,9 +98,11 @@ def test_split_query_of_no_sphere_and_of_a_bad_sphere(side):
     not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
     reason="needs Linux CPU affinity and at least two allowed CPUs",
 )
-def test_the_distance_stage_shares_its_query_on_two_cpus_only(monkeypatch):
-    """``DistanceStage.query`` hands the fusion a side executor where this thread may use two CPUs, none on
-    one allowed CPU (``taskset``: the two threads would only take turns), and answers the same either way."""
+def test_the_distance_stage_shares_its_query_on_two_cpus_and_big_images_only(monkeypatch):
+    """``DistanceStage.query`` hands the fusion a side executor where this thread may use two CPUs and the
+    principal image is big enough; none on one allowed CPU (``taskset``: the two threads would only take
+    turns) or for a small image; and answers the same either way."""
+    from depthguard.sim import pipeline
     from depthguard.sim.pipeline import DistanceStage
 
     cams, _, depths, P, radii = setup(11)
@@ -114,6 +116,8 @@ def test_the_distance_stage_shares_its_query_on_two_cpus_only(monkeypatch):
         return query(*args, side=side, **kw)
 
     monkeypatch.setattr(stage.fusion, "query", spy)
+    small = stage.query(P, radii)  # (120x90: below SHARED_QUERY_MIN_PIXELS)
+    monkeypatch.setattr(pipeline, "SHARED_QUERY_MIN_PIXELS", 120 * 90)
     shared = stage.query(P, radii)
     before = os.sched_getaffinity(0)
     try:
@@ -121,8 +125,9 @@ def test_the_distance_stage_shares_its_query_on_two_cpus_only(monkeypatch):
         alone = stage.query(P, radii)
     finally:
         os.sched_setaffinity(0, before)
-    assert sides[0] is not None and sides[1] is None
+    assert sides[0] is None and sides[1] is not None and sides[2] is None
     np.testing.assert_array_equal(shared.distance, alone.distance)
+    np.testing.assert_array_equal(shared.distance, small.distance)
 
 
 @settings(max_examples=60, deadline=None)

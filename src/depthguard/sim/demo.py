@@ -43,13 +43,38 @@ def _fmt(v, unit: str = "", nd: int = 3) -> str:
     return f"{v}{unit}"
 
 
-def _second_process():
-    """A one-worker process pool (spawned: a forked MuJoCo/numba process is not safe), or None."""
+def _cpu_halves() -> tuple[set[int], set[int]] | None:
+    """The CPUs this process may use, in two halves: one for each run of the demo (each run's distance stage
+    then uses the CPUs of its own half, :func:`depthguard.sidethread.usable_cpus`, instead of both runs
+    competing for all of them). None where there are fewer than two or affinity is not supported."""
+    try:
+        allowed = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+    if len(allowed) < 2:
+        return None
+    half = len(allowed) // 2
+    return set(allowed[:half]), set(allowed[half:])
+
+
+def _set_cpus(cpus: set[int] | None) -> None:
+    """This thread's CPUs (and those of the threads it starts), where the system allows it."""
+    if cpus:
+        try:
+            os.sched_setaffinity(0, cpus)
+        except OSError:
+            pass
+
+
+def _second_process(cpus: set[int] | None = None):
+    """A one-worker process pool (spawned: a forked MuJoCo/numba process is not safe) on ``cpus``, or None."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     try:
-        return ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        return ProcessPoolExecutor(
+            max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=_set_cpus, initargs=(cpus,)
+        )
     except (OSError, ValueError):  # no process support here: run one after the other
         return None
 
@@ -82,10 +107,14 @@ def run_demo(out_dir: str | Path | None = None) -> int:
     print("(depth images 320x240 for speed; 1 kHz control, 30 Hz cameras, distance stage every 3 ms)\n")
     _compile_kernels(["fusion", "robot"])
     kwargs = dict(quick=True, cameras=2, variants=False, demo=True)
-    # the run without avoidance goes to a second process (2 cores or more): the demo takes the time of one run
-    pool = _second_process() if (os.cpu_count() or 1) >= 2 else None
+    # the run without avoidance goes to a second process (2 cores or more): the demo takes the time of one run;
+    # each run on its half of the CPUs
+    halves = _cpu_halves()
+    pool = _second_process(halves[1] if halves else None) if (os.cpu_count() or 1) >= 2 else None
+    mine = os.sched_getaffinity(0) if halves else None
     off_job = None
     if pool is not None:
+        _set_cpus(halves[0] if halves else None)
         off_job = pool.submit(run_scenario, "ral-hexagon", avoidance=False, out_dir=out / "avoidance_off", **kwargs)
         print("(the run without avoidance runs beside it in a second process)", flush=True)
     try:
@@ -98,6 +127,7 @@ def run_demo(out_dir: str | Path | None = None) -> int:
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
+        _set_cpus(mine)
     rows = [
         ("true min clearance [m]", "min_clearance", "", 3),
         ("collision steps (1 ms)", "collision_steps", "", 0),

@@ -184,6 +184,13 @@ _SIDE: list = []
 os.register_at_fork(after_in_child=_SIDE.clear)  # a forked child has no worker thread: it makes its own
 
 
+#: The smallest principal image (pixels) whose depth-grid query is shared with the side thread. Measured on the
+#: 2-core CI VM (``ral-hexagon`` frames, BENCHMARKS.md, stop 45): shared, the first query of a frame set took
+#: 0.63 of its one-thread time at 640x480 and 0.64 at 320x240, but 0.99 at 160x120, and a repeated query
+#: 1.48 times its one-thread time there (waking the worker costs more than half of the query saves).
+SHARED_QUERY_MIN_PIXELS = 320 * 240
+
+
 def _side_thread():
     """One worker thread for the frame stage's independent kernels, run on another CPU than the caller's
     (:class:`depthguard.sidethread.SideThread`; None on a single core)."""
@@ -301,9 +308,12 @@ class DistanceStage:
         return query_distances(self.frames[0], centres, radii, **kw)
 
     def _fused(self, centres, radii, kw: dict) -> PointDistances:
-        """The depth grid's query, shared with the side thread where this thread may use two CPUs or more
-        (``side=``; on one allowed CPU the two would only take turns)."""
-        side = _side_thread() if usable_cpus() >= 2 else None
+        """The depth grid's query, shared with the side thread (``side=``) where the principal image has
+        :data:`SHARED_QUERY_MIN_PIXELS` or more and this thread may use two CPUs or more (on one allowed CPU
+        the two would only take turns)."""
+        cam = self.cameras[0]
+        big = cam.width * cam.height >= SHARED_QUERY_MIN_PIXELS
+        side = _side_thread() if big and usable_cpus() >= 2 else None
         with side.beside() if side is not None else contextlib.nullcontext() as ex:
             return self.fusion.query(centres, radii, side=ex, **kw)
 
