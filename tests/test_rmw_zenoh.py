@@ -179,6 +179,7 @@ def test_subscription_drops_duplicates_reordered_and_unlisted():
         time.sleep(1.0)
         assert seen == [1.0, 3.0]
         assert sub.dropped == {"duplicate or reordered sequence number": 1, "stale or reordered stamp": 1}
+        assert sub.missed == 1  # (number 2 never came: the duplicate went out under number 1)
         # a subscription that only accepts node "camera0" ignores "friend" and names it
         sub2 = rx.subscribe("/js2", "sensor_msgs/msg/JointState", lambda m, a, t: seen.append(-1), allowed={"camera0"})
         pub2 = tx.publisher("/js2", "sensor_msgs/msg/JointState")
@@ -230,6 +231,7 @@ def test_a_pull_subscription_waits_for_drain_keeps_the_newest_and_filters_alike(
         assert sub.drain() == 5  # the ring's five newest: 5, 6, 7, the duplicate, the reordered one
         assert seen == [1.0, 2.0, 5.0, 6.0, 7.0]
         assert sub.dropped == {"duplicate or reordered sequence number": 1, "stale or reordered stamp": 1}
+        assert sub.missed == 3  # (3 and 4, pushed out of the full ring; 8: the duplicate went out under 7)
         plain = rx.subscribe("/js3", "sensor_msgs/msg/JointState", on_js)
         assert plain.drain() == 0  # (a callback subscription has nothing to drain)
     finally:
@@ -266,6 +268,32 @@ def test_filter_never_passes_duplicates_reordered_or_stale(samples):
     g = SampleFilter("sensor_msgs/msg/JointState", who=lambda gid: None, allowed={"controller"})
     assert g.accept(rz.encode_attachment(1, 0, b"\x00" * 16), cdr) is None
     assert g.rejected_publishers == {"None"}
+
+
+@given(
+    delivered=st.lists(st.booleans(), min_size=1, max_size=60),
+    corrupt=st.lists(st.booleans(), min_size=60, max_size=60),
+    resent=st.lists(st.integers(0, 59), max_size=10),
+)
+def test_missed_counts_the_samples_that_never_came(delivered, corrupt, resent):
+    """One publisher sends sequence numbers 1..N; some never arrive, some arrive corrupt, some arrive twice.
+    ``missed`` is the number that never arrived between the first and the last that did; a corrupt or repeated
+    sample counts in ``dropped`` only."""
+    from depthguard.io import ros2
+    from depthguard.io.zenoh_transport import SampleFilter
+
+    f = SampleFilter("sensor_msgs/msg/JointState")
+    gid = b"\x07" * 16
+    came = [i + 1 for i, d in enumerate(delivered) if d]
+    arrivals = list(came)
+    for k in resent:  # (a copy of an earlier sample right after a later one)
+        if k < len(arrivals):
+            arrivals.insert(k + 1, arrivals[k])
+    for seq in arrivals:
+        cdr = ros2.serialize(ros2.joint_state_msg(float(seq), ["a"], [0.0]), "sensor_msgs/msg/JointState")
+        f.accept(rz.encode_attachment(seq, 0, gid), cdr[:7] if corrupt[seq - 1] else cdr)
+    expected = (came[-1] - came[0] + 1 - len(came)) if came else 0
+    assert f.missed == expected
 
 
 def test_large_images_cross_in_shared_memory_and_arrive_intact():

@@ -26,7 +26,10 @@ MAX_FUTURE_S = 0.5
 
 class SampleFilter:
     """What a subscription lets through, without any Zenoh: ``accept(attachment, payload)`` returns the
-    decoded ``(message, attachment)`` or None, counting every drop by reason in :attr:`dropped`.
+    decoded ``(message, attachment)`` or None, counting every drop by reason in :attr:`dropped`, and in
+    :attr:`missed` the samples that never reached it (gaps in a publisher's sequence numbers: lost on the way
+    by a publisher that drops under congestion, or pushed out of a full ``pull`` ring; a sample that arrives
+    and is dropped here counts in :attr:`dropped` only).
 
     Args:
         typename: the ROS type of the payload.
@@ -48,6 +51,8 @@ class SampleFilter:
         self.typename, self.who, self.allowed, self.check_order = typename, who, allowed, check_order
         self.max_future = float(max_future)
         self.last_seq: dict[bytes, int] = {}
+        self.seen_seq: dict[bytes, int] = {}  # per publisher, the highest sequence number that reached here
+        self.missed = 0  # samples that never reached here: gaps in a publisher's sequence numbers
         self.last_stamp = -float("inf")
         self.dropped: dict[str, int] = {}
         self.rejected_publishers: set[str] = set()
@@ -86,6 +91,11 @@ class SampleFilter:
         if att.seq <= self.last_seq.get(att.gid, -(2**63) - 1):
             self._drop("duplicate or reordered sequence number")
             return None
+        seen = self.seen_seq.get(att.gid)
+        if seen is None or att.seq > seen:
+            if seen is not None:
+                self.missed += att.seq - seen - 1  # (lost on the way, or pushed out of a full ring)
+            self.seen_seq[att.gid] = att.seq
         try:
             msg = ros2.deserialize(payload, self.typename)
         except Exception:  # noqa: BLE001 - any malformed payload is dropped, never raised into Zenoh

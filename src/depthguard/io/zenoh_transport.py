@@ -180,6 +180,12 @@ class Subscription:
         return self.filter.dropped
 
     @property
+    def missed(self) -> int:
+        """Samples that never reached the filter (:attr:`SampleFilter.missed`): lost on the way, or pushed out
+        of a full ``pull`` ring."""
+        return self.filter.missed
+
+    @property
     def rejected_publishers(self) -> set[str]:
         """Node names of the publishers whose samples were dropped as not allowed."""
         return self.filter.rejected_publishers

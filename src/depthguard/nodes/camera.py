@@ -133,6 +133,7 @@ def run_camera_node(
             jl.write(ev="prepared", stamp=t, pub_raw=pub_in * 1e-9, pub=p1 * 1e-9)
     finally:
         out = {"frames": done, "skipped": skipped, "dropped": dict(sub.dropped), "freed_memory": heap}
+        out["missed"] = {s.topic: s.missed for s in (sub, sub_js) if s.missed}  # (lost, or out of a full ring)
         node.close()
         jl.close()
     return out

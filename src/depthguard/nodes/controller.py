@@ -182,6 +182,7 @@ def _report(cycles: int, statuses: dict, cycle_wall: list[float], subs: list) ->
         "cycle_ms_p99": float(np.percentile(cw, 99)) if cw.size else None,
         "dropped": dict(sub_d.dropped),  # (the distances')
         "dropped_by_topic": {x.topic: dict(x.dropped) for x in subs if x.dropped},
+        "missed_by_topic": {x.topic: x.missed for x in subs if x.missed},  # (samples that never came)
         "rejected_publishers": sorted(sub_d.rejected_publishers),
         "unlisted_publishers": sorted(sub_d.unlisted_publishers),
     }

@@ -261,6 +261,7 @@ def run_distance_node(
         out = {
             "queries": queries,
             "dropped": {s.topic: dict(s.dropped) for s in subs if s.dropped},
+            "missed": {s.topic: s.missed for s in subs if s.missed},  # (never came: lost, or out of a full ring)
             "freed_memory": heap,
         }
         out["shared_memory_samples"] = {s.topic: [s.shm_received, s.received] for s in subs}
