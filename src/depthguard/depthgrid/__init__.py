@@ -7,8 +7,9 @@
 * :func:`fused_distances`: one-shot helper for the command line.
 """
 
-from depthguard.depthgrid.fusion import DepthGridFusion, fused_distances
+from depthguard.depthgrid.fusion import DepthGridFusion
 from depthguard.depthgrid.grid import DepthGrid, workspace_depth_range
 from depthguard.depthgrid.gridmap import MAP_MODES, GridMap
+from depthguard.depthgrid.oneshot import fused_distances
 
 __all__ = ["DepthGrid", "DepthGridFusion", "GridMap", "MAP_MODES", "fused_distances", "workspace_depth_range"]

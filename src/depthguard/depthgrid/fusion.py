@@ -110,8 +110,6 @@ from depthguard.depthspace import (
     MODES,
     TILE,
     PointDistances,
-    prepare_frame,
-    query_distances,
     to_world,
 )
 from depthguard.kernels.hits import merge_hits
@@ -120,7 +118,7 @@ from depthguard.kernels.records import intrinsics, query_params
 from depthguard.sidethread import run_parts
 from depthguard.validation import check_points
 
-__all__ = ["DepthGridFusion", "fused_distances"]
+__all__ = ["DepthGridFusion"]
 
 QUERY_PARTS = 4  # parts of the image (rows of tiles) of a query shared with a side thread (query(side=))
 
@@ -320,6 +318,7 @@ class DepthGridFusion:
         c, r = check_points(c, r)
         cam = self.cameras[0]
         g = self.grid
+        stride = resolve_stride(direction_stride, cam.width)
         args = (
             np.ascontiguousarray(cam.R),
             np.ascontiguousarray(cam.t),
@@ -333,11 +332,11 @@ class DepthGridFusion:
             Votes(self._votes, self._pyr, self._pyr_meta, self._has_windows),
             self._chunks,
             self._frame_cache(),
-            resolve_stride(direction_stride, cam.width),
+            stride,
         )
         if side is not None and not self.parallel and len(c) > 0:
             parts = run_parts(lambda k: query_part(*args, k, QUERY_PARTS), QUERY_PARTS, side)
-            raw = merge_hits(np.stack(parts), MODES.index(mode), args[-1])
+            raw = merge_hits(np.stack(parts), MODES.index(mode), stride)
         else:
             raw = (query_many_parallel if self.parallel else query_many)(*args)
         self.last_cells = raw[:, 8].astype(np.int64)
@@ -376,30 +375,3 @@ class DepthGridFusion:
     def map_nbytes(self) -> int:
         """Memory of the off-line map, bytes."""
         return self.map.nbytes
-
-
-def fused_distances(
-    cameras: list[Camera],
-    depths: list[np.ndarray],
-    masks: list[np.ndarray | None] | None,
-    centres: np.ndarray,
-    radii: np.ndarray | float,
-    rho: float = 0.4,
-    mode: str = "all",
-    invalid: str = "conservative",
-    dd: float = 0.01,
-    workspace: tuple[float, float, float, float, float, float] | None = None,
-    map_mode: str = "onthefly",
-) -> PointDistances:
-    """One-shot fused distances for the command line (``depthguard distance`` with several cameras).
-
-    With one camera this is :func:`depthguard.depthspace.query_distances`; with two or more it builds a
-    :class:`DepthGridFusion` (the first camera is the principal one), updates it once and queries it.
-    """
-    cameras = list(cameras)
-    if len(cameras) == 1:
-        frame = prepare_frame(cameras[0], depths[0], None if masks is None else masks[0], invalid=invalid)
-        return query_distances(frame, centres, radii, rho=rho, mode=mode)
-    fusion = DepthGridFusion(cameras, dd=dd, workspace=workspace, map_mode=map_mode)
-    fusion.update(depths, masks, invalid=invalid)
-    return fusion.query(centres, radii, rho=rho, mode=mode)

@@ -192,11 +192,9 @@ def sphere_hits(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, stride, part,
     cells = tests = 0
     if box[0] <= box[1] and box[2] <= box[3]:
         lbs = sc.lbs
-        t_u0, t_v0, ntu, ntiles = tile_lower_bounds(pr.tmin, px, py, pz, reff, box, intr, qp.tile, lbs)
-        if nparts > 1:
-            for k in range(ntiles):
-                if (t_v0 + k // ntu) % nparts != part:
-                    lbs[k] = np.inf  # (another part's tile: never visited here)
+        t_u0, t_v0, ntu, ntiles = tile_lower_bounds(
+            pr.tmin, px, py, pz, reff, box, intr, qp.tile, lbs, part, nparts
+        )  # (another part's tiles at +inf: never visited here)
         for kk in range(ntiles + 1):
             k, lattice_only = next_tile(lbs, ntiles, kk, hits.best, reff, qp.mode, stride)
             if k < 0:

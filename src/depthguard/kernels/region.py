@@ -105,8 +105,9 @@ def surveillance_box(px, py, pz, reff, intr):
 
 
 @nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
-def tile_lower_bounds(tmin, px, py, pz, reff, box, intr, tile, lbs):
-    """Fill ``lbs[k]`` for the tiles ``k`` over ``box`` = ``(u0, u1, v0, v1)`` (row-major from ``(t_v0, t_u0)``).
+def tile_lower_bounds(tmin, px, py, pz, reff, box, intr, tile, lbs, part=0, nparts=1):
+    """Fill ``lbs[k]`` for the tiles ``k`` over ``box`` = ``(u0, u1, v0, v1)`` (row-major from ``(t_v0, t_u0)``);
+    +inf (never visited) for the tiles of the rows ``tv % nparts != part`` (another part of a shared query).
 
     Returns ``(t_u0, t_v0, ntu, ntiles)``: tile ``k`` is ``(t_v0 + k // ntu, t_u0 + k % ntu)``.
     """
@@ -122,7 +123,7 @@ def tile_lower_bounds(tmin, px, py, pz, reff, box, intr, tile, lbs):
         tv = t_v0 + k // ntu
         tu = t_u0 + k % ntu
         dmin = tmin[tv, tu]
-        if dmin > zmax:
+        if dmin > zmax or (nparts > 1 and tv % nparts != part):
             lbs[k] = np.inf
             continue
         ua = tu * tile

@@ -49,7 +49,7 @@ class _FrameSets:
         self.recv: dict[str, dict] = {n: {} for n in names}  # stamp -> the later receive time (s) of the pair
         self.ready: dict[str, tuple] = {}
         self.joint: dict = {"q": None, "t": -np.inf}  # the newest joint positions and their stamp (s)
-        self.joints: deque = deque(maxlen=400)  # (stamp s, q): the joint state of each frame set
+        self.joints: deque = deque(maxlen=JOINT_RING)  # (stamp s, q): the joint states of the frame sets
         self.t_ready = 0.0  # when the newest frame set became complete (s since the epoch)
         self.taken_ready = 0.0  # when the frame set that :meth:`take` returned last became complete
 

@@ -109,12 +109,12 @@ def run_demo(out_dir: str | Path | None = None) -> int:
     kwargs = dict(quick=True, cameras=2, variants=False, demo=True)
     # the run without avoidance goes to a second process (2 cores or more): the demo takes the time of one run;
     # each run on its half of the CPUs
-    halves = _cpu_halves()
-    pool = _second_process(halves[1] if halves else None) if (os.cpu_count() or 1) >= 2 else None
-    mine = os.sched_getaffinity(0) if halves else None
+    first, second = _cpu_halves() or (None, None)
+    pool = _second_process(second) if (os.cpu_count() or 1) >= 2 else None
+    mine = os.sched_getaffinity(0) if first else None
     off_job = None
     if pool is not None:
-        _set_cpus(halves[0] if halves else None)
+        _set_cpus(first)
         off_job = pool.submit(run_scenario, "ral-hexagon", avoidance=False, out_dir=out / "avoidance_off", **kwargs)
         print("(the run without avoidance runs beside it in a second process)", flush=True)
     try:
