@@ -338,8 +338,12 @@ def test_slow_distance_node_works_on_the_newest_frames(system):
         f"resumed without the latch: {changes}"
     )
     log = [json.loads(x) for x in (sysm.tmp / "distance.log").read_text().splitlines() if '"distances"' in x]
-    slow = [r["pub"] - r["stamp"] for r in log if t_slow + 0.5 < r["pub"] < t_free]
-    assert slow and max(slow) > D_TIMEOUT, "the slow phase never delivered stale results (nothing was tested)"
+    # (the node skipped frames in the slow phase: after a stop it went on from a frame set far newer than its
+    # last one, where a queue would have gone on from the next; a result delivered stale, because a stop fell
+    # in its compute, happens by chance only and is not asked for)
+    stamps = [r["stamp"] for r in sorted(log, key=lambda r: r["pub"]) if t_slow < r["pub"] < t_free + 0.3]
+    jumps = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+    assert jumps and max(jumps) > D_TIMEOUT, f"no frames skipped in the slow phase (nothing was tested): {jumps}"
     ages = [r["pub"] - r["stamp"] for r in log if r["pub"] > t_free + 1.0]
     assert len(ages) >= 5, f"only {len(ages)} results after the slow phase"
     ages.sort()
