@@ -155,6 +155,24 @@ def test_byte_mutations_give_input_error_naming_the_file(kind, data):
     _check_cli(_distance_argv(**{role: path}), path)
 
 
+def test_a_camera_file_of_another_size_is_named_with_the_image():
+    """A camera file whose width or height is not the image's: the wrong number may be in either file, so the
+    error names both (found by the byte fuzz above: "width": 32 became 22 and only the image was named)."""
+    for field in ("width", "height"):
+        cam = json.loads(VALID["cam.json"])
+        cam[field] += 7
+        path = WORK / f"other-{field}.cam.json"
+        path.write_text(json.dumps(cam))
+        for kind in ("depth.png", "depth.npy"):
+            rc, out, err = _run_cli(_distance_argv(camera=path, depth=WORK / kind))
+            assert rc == 2 and out == "" and err.count("\n") == 1, (kind, err)
+            assert str(path) in err and str(WORK / kind) in err and "shape" in err, err
+        for kind in ("mask.png", "mask.npy"):  # (the CLI reads the depth images first)
+            with pytest.raises(InputError, match="shape") as exc:
+                read_mask(WORK / kind, read_camera(path), path)
+            assert str(path) in str(exc.value) and str(WORK / kind) in str(exc.value)
+
+
 # ---------------------------------------------------------------------------------- structured mutations
 json_values = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),

@@ -33,9 +33,11 @@ def _cmd_distance(args: argparse.Namespace) -> int:
             f"give one --mask per --camera (in the same order): got {len(args.mask)} for {len(args.camera)}"
         ) from None
     cameras = [read_camera(p) for p in args.camera]
-    depths = [read_depth(p, cam) for p, cam in zip(args.depth, cameras, strict=True)]
+    depths = [read_depth(p, cam, c) for p, cam, c in zip(args.depth, cameras, args.camera, strict=True)]
     masks = (
-        [read_mask(p, cam) for p, cam in zip(args.mask, cameras, strict=True)] if args.mask else [None] * len(cameras)
+        [read_mask(p, cam, c) for p, cam, c in zip(args.mask, cameras, args.camera, strict=True)]
+        if args.mask
+        else [None] * len(cameras)
     )
     points = read_points(args.points)
     if not points:

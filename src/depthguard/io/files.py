@@ -157,14 +157,23 @@ def write_points(path: str | Path, points: list[ControlPoint]) -> None:
     Path(path).write_text(json.dumps(data, indent=2))
 
 
-def _read_png(path: Path, shape: tuple[int, int] | None) -> tuple[np.ndarray, int]:
+def _shape_error(
+    path: Path, what: str, got: tuple, shape: tuple[int, int], camera_file: str | Path | None
+) -> InputError:
+    """The error for an image whose size is not the camera's; it names the camera file too where there is one
+    (the wrong number may be in either file)."""
+    source = f"the camera file {camera_file}" if camera_file is not None else "the camera"
+    return InputError(f"{path}: {what} has shape {tuple(got)}, expected (height, width) = {shape} from {source}")
+
+
+def _read_png(
+    path: Path, shape: tuple[int, int] | None, camera_file: str | Path | None = None
+) -> tuple[np.ndarray, int]:
     """Decode a PNG to ``(H, W, planes)`` uint16 and its bit depth; the size is checked before the pixels."""
     try:
         width, height, rows, info = png.Reader(filename=str(path)).asDirect()
         if shape is not None and (height, width) != shape:
-            raise InputError(
-                f"{path}: image has shape {(height, width)}, expected (height, width) = {shape} from the camera"
-            )
+            raise _shape_error(path, "image", (height, width), shape, camera_file)
         if width * height > MAX_PIXELS:
             raise InputError(f"{path}: image of {width}x{height} pixels is larger than {MAX_PIXELS} pixels")
         planes = info["planes"]
@@ -190,18 +199,19 @@ def _read_npy(path: Path, what: str) -> np.ndarray:
         raise InputError(f"{path}: cannot read {what} .npy (empty, truncated or corrupt?): {problem}") from None
 
 
-def read_depth(path: str | Path, camera: Camera | None = None) -> np.ndarray:
+def read_depth(path: str | Path, camera: Camera | None = None, camera_file: str | Path | None = None) -> np.ndarray:
     """Read a depth image as (H, W) float32 metres with NaN where there is no reading.
 
     ``.png`` must be single-channel 16-bit; its values are multiplied by ``camera.depth_scale``
     (default 0.001, millimetres). ``.npy`` must be a 2-D float array in metres. If ``camera`` is given,
-    the shape is checked against it. Raises :class:`InputError` naming the file.
+    the shape is checked against it. Raises :class:`InputError` naming the file (and ``camera_file``, where
+    given, on a size that is not the camera's).
     """
     p = check_input_file(path, "depth")
     suffix = p.suffix.lower()
     shape = camera.shape if camera is not None else None
     if suffix == ".png":
-        arr, bitdepth = _read_png(p, shape)
+        arr, bitdepth = _read_png(p, shape, camera_file)
         if arr.shape[2] != 1 or bitdepth != 16:
             raise InputError(
                 f"{p}: depth PNG must be single-channel 16-bit (mm, 0 = no reading), "
@@ -221,7 +231,7 @@ def read_depth(path: str | Path, camera: Camera | None = None) -> np.ndarray:
     else:
         raise InputError(f"{p}: depth file must be .png (16-bit mm) or .npy (float32 m), got '{suffix}'")
     if shape is not None and depth.shape != shape:
-        raise InputError(f"{p}: depth image has shape {depth.shape}, expected (height, width) = {shape} (camera)")
+        raise _shape_error(p, "depth image", depth.shape, shape, camera_file)
     return depth
 
 
@@ -243,16 +253,17 @@ def write_depth(path: str | Path, depth: np.ndarray, depth_scale: float = 0.001)
         raise ValueError(f"{p}: depth file must end in .png or .npy")
 
 
-def read_mask(path: str | Path, camera: Camera | None = None) -> np.ndarray:
+def read_mask(path: str | Path, camera: Camera | None = None, camera_file: str | Path | None = None) -> np.ndarray:
     """Read a robot mask (PNG of any bit depth or ``.npy``) as an (H, W) bool array, nonzero = robot.
 
-    Raises :class:`InputError` naming the file.
+    Raises :class:`InputError` naming the file (and ``camera_file``, where given, on a size that is not the
+    camera's).
     """
     p = check_input_file(path, "mask")
     suffix = p.suffix.lower()
     shape = camera.shape if camera is not None else None
     if suffix == ".png":
-        arr, _ = _read_png(p, shape)
+        arr, _ = _read_png(p, shape, camera_file)
         mask = arr[..., 0] != 0
     elif suffix == ".npy":
         arr = _read_npy(p, "mask")
@@ -262,7 +273,7 @@ def read_mask(path: str | Path, camera: Camera | None = None) -> np.ndarray:
     else:
         raise InputError(f"{p}: mask file must be .png or .npy, got '{suffix}'")
     if shape is not None and mask.shape != shape:
-        raise InputError(f"{p}: mask image has shape {mask.shape}, expected (height, width) = {shape} (camera)")
+        raise _shape_error(p, "mask image", mask.shape, shape, camera_file)
     return mask
 
 
