@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 pytest.importorskip("pinocchio")
@@ -135,6 +135,24 @@ def test_protective_stop_in_both_mode_evades_only_when_asked(points, evades):
 _SLOW_OK = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
 
 
+# found with fresh seeds before each joint's own time-optimal profile gave way to the phase-synchronized step
+# whenever it moved the end effector nearer (control.cycle.generate): 4.9, 3.2 and 1.2 mm nearer, now 0.3,
+# 0.1 and 0.02 mm
+_NEARER_BEFORE = [
+    (
+        [0.3597, -0.2542, 0.0738, 0.3021, 0.1004, -0.3459, -0.1913],
+        (0.3417302384350973, -0.24021903769080977, -0.6730968242491282),
+        0.1261399715364177,
+    ),
+    (
+        [-0.2325, 0.2341, -0.0275, 0.3096, 0.1322, -0.2791, 0.2053],
+        (0.3257804895246801, -0.8734204235494518, 0.007667124954168436),
+        0.18903614219858994,
+    ),
+    ([0.0, 0.0, 0.0, -0.125, 0.0, -0.25, 0.0], (0.75, 0.0, -0.25), 0.1875),
+]
+
+
 @settings(max_examples=15, deadline=None, suppress_health_check=_SLOW_OK)
 @given(
     dq=st.lists(st.floats(-0.4, 0.4), min_size=7, max_size=7),
@@ -143,13 +161,16 @@ _SLOW_OK = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
     ),
     gap=st.floats(0.03, 0.2),
 )
+@example(*_NEARER_BEFORE[0])
+@example(*_NEARER_BEFORE[1])
+@example(*_NEARER_BEFORE[2])
 def test_evading_stop_never_brings_the_end_effector_nearer(points, dq, direction, gap):
     """Property: during an evading protective stop (mode "both") the only task command is the end
     effector's repulsion away from its obstacle, so the end effector never gets nearer to it than where the
-    stop began (1 mm allowed: the jerk-limited joint motion lags the changing target, by up to a few 1e-5 m
-    per cycle), and it ends up farther away unless a body point touches the obstacle too (then the body
+    stop began, and it ends up farther away unless a body point touches the obstacle too (then the body
     bounds may leave no motion at all: found with the obstacle 6 cm above the end effector and on the wrist's
-    points)."""
+    points). 1 mm allowed: the joints' motion cannot turn at once within the jerk limits (0.55 mm at most in
+    2,000 random cases from rest; 4.9 mm before the synchronized step, see ``_NEARER_BEFORE``)."""
     q0 = Q0 + np.array(dq)
     st0 = points.evaluate(q0)
     u = np.array(direction) / np.linalg.norm(direction)
@@ -157,7 +178,7 @@ def test_evading_stop_never_brings_the_end_effector_nearer(points, dq, direction
     ctrl = AvoidanceController(points, ControllerConfig(avoidance="both"))
     q, qd = q0.copy(), np.zeros(7)
     ee_gap = []
-    for k in range(150):
+    for k in range(300):
         t = k * 0.001
         s = points.evaluate(q)
         off = s.centres - obstacle

@@ -53,6 +53,27 @@ def test_reaches_the_target_velocity(sync: str) -> None:
     np.testing.assert_allclose(s.velocity, [1.0, -0.5, 0.2], atol=1e-9)
 
 
+def test_a_synchronized_step_moves_along_the_target_and_leaves_the_setting_as_it_was() -> None:
+    """``advance(..., synchronized=True)`` from rest: every joint's velocity is the same fraction of its
+    target (a straight line in joint-velocity space), where the time-optimal joints are not; the next plain
+    call is again the time-optimal one, as from a fresh generator."""
+    target = np.array([1.0, -0.05, 0.3])
+    rest = OtgState(np.zeros(3), np.zeros(3), np.zeros(3))
+    otg = JointOtg(3, DT, 10.0, 500.0)
+    s = rest
+    for _ in range(30):
+        s, code = otg.advance(s, target, synchronized=True)
+        assert code >= 0
+        frac = s.velocity / target
+        np.testing.assert_allclose(frac, frac[0], rtol=1e-6)
+        assert 0.0 < frac[0] < 1.0
+    plain, _ = otg.advance(rest, target)
+    fresh, _ = JointOtg(3, DT, 10.0, 500.0).advance(rest, target)
+    np.testing.assert_array_equal(plain.velocity, fresh.velocity)
+    frac = plain.velocity / target
+    assert frac.max() > 2.0 * frac.min()  # (time-optimal: the small target is nearer to being reached)
+
+
 def test_position_limits_hold_when_driving_into_them() -> None:
     n = 2
     q_min, q_max = np.array([-1.0, -1.0]), np.array([1.0, 1.0])

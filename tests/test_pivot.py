@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from depthguard.pivot import PivotFilter, pivot
@@ -11,11 +11,12 @@ vec = st.lists(st.floats(-2, 2), min_size=3, max_size=3).map(np.array)
 
 @settings(max_examples=200, deadline=None)
 @given(vec, vec, st.floats(0.1, 2.0), st.floats(0.5, 10.0))
+@example(np.array([1.0, 0.0, 0.0]), np.array([1.192092896e-07, 0.0, 0.0]), 1.0, 1.0)  # parallel, tiny: turns 1e-7
 def test_pivot_properties(V, Vd, dv_max, c):
     out = pivot(V, Vd, dv_max, c)
     nv, nd = np.linalg.norm(V), np.linalg.norm(Vd)
     assert np.linalg.norm(out) == pytest.approx(nv, abs=1e-9)  # magnitude kept
-    if nv < 1e-6 or nd < 1e-6 or V @ Vd <= 0:
+    if nv < 1e-9 or nd < 1e-9 or V @ Vd <= 0:
         np.testing.assert_allclose(out, V)  # moving away (beta >= pi/2) or no variation: unchanged
     else:
         a, r = Vd / nd, V / nv
@@ -23,6 +24,11 @@ def test_pivot_properties(V, Vd, dv_max, c):
         if np.linalg.norm(np.cross(a, r)) > 1e-2:
             assert abs(np.cross(a, r) @ out) < 1e-6 * nv
         assert (out / nv) @ a <= r @ a + 1e-9
+        # continuous at |dV/dt| = 0: it turns by (pi/2 - beta) sigma <= (pi/2) sigma, and the rescaled sigmoid
+        # grows at most at (c / (2 dv_max)) / (1 - sigma(0)) per unit of |dV/dt| (its slope is at most 1/4)
+        sigma0 = 1.0 / (1.0 + np.exp(c))
+        turn_bound = (np.pi / 2) * min(1.0, c * nd / (2.0 * dv_max * (1.0 - sigma0)))
+        assert np.linalg.norm(out - V) / nv <= turn_bound + 1e-9  # (the chord, at most the angle)
 
 
 def test_gamma_limits():

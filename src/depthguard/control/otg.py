@@ -146,7 +146,8 @@ class JointOtg:
         self._inp = ruckig.InputParameter(self.n)
         self._out = ruckig.OutputParameter(self.n)
         self._inp.control_interface = ruckig.ControlInterface.Velocity
-        self._inp.synchronization = sync[self.synchronization]
+        self._sync = sync[self.synchronization]
+        self._inp.synchronization = self._sync
         if self.v_max is None:
             self._inp.max_velocity = [1e9] * self.n  # not used in velocity mode
         else:
@@ -172,10 +173,14 @@ class JointOtg:
             return state, np.zeros(self.n), code
         return new, np.array(self._out.new_jerk), code
 
-    def advance(self, state: OtgState, target_velocity: np.ndarray) -> tuple[OtgState, int]:
+    def advance(self, state: OtgState, target_velocity: np.ndarray, synchronized: bool = False) -> tuple[OtgState, int]:
         """:meth:`step` without the jerk: the new state and Ruckig's result code (the state unchanged on
-        error)."""
+        error). ``synchronized``: this one step phase-synchronized (all joints on proportional profiles,
+        so that the joint velocity moves along a straight line to the target; Ruckig falls back to time
+        synchronization where the current motion makes that impossible), whatever ``synchronization`` is."""
         inp, out = self._inp, self._out
+        if synchronized:
+            inp.synchronization = self._ruckig.Synchronization.Phase
         try:
             inp.current_position = state.position.tolist()
             inp.current_velocity = state.velocity.tolist()
@@ -185,6 +190,9 @@ class JointOtg:
             code = int(res)
         except Exception:  # noqa: BLE001 - the real-time path reports, it does not raise
             code = -1
+        finally:
+            if synchronized:
+                inp.synchronization = self._sync
         if code < 0:
             return state, code
         return OtgState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration)), code
