@@ -22,6 +22,7 @@ Pure array maths plus a :class:`~depthguard.robot.model.RobotModel`; no simulato
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -31,6 +32,7 @@ import numpy as np
 from depthguard.robot.model import RobotModel
 from depthguard.robot.sensor_kinematics import SensorArray
 from depthguard.sensors.buffer import energy_gradient, total_energy
+from depthguard.validation import check_finite_array
 
 __all__ = [
     "LAMBDA_KINDS",
@@ -48,13 +50,13 @@ LAMBDA_KINDS = ("switch", "arctan", "linear")
 def weight(d: float, kind: str = "arctan", f: float = 0.25, K: float = 40.0, delta: float = 0.15) -> float:
     """lambda(d): eq. 5.10 (``switch``), 5.11 (``arctan``, slope ``K`` 1/m) or 5.12 (``linear``, width
     ``delta`` m) around the activation threshold ``f`` (m). ``d = inf``: nothing seen, 0 (with the arctan
-    its limit); NaN counts as 0 m (safe side)."""
+    its limit); ``d = -inf``: 1 (likewise); NaN counts as 0 m (safe side)."""
     if np.isnan(d):
         d = 0.0
     if kind == "switch":
         return 1.0 if d <= f else 0.0
     if kind == "arctan":
-        return 0.0 if np.isinf(d) else float(np.arctan(-K * (d - f)) / np.pi + 0.5)
+        return float(d < 0) if np.isinf(d) else float(np.arctan(-K * (d - f)) / np.pi + 0.5)
     if kind == "linear":
         if d <= f - delta / 2:
             return 1.0
@@ -69,6 +71,14 @@ def weighted_pinv(J: np.ndarray, w: np.ndarray, damping: float = 1e-6) -> np.nda
     JW = J * w  # J W
     A = JW @ J.T + damping * np.eye(J.shape[0])
     return np.linalg.solve(A, JW).T
+
+
+def _targets(x_d: object, xdot_d: object) -> tuple[np.ndarray, np.ndarray]:
+    """``x_d``, ``xdot_d`` as float (3,) arrays, or ValueError naming the one that is not finite (3,)."""
+    x, v = np.asarray(x_d, float), np.asarray(xdot_d, float)
+    if x.shape != (3,) or v.shape != (3,) or not math.isfinite(x.sum() + v.sum()):
+        check_finite_array(x_d, (3,), "x_d"), check_finite_array(xdot_d, (3,), "xdot_d")  # raises, naming it
+    return x, v
 
 
 class NSBTerms(NamedTuple):
@@ -235,8 +245,13 @@ class NSBConfig:
             )
         if self.lambda_kind not in LAMBDA_KINDS:
             raise ValueError(f"NSBConfig.lambda_kind must be one of {LAMBDA_KINDS}, got {self.lambda_kind!r}")
-        if np.any(np.asarray(self.weights, float) <= 0):
-            raise ValueError("NSBConfig.weights must be positive")
+        w = np.asarray(self.weights, float)
+        if not np.all(np.isfinite(w) & (w > 0)):
+            raise ValueError(f"NSBConfig.weights must be positive finite numbers, got {self.weights!r}")
+        if not np.all(np.asarray(self.qdot_max, float) > 0):  # (NaN fails too; inf: no limit)
+            raise ValueError(f"NSBConfig.qdot_max must be positive joint velocity limits, got {self.qdot_max!r}")
+        if not (np.isfinite(self.damping) and self.damping >= 0):
+            raise ValueError(f"NSBConfig.damping must be a finite number >= 0, got {self.damping!r}")
 
 
 class NSBOutput(NamedTuple):
@@ -278,18 +293,20 @@ class NSBController:
 
     def step(self, q: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, distances: np.ndarray) -> NSBOutput:
         """One cycle: ``q`` (n,), desired EE position ``x_d`` (3,) m and velocity ``xdot_d`` (3,) m/s,
-        sensor readings ``distances`` (N,) m along each optical axis (inf = nothing in range)."""
+        sensor readings ``distances`` (N,) m along each optical axis (inf = nothing in range). A non-finite
+        or mis-shaped ``q``, ``x_d`` or ``xdot_d`` raises ``ValueError`` naming it."""
         cfg = self.cfg
         d = np.asarray(distances, float)
         if d.shape != (self.sensors.n_sensors,):
             raise ValueError(f"distances must have shape ({self.sensors.n_sensors},), got {d.shape}")
+        x_d, xdot_d = _targets(x_d, xdot_d)
         st = self.sensors.evaluate(q)
         d_safe = np.where(np.isnan(d), 0.0, d)
         d_min = float(d_safe.min())
         lam = weight(d_min, cfg.lambda_kind, cfg.f, cfg.K, cfg.delta)
-        err = np.asarray(x_d, float) - st.ee_position
+        err = x_d - st.ee_position
         qdot, sigma, J_o, scale = _nsb_kernel(
-            st.ee_jacobian, err, np.asarray(xdot_d, float), d, self.rest, st.axes, st.jacobians, self.w,
+            st.ee_jacobian, err, xdot_d, d, self.rest, st.axes, st.jacobians, self.w,
             cfg.gamma_g, cfg.gamma_o, lam, cfg.damping, self.qdot_max,
         )  # fmt: skip
         return NSBOutput(
@@ -301,13 +318,14 @@ class NSBController:
         :func:`nsb_velocity`): the reference the compiled kernel is tested against."""
         cfg = self.cfg
         d = np.asarray(distances, float)
+        x_d, xdot_d = _targets(x_d, xdot_d)
         st = self.sensors.evaluate(q)
         sigma = total_energy(d, self.rest)
         J_o = energy_gradient(d, self.rest, st.axes, st.jacobians)
         d_min = float(np.where(np.isnan(d), 0.0, d).min())
         lam = weight(d_min, cfg.lambda_kind, cfg.f, cfg.K, cfg.delta)
         terms = nsb_velocity(
-            st.ee_jacobian, np.asarray(x_d, float) - st.ee_position, np.asarray(xdot_d, float), sigma, J_o, lam,
+            st.ee_jacobian, x_d - st.ee_position, xdot_d, sigma, J_o, lam,
             self.w, cfg.gamma_g, cfg.gamma_o, cfg.damping,
         )  # fmt: skip
         ratio = float(np.max(np.abs(terms.qdot) / self.qdot_max))

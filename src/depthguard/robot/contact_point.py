@@ -66,6 +66,8 @@ def _capsule_vertices(a: np.ndarray, b: np.ndarray, r: float, spacing: float) ->
         n_along = max(2, int(np.ceil(L / spacing)) + 1)
         for s in np.linspace(0.0, L, n_along):
             out.append(a + s * z + r * ring)
+    else:  # a sphere: its equator (the caps' rings start above it)
+        out.append(a + r * ring)
     n_lat = max(2, int(np.ceil(0.5 * np.pi * r / spacing)))
     for sign, c in ((-1.0, a), (1.0, b)):
         for th in np.linspace(0.0, 0.5 * np.pi, n_lat + 1)[1:]:

@@ -148,9 +148,12 @@ def scaled_inertia_model(model, scale: np.ndarray | float):
 
 
 def discrete_time_constant(gain: float | np.ndarray, dt: float) -> np.ndarray:
-    """Time constant (s) of the discrete residual filter of :class:`MomentumObserver` per joint."""
+    """Time constant (s) of the discrete residual filter of :class:`MomentumObserver` per joint: that of the
+    decay ``|pole|^k = exp(-k dt / T)`` (for ``K_I dt > 2`` the pole is negative and the error alternates
+    in sign within that envelope; ``K_I dt = 2``: dead-beat, 0)."""
     a = np.asarray(gain, float) * dt / 2.0
-    return -dt / np.log((1.0 - a) / (1.0 + a))
+    with np.errstate(divide="ignore"):
+        return -dt / np.log(np.abs((1.0 - a) / (1.0 + a)))
 
 
 def _chain_dynamics(dynamics: RigidBodyDynamics, par: np.ndarray, average: bool) -> tuple | None:
@@ -329,7 +332,7 @@ class ContactDetector:
         r_th: threshold on ‖r‖, N m (> 0).
         r_th_joint: optional (n,) per-joint thresholds on |r_i|, N m.
         release_ratio: release when below this fraction of the thresholds (0-1).
-        release_cycles: consecutive cycles below the release level before release.
+        release_cycles: consecutive cycles below the release level before release (>= 1).
         classifier: ``f(ContactEvidence) -> "intentional" | "collision"``.
     """
 
@@ -343,6 +346,8 @@ class ContactDetector:
         self.r_th = check_positive(self.r_th, "r_th")
         if not 0.0 < self.release_ratio <= 1.0:
             raise ValueError(f"release_ratio must be in (0, 1], got {self.release_ratio!r}")
+        if not (isinstance(self.release_cycles, (int, np.integer)) and self.release_cycles >= 1):
+            raise ValueError(f"release_cycles must be an integer >= 1, got {self.release_cycles!r}")
         if self.r_th_joint is not None:
             self.r_th_joint = check_finite_array(self.r_th_joint, (-1,), "r_th_joint")
             if np.any(self.r_th_joint <= 0):
@@ -359,7 +364,9 @@ class ContactDetector:
 
     def step(self, r: np.ndarray, dt: float, hand_distance: float | None = None) -> DetectionState:
         """Feed one residual ``r`` (n,) N m of period ``dt`` s. Non-finite ``r`` counts as a contact
-        (safety: the caller cannot trust the robot state)."""
+        (safety: the caller cannot trust the robot state). ``dt`` must be > 0 (ValueError)."""
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0 s, got {dt!r}")
         if type(r) is not np.ndarray or r.dtype is not _F64:
             r = np.asarray(r, float)
         norm = math.hypot(*r.tolist())  # no overflow below inf; NaN or inf -> not finite

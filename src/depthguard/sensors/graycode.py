@@ -115,8 +115,7 @@ def simulate_lines(
     delays = np.asarray(line_delays, float)
     if delays.shape != (3,) or np.any(delays < 0) or not np.all(np.isfinite(delays)):
         raise ValueError(f"line_delays must be 3 finite delays >= 0 s, got {line_delays!r}")
-    if not (np.isfinite(sample_period) and sample_period > 0):
-        raise ValueError(f"sample_period must be > 0 s, got {sample_period!r}")
+    _check_times(t_end, sample_period, sample_phase)
     if code not in ("gray", "binary"):
         raise ValueError(f"code must be 'gray' or 'binary', got {code!r}")
     codes = gray_encode(lv) if code == "gray" else binary_encode(lv)
@@ -135,6 +134,15 @@ def simulate_lines(
     return LineTrace(ts, decoded, sent, previous)
 
 
+def _check_times(t_end: float, sample_period: float, sample_phase: float) -> None:
+    if not (np.isfinite(sample_period) and sample_period > 0):
+        raise ValueError(f"sample_period must be > 0 s, got {sample_period!r}")
+    if not np.isfinite(t_end):
+        raise ValueError(f"t_end must be a finite time (s), got {t_end!r}")
+    if not np.isfinite(sample_phase):
+        raise ValueError(f"sample_phase must be a finite time (s), got {sample_phase!r}")
+
+
 def count_glitches(trace: LineTrace) -> int:
     """Samples that decode to a level that is neither the previous nor the current level sent."""
     return int(np.count_nonzero((trace.decoded != trace.sent) & (trace.decoded != trace.previous)))
@@ -150,10 +158,11 @@ def multibit_windows_sampled(
 ) -> dict[str, list[int]]:
     """For every multi-line *binary* transition ``"a->b"`` of the sequence: [occurrences, occurrences
     with at least one robot sample inside the skew window, i.e. after the first and before the last of
-    its changing lines switched]."""
+    its changing lines switched, and at most ``t_end``]."""
     t_change = np.asarray(t_change, float)
     lv = _check_level(np.asarray(levels), "levels")
     delays = np.asarray(line_delays, float)
+    _check_times(t_end, sample_period, sample_phase)
     out: dict[str, list[int]] = {}
     for m in range(1, lv.size):
         a, b = int(lv[m - 1]), int(lv[m])
@@ -164,7 +173,8 @@ def multibit_windows_sampled(
         d = sorted(delays[bits])
         lo, hi = t_change[m] + d[0], t_change[m] + d[-1]
         k0 = np.ceil((lo - sample_phase) / sample_period)
-        inside = sample_phase + k0 * sample_period < hi and lo <= t_end
+        t_first = sample_phase + k0 * sample_period  # the first sample at or after lo
+        inside = t_first < hi and t_first <= t_end
         rec = out.setdefault(f"{a}->{b}", [0, 0])
         rec[0] += 1
         rec[1] += int(inside)

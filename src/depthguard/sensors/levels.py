@@ -99,8 +99,9 @@ class LevelMap:
             return self.level
         if raw >= self.level:
             self.level = raw
-        else:  # going down: each threshold must be undercut by the hysteresis
-            self.level = self.raw_level(signal + self.hysteresis)
+        else:  # going down: each threshold must be undercut by the hysteresis (never up on a falling signal,
+            # where the thresholds are closer together than the hysteresis)
+            self.level = min(self.level, self.raw_level(signal + self.hysteresis))
         return self.level
 
     def reset(self) -> None:

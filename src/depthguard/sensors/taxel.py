@@ -94,14 +94,16 @@ class ProximityTaxel:
     def distance_lower_bound(self, counts: np.ndarray, min_reflectivity: float = 0.3) -> np.ndarray:
         """Distance, m, that the signal ``counts`` implies for the darkest expected surface: a lower bound
         of the true distance of any surface with reflectivity >= ``min_reflectivity``. inf when the
-        signal is at the dark level (nothing seen); 0 at saturation. Noise is not bounded: filter first."""
+        signal is at the dark level (nothing seen); 0 at saturation (of the output or of the ADC) and for a
+        NaN signal. Noise is not bounded: filter first."""
         c = np.asarray(counts, float)
         v = (c + 0.5) / (2**self.bits - 1) * self.vref - self.v_dark  # +0.5: the rounding's worst case
         k = self.r_pd * self.eta * self.led_current * min_reflectivity
         with np.errstate(divide="ignore", invalid="ignore"):
             d = np.sqrt(k / v) - self.d0
         d = np.where(c <= round(self.v_dark / self.vref * (2**self.bits - 1)), np.inf, d)
-        return np.where(c >= np.floor(self.v_sat / self.vref * (2**self.bits - 1)), 0.0, np.maximum(d, 0.0))
+        sat = np.floor(min(self.v_sat, self.vref) / self.vref * (2**self.bits - 1))  # the ADC clips at vref
+        return np.where((c >= sat) | np.isnan(c), 0.0, np.maximum(d, 0.0))
 
 
 @dataclass(frozen=True)
@@ -125,9 +127,12 @@ class ContactTaxel:
     contact_force: float = 0.3
 
     def deformation(self, force: np.ndarray) -> np.ndarray:
-        """Layer compression, m, under ``force`` (N, negative = 0): ``delta = F h / (k h + F)`` < h."""
-        f = np.maximum(np.asarray(force, float), 0.0)
-        return f * self.thickness / (self.stiffness * self.thickness + f)
+        """Layer compression, m, under ``force`` (N, negative = 0): ``delta = F h / (k h + F)`` < h; its limit
+        h for an infinite force, and for NaN (safe side: contact)."""
+        f = np.asarray(force, float)
+        f = np.where(np.isnan(f), np.inf, np.maximum(f, 0.0))
+        with np.errstate(divide="ignore"):  # F = 0: h / inf = 0; F = inf: h / 1 = h; never above h by rounding
+            return self.thickness / (self.stiffness * self.thickness / f + 1.0)
 
     def force(self, deformation: np.ndarray) -> np.ndarray:
         """Force, N, that compresses the layer by ``deformation`` (m, clipped to [0, 0.99 h])."""
