@@ -94,6 +94,14 @@ def test_bad_inputs_are_refused():
         rz.parse_liveliness_token("@ros2_lv/0/x")
 
 
+def test_the_monitor_counts_malformed_node_tokens_and_keeps_going():
+    """One malformed ``NN`` token from another participant used to raise out of the monitor's loop."""
+    from depthguard.nodes.monitor import live_nodes
+
+    keys = [LISTENER_NODE, "@ros2_lv/x/NN/bad", "@ros2_lv/0/a/0/0/NN/%/%/", TALKER_PUB]
+    assert live_nodes(keys) == (["listener"], 2)
+
+
 @given(st.integers(-(2**63), 2**63 - 1), st.integers(-(2**63), 2**63 - 1), st.binary(min_size=16, max_size=16))
 def test_attachment_layout(seq, ts, gid):
     b = rz.encode_attachment(seq, ts, gid)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from depthguard.errors import check_known_keys
-from depthguard.validation import check_finite_array, check_positive, check_rotation
+from depthguard.validation import check_finite_array, check_positive, check_rotation, is_numeric_nest
 
 __all__ = ["Camera", "look_at"]
 
@@ -200,6 +200,9 @@ class Camera:
         for k in ("width", "height", "fx", "fy", "cx", "cy", "min_depth", "max_depth", "depth_scale"):
             if k in kwargs and (isinstance(kwargs[k], bool) or not isinstance(kwargs[k], int | float)):
                 raise ValueError(f"camera field '{k}' must be a number, got {kwargs[k]!r}")
+        for k in ("R", "t"):  # (numpy would take "1" and true for numbers)
+            if not is_numeric_nest(kwargs[k]):
+                raise ValueError(f"camera field '{k}' must hold numbers only, got {kwargs[k]!r}")
         return cls(**kwargs)
 
     @classmethod

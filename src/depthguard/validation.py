@@ -6,7 +6,24 @@ import math
 
 import numpy as np
 
-__all__ = ["check_positive", "check_finite_array", "check_rotation", "check_points"]
+__all__ = ["check_positive", "check_finite_array", "check_rotation", "check_points", "is_numeric_nest"]
+
+
+def is_numeric_nest(value: object) -> bool:
+    """True if ``value`` is a real number or nested lists / tuples of them (or a numeric numpy array): the JSON
+    or TOML form of a vector or matrix. Strings and booleans are not numbers here, although numpy would
+    convert ``"1.5"`` and ``true`` to floats."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, list | tuple):
+            stack.extend(v)
+        elif isinstance(v, np.ndarray):
+            if v.dtype.kind not in "iuf":
+                return False
+        elif isinstance(v, bool | np.bool_) or not isinstance(v, int | float | np.integer | np.floating):
+            return False
+    return True
 
 
 def check_positive(value: object, name: str) -> float:
@@ -41,8 +58,9 @@ def check_finite_array(value: object, shape: tuple[int, ...], name: str) -> np.n
 def check_rotation(value: object, name: str, tol: float = 1e-6) -> np.ndarray:
     """Return ``value`` as a (3, 3) rotation matrix, or raise unless ``R R^T = I`` and ``det R = +1``."""
     R = check_finite_array(value, (3, 3), name)
-    err = np.abs(R @ R.T - np.eye(3)).max()
-    if err > tol:
+    with np.errstate(over="ignore", invalid="ignore"):  # (huge entries: inf or NaN, refused below)
+        err = np.abs(R @ R.T - np.eye(3)).max()
+    if not err <= tol:
         raise ValueError(f"{name} must be orthonormal (R R^T = I); max deviation is {err:.3g}")
     if np.linalg.det(R) < 0:
         raise ValueError(f"{name} must be a proper rotation (det = +1), got det = {np.linalg.det(R):.3f}")

@@ -10,6 +10,7 @@ import numpy as np
 
 from depthguard.control.ssm import SSM_RANGE
 from depthguard.kernels.records import direction_stride
+from depthguard.validation import is_numeric_nest
 
 __all__ = ["CellError", "apply_calibration", "check_background", "distance_section"]
 
@@ -132,7 +133,12 @@ _CHOICES = {
     ("camera", "align"): ("none", "color"),
     ("attachment", "shape"): _SHAPES,
 }
-_POSITIVE = {"rho", "grid_dd", "octree_res", "period", "rate", "distance_timeout", "joint_timeout", "a_max", "j_max"}
+_POSITIVE = {
+    *("rho", "grid_dd", "octree_res", "period", "rate", "distance_timeout", "joint_timeout", "a_max", "j_max"),
+    *("rho_ee", "rho_body", "alpha", "v_rep_max"),  # (eq. 7 divides by rho; alpha, v_rep_max <= 0 never repel)
+}
+#: keys that must be >= 0 (a negative value would be taken for another setting, or fail mid-run)
+_NON_NEGATIVE = {"ee_radius", "resume_time", "fill_radius"}
 
 
 def _section(src: Path, where: str, kind: str, table: Any) -> dict[str, Any]:
@@ -159,6 +165,8 @@ def _section(src: Path, where: str, kind: str, table: Any) -> dict[str, Any]:
             raise CellError(f"{src}: {where}.{key} must be finite, got {val!r}")
         if key in _POSITIVE and val <= 0:
             raise CellError(f"{src}: {where}.{key} must be > 0, got {val!r}")
+        if key in _NON_NEGATIVE and val < 0:
+            raise CellError(f"{src}: {where}.{key} must be >= 0, got {val!r}")
         choices = _CHOICES.get((kind, key))
         if choices and val not in choices:
             raise CellError(f"{src}: {where}.{key} must be one of {list(choices)}, got {val!r}")
@@ -173,6 +181,8 @@ def _type_name(typ: Any) -> str:
 
 
 def _vector(src: Path, where: str, value: Any, n: int) -> tuple[float, ...]:
+    if not is_numeric_nest(value):  # (numpy would take "1" and true for numbers)
+        raise CellError(f"{src}: {where} must be {n} numbers, got {value!r}")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -183,6 +193,8 @@ def _vector(src: Path, where: str, value: Any, n: int) -> tuple[float, ...]:
 
 
 def _is_matrix(value: Any, rows: int, cols: int) -> bool:
+    if not is_numeric_nest(value):
+        return False
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
@@ -226,12 +238,16 @@ def apply_calibration(src: Path, ref: Any, cams: tuple) -> tuple:
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise CellError(f"{path}: not a valid calibration file ({exc})") from None
     by_name = {c.name: c for c in cams}
-    for i, entry in enumerate(cal.get("cameras", [])):
+    if sorted(cal) != ["cameras"]:  # (a typo such as [[camera]] must not leave the cell's extrinsics in use)
+        raise CellError(f"{path}: a calibration file holds [[cameras]] tables only, got the key(s) {sorted(cal)}")
+    if not isinstance(cal["cameras"], list) or not all(isinstance(e, dict) for e in cal["cameras"]):
+        raise CellError(f"{path}: cameras must be an array of tables ([[cameras]]), got {cal['cameras']!r}")
+    for i, entry in enumerate(cal["cameras"]):
         unknown = sorted(set(entry) - {"name", "parent", "R", "t", "date", "rmse", "inlier_fraction"})
         if unknown:
             raise CellError(f"{path}: unknown key(s) {unknown} in cameras[{i}]")
         name = entry.get("name")
-        if name not in by_name:
+        if not isinstance(name, str) or name not in by_name:
             raise CellError(f"{path}: cameras[{i}] names camera {name!r}, which the cell file does not have")
         if entry.get("parent", by_name[name].parent) != by_name[name].parent:
             raise CellError(

@@ -92,6 +92,11 @@ __all__ = [
     "node_tls_files",
 ]
 
+#: ``robot.control_points``: the presets of :data:`depthguard.robot.control_points.PRESETS` (not imported here,
+#: to keep reading a cell file free of pinocchio; a test keeps the two equal), "auto" and "ee" (the end effector
+#: alone)
+CONTROL_POINT_CHOICES = ("ral-9", "icra-exp3", "auto", "ee")
+
 
 @dataclass(frozen=True)
 class Sphere:
@@ -185,6 +190,10 @@ def _robot(src: Path, table: Any) -> CellRobot:
         urdf = (src.parent / r["urdf"]).resolve()
         if not urdf.is_file():
             raise CellError(f"{src}: robot.urdf '{r['urdf']}' is not a file (looked at {urdf})")
+    if r["control_points"] not in CONTROL_POINT_CHOICES:
+        raise CellError(
+            f"{src}: robot.control_points must be one of {list(CONTROL_POINT_CHOICES)}, got {r['control_points']!r}"
+        )
     names = r["joint_names"]
     if names is not None and not all(isinstance(x, str) for x in names):
         raise CellError(f"{src}: robot.joint_names must be an array of strings")
@@ -199,10 +208,13 @@ def _robot(src: Path, table: Any) -> CellRobot:
     for i, a in enumerate(r["attachments"]):
         where = f"robot.attachments[{i}]"
         a = _section(src, where, "attachment", a)
-        size = tuple(float(x) for x in a["size"]) if all(isinstance(x, _NUM) for x in a["size"]) else None
+        numbers = all(isinstance(x, _NUM) and not isinstance(x, bool) for x in a["size"])
+        size = tuple(float(x) for x in a["size"]) if numbers else None
         need = {"box": 3, "cylinder": 2, "sphere": 1, "mesh": 0}[a["shape"]]
-        if size is None or len(size) != need or any(x <= 0 for x in size):
-            raise CellError(f"{src}: {where}.size must be {need} positive numbers for a {a['shape']}, got {a['size']}")
+        if size is None or len(size) != need or not all(0 < x < float("inf") for x in size):
+            raise CellError(
+                f"{src}: {where}.size must be {need} positive finite numbers for a {a['shape']}, got {a['size']}"
+            )
         mesh = None
         if a["shape"] == "mesh":
             if a["mesh"] is None:
@@ -234,6 +246,9 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
         if missing:
             raise CellError(f'{src}: {where} needs {missing} (or intrinsics = "camera_info" | "device")')
     R = t = None
+    given = [k for k in ("R", "t", "matrix", "eye", "target") if c[k] is not None]
+    if c["extrinsics"] != "file" and given:  # (they would be ignored)
+        raise CellError(f'{src}: {where}: extrinsics = "{c["extrinsics"]}" takes no {given}: give one or the other')
     if c["extrinsics"] == "file":
         if c["eye"] is not None or c["target"] is not None:
             if c["matrix"] is not None or c["R"] is not None or c["t"] is not None:
@@ -273,11 +288,12 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
         raise CellError(f"{src}: {where}.noise_coeff must be >= 0 (sigma = c z^2, m^-1), got {c['noise_coeff']}")
     params = {k: v for k, v in intr.items() if v is not None}
     params.update(min_depth=float(c["min_depth"]), max_depth=float(c["max_depth"]), depth_scale=float(c["depth_scale"]))
-    if c["intrinsics"] == "file":
-        try:
-            Camera(R=np.eye(3) if R is None else R, t=np.zeros(3) if t is None else t, **params)
-        except ValueError as exc:
-            raise CellError(f"{src}: {where}: {exc}") from None
+    # the depth range and scale are the file's whatever the intrinsics' source (stand-ins for those not given)
+    stand_in = {} if c["intrinsics"] == "file" else dict(width=1, height=1, fx=1.0, fy=1.0, cx=0.5, cy=0.5)
+    try:
+        Camera(R=np.eye(3) if R is None else R, t=np.zeros(3) if t is None else t, **{**stand_in, **params})
+    except ValueError as exc:
+        raise CellError(f"{src}: {where}: {exc}") from None
     name = c["name"]
     return CellCamera(
         name=name,
@@ -321,6 +337,8 @@ def read_cell(path: str | Path) -> CellFile:
         raise CellError(f"{src}: not UTF-8 text ({exc.reason})") from None
     except tomllib.TOMLDecodeError as exc:
         raise CellError(f"{src}: not valid TOML ({exc})") from None
+    except OSError as exc:  # (permission denied, an I/O error)
+        raise CellError(f"{src}: cannot be read ({exc.strerror or exc})") from None
     unknown = sorted(set(data) - _TOP)
     if unknown:
         raise CellError(f"{src}: unknown section(s) {unknown}; known: {sorted(_TOP)}")

@@ -25,6 +25,7 @@ import png
 
 from depthguard.camera import Camera
 from depthguard.errors import InputError, check_known_keys
+from depthguard.validation import is_numeric_nest
 
 __all__ = [
     "ControlPoint",
@@ -134,6 +135,8 @@ def read_points(path: str | Path) -> list[ControlPoint]:
         name = item.get("name", f"p{i}")
         if not isinstance(name, str):
             raise InputError(f"{where}.name must be a string, got {name!r}")
+        if not isinstance(item["position"], list) or not is_numeric_nest(item["position"]):
+            raise InputError(f"{where}.position must be [x, y, z] numbers, got {item['position']!r}")
         try:
             pos = np.array(item["position"], dtype=float)
         except (TypeError, ValueError, OverflowError):
@@ -219,6 +222,13 @@ def read_depth(path: str | Path, camera: Camera | None = None, camera_file: str 
             )
         scale = camera.depth_scale if camera is not None else 0.001
         raw = arr[..., 0].astype(np.float32)
+        with np.errstate(over="ignore"):
+            out_of_range = not np.isfinite(np.float32(scale * 65535)) or np.float32(scale) == 0
+        if out_of_range:
+            source = f"the camera file {camera_file}" if camera_file is not None else "the camera"
+            raise InputError(
+                f"{p}: depth_scale {scale!r} of {source} takes 16-bit depth values out of the float32 range of metres"
+            )
         depth = raw * np.float32(scale)
         depth[raw == 0] = np.nan
     elif suffix == ".npy":
@@ -264,7 +274,8 @@ def read_mask(path: str | Path, camera: Camera | None = None, camera_file: str |
     shape = camera.shape if camera is not None else None
     if suffix == ".png":
         arr, _ = _read_png(p, shape, camera_file)
-        mask = arr[..., 0] != 0
+        colour = 3 if arr.shape[2] >= 3 else 1  # (an alpha plane, last, is not the pixel's value)
+        mask = np.any(arr[..., :colour] != 0, axis=-1)
     elif suffix == ".npy":
         arr = _read_npy(p, "mask")
         if arr.ndim != 2 or not (arr.dtype == bool or np.issubdtype(arr.dtype, np.number)):

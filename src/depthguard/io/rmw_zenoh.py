@@ -100,7 +100,12 @@ def ros_type_name(dds_name: str) -> str:
     parts = str(dds_name).split("::")
     if len(parts) != 4 or parts[2] != "dds_" or not parts[3].endswith("_") or len(parts[3]) < 2:
         raise ValueError(f"DDS type name must be 'pkg::msg::dds_::Type_', got {dds_name!r}")
-    return f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
+    name = f"{parts[0]}/{parts[1]}/{parts[3][:-1]}"
+    try:  # (an empty package, 'pkg::foo::...' or a '/' inside a part is no type name dds_type_name writes)
+        _split_type(name)
+    except ValueError:
+        raise ValueError(f"DDS type name must be 'pkg::msg::dds_::Type_', got {dds_name!r}") from None
+    return name
 
 
 def type_hash(typename: str) -> str:

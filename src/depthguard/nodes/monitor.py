@@ -18,15 +18,31 @@ from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import parse_liveliness_token
 from depthguard.nodes.common import StopFlag, Topics, open_node
 
-__all__ = ["run_monitor_node"]
+__all__ = ["live_nodes", "run_monitor_node"]
+
+
+def live_nodes(keys: list[str]) -> tuple[list[str], int]:
+    """The names of the live nodes among liveliness key expressions (their ``NN`` tokens), sorted, and the
+    number of ``NN`` tokens that are not rmw_zenoh's form (another participant's, ignored: one such token
+    must not stop the monitor)."""
+    names, malformed = set(), 0
+    for k in keys:
+        if "/NN/" not in k:
+            continue
+        try:
+            names.add(parse_liveliness_token(k).node)
+        except ValueError:
+            malformed += 1
+    return sorted(names), malformed
 
 
 def run_monitor_node(
     cell: CellFile, *, duration: float | None = None, log: str | None = None, stop: StopFlag | None = None, **kw
 ) -> dict:
     """Run the monitor until ``duration`` s or SIGTERM; prints one JSON line per second to stdout: the latest
-    status and smallest distance, the message rates (Hz, over the time since the previous line) and the
-    live nodes."""
+    status and smallest distance, the message rates (Hz, over the time since the previous line), the live
+    nodes, the drops, and ``malformed_tokens`` when liveliness tokens not of rmw_zenoh's form were seen
+    (:func:`live_nodes`)."""
     stop = stop if stop is not None else StopFlag()
     top = Topics.of(cell)
     node = open_node(cell, "monitor", **kw)
@@ -61,7 +77,7 @@ def run_monitor_node(
         while not stop and (duration is None or time.time() - t_start < duration):
             stop.wait(1.0)
             toks = [str(r.ok.key_expr) for r in node.session.liveliness().get(f"@ros2_lv/{node.domain}/**") if r.ok]
-            alive = sorted({parse_liveliness_token(k).node for k in toks if "/NN/" in k})
+            alive, malformed = live_nodes(toks)
             with lock:
                 now = time.time()
                 span = max(now - t_last, 1e-3)  # the last line may cover less than a second (stopped)
@@ -71,6 +87,8 @@ def run_monitor_node(
                 for k in count:
                     count[k] = 0
             rec["dropped"] = {s.topic: dict(s.dropped) for s in subs if s.dropped}
+            if malformed:
+                rec["malformed_tokens"] = malformed
             sys.stdout.write(json.dumps(rec) + "\n")
             sys.stdout.flush()
             lines += 1

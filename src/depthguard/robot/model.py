@@ -150,6 +150,10 @@ class RobotModel:
         self.urdf_path = Path(urdf_path)
         if not self.urdf_path.is_file():
             raise ValueError(f"urdf_path '{self.urdf_path}' is not a file")
+        try:  # (a clear one-line error before the URDF parser, which logs its own to stderr, sees bad XML)
+            ET.parse(self.urdf_path)
+        except (ET.ParseError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{self.urdf_path}: not a valid URDF (XML): {exc}") from None
         self.model = pin.buildModelFromUrdf(str(self.urdf_path))
         self.data = self.model.createData()
         if self.model.nq != self.model.nv:

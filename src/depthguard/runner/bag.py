@@ -146,9 +146,15 @@ class BagSource:
                         f" {topics['tf']}, {topics['tf_static']}); known frames: {sorted(tf_tree)}"
                     )
                 parent, Rw, pw = pose
-                cam = c.build(**params).with_pose(Rw.T, -Rw.T @ pw)
-            else:
+            try:
                 cam = c.build(**params)
+                if c.extrinsics == "tf":
+                    cam = cam.with_pose(Rw.T, -Rw.T @ pw)
+            except ValueError as exc:  # (a CameraInfo of an uncalibrated camera has K = 0; TF may be broken)
+                source = f"the CameraInfo on '{c.info_topic}'" if params.get("fx") is not None else "the cell file"
+                if c.extrinsics == "tf":
+                    source += f" or the TF of '{c.frame_id}'"
+                raise ValueError(f"{name}: camera '{c.name}' from {source}: {exc}") from None
             self.cameras.append(cam)
             self.camera_parents.append(parent)
             self._maps.append(_undistortion(name, c, cam, info))
