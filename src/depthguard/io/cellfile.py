@@ -1,8 +1,8 @@
 """The cell file: one TOML file that describes a work cell (robot, cameras, distance backend, controller,
 topics), validated with errors that name the key; unknown keys are rejected.
 
-See ``docs/cell-file.md`` for the reference and ``examples/cells/`` for complete files. Relative paths in a
-cell file are relative to the file's folder. Sections:
+This docstring is the key reference (``docs/real-cell.md`` walks through a cell; ``examples/cells/`` has
+complete files). Relative paths in a cell file are relative to the file's folder. Sections:
 
 * ``[cell]``: ``name``, ``description``;
 * ``[robot]``: ``model`` (a shipped model: ``"lwr4"``) or ``urdf`` (a path), ``ee_frame``, ``joint_names``

@@ -1,5 +1,5 @@
 """Cameras carried by a robot link (a wrist camera): their world pose at a joint state, and the cell file's
-``cameras[i].parent`` checked against the robot (``docs/cell-file.md``)."""
+``cameras[i].parent`` checked against the robot (``docs/real-cell.md``, §1)."""
 
 from __future__ import annotations
 
