@@ -37,18 +37,25 @@ def _pbox(px, py, pz, lx, ly, lz, res):
     return nx, ny, nz, dx * dx + dy * dy + dz * dz
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _span(lo, hi, origin, res, n):
+    """Node indices ``[i0, i1]`` along one axis whose cells meet ``[lo, hi]`` (metres), clipped to ``[0, n)``
+    (``i0 > i1``: none). Clipped as floats before the conversion to integers, which a huge ρ (or a far
+    point) would overflow, and which then scanned no node at all."""
+    f0 = np.floor((lo - origin) / res)  # a float (math.floor gives an int64 in numba)
+    f1 = np.floor((hi - origin) / res)
+    return int(min(max(f0, 0.0), float(n))), int(max(min(f1, n - 1.0), -1.0))
+
+
 @nb.njit(cache=True, nogil=True)
 def _spheres(occ, origin, res, centres, radii, rho, mode, alpha, out):
     nx, ny, nz = occ.shape
     for n in range(centres.shape[0]):
         px, py, pz = centres[n, 0], centres[n, 1], centres[n, 2]
         reach = rho + radii[n]
-        i0 = max(0, int(math.floor((px - reach - origin[0]) / res)))
-        i1 = min(nx - 1, int(math.floor((px + reach - origin[0]) / res)))
-        j0 = max(0, int(math.floor((py - reach - origin[1]) / res)))
-        j1 = min(ny - 1, int(math.floor((py + reach - origin[1]) / res)))
-        k0 = max(0, int(math.floor((pz - reach - origin[2]) / res)))
-        k1 = min(nz - 1, int(math.floor((pz + reach - origin[2]) / res)))
+        i0, i1 = _span(px - reach, px + reach, origin[0], res, nx)
+        j0, j1 = _span(py - reach, py + reach, origin[1], res, ny)
+        k0, k1 = _span(pz - reach, pz + reach, origin[2], res, nz)
         best = reach * reach
         found = False
         bx = by = bz = 0.0
@@ -196,12 +203,9 @@ def _capsules(occ, origin, res, a, b, radii, rho, out):
         reach = rho + radii[n]
         lo = (min(ax, b[n, 0]), min(ay, b[n, 1]), min(az, b[n, 2]))
         hi = (max(ax, b[n, 0]), max(ay, b[n, 1]), max(az, b[n, 2]))
-        i0 = max(0, int(math.floor((lo[0] - reach - origin[0]) / res)))
-        i1 = min(nx - 1, int(math.floor((hi[0] + reach - origin[0]) / res)))
-        j0 = max(0, int(math.floor((lo[1] - reach - origin[1]) / res)))
-        j1 = min(ny - 1, int(math.floor((hi[1] + reach - origin[1]) / res)))
-        k0 = max(0, int(math.floor((lo[2] - reach - origin[2]) / res)))
-        k1 = min(nz - 1, int(math.floor((hi[2] + reach - origin[2]) / res)))
+        i0, i1 = _span(lo[0] - reach, hi[0] + reach, origin[0], res, nx)
+        j0, j1 = _span(lo[1] - reach, hi[1] + reach, origin[1], res, ny)
+        k0, k1 = _span(lo[2] - reach, hi[2] + reach, origin[2], res, nz)
         best = reach * reach
         found = False
         count = 0

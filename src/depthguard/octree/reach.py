@@ -90,7 +90,8 @@ class ChainSweep(NamedTuple):
     cap_joint: np.ndarray
 
     def check(self) -> ChainSweep:
-        """Validated copy (shapes, finite values, unit axes, lo <= 0 <= hi, vmax > 0) or ``ValueError``."""
+        """Validated copy (shapes, finite values, unit axes, lo <= 0 <= hi, vmax > 0, at least one capsule) or
+        ``ValueError``."""
         kind = np.asarray(self.kind, dtype=np.int64)
         n = kind.shape[0]
         if kind.ndim != 1 or np.any((kind != REVOLUTE) & (kind != PRISMATIC)):
@@ -108,6 +109,8 @@ class ChainSweep(NamedTuple):
             raise ValueError("chain vmax must be > 0")
         a = check_finite_array(self.cap_a, (-1, 3), "chain cap_a")
         L = a.shape[0]
+        if L == 0:  # nothing to sweep: an empty C(t) would silently mask out every obstacle
+            raise ValueError("chain cap_a: the chain has no capsules, so no robot geometry to reach anything")
         b = check_finite_array(self.cap_b, (L, 3), "chain cap_b")
         r = check_finite_array(self.cap_r, (L,), "chain cap_r")
         if np.any(r < 0):
@@ -314,6 +317,8 @@ def _reach(ch: ChainSweep, horizon: float, box: VoxelBox, cells: int, strict: bo
                 swept = (s_lo, s_hi)
             # a joint too slow to move any sample keeps the input lattice, so the cells carry over exactly
             bb_next = _union(swept, _caps_bbox(ch, ch.cap_joint == j - 1, 0.0))
+            if bb_next is None:  # nothing swept and no geometry on this link: an empty set at its joint
+                bb_next = (ch.point[jj - 1] - res_out, ch.point[jj - 1] + res_out)
             still = (r_perp if revolute else 1.0) * rng < 0.5 * in_res
             still = still and float(np.max(bb_next[1] - bb_next[0])) <= 2 * cells * in_res  # size stays bounded
             g_origin, g_res, grid = _grid_for(

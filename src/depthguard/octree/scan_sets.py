@@ -15,6 +15,12 @@ __all__ = ["scanner_sets"]
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _ray_bits(obs, rob, rhi):
+    """O (4) and R (8) bits of one ray for a node whose planar range ends at ``rhi``."""
+    return (4 if obs <= rhi else 0) | (8 if rob <= rhi else 0)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _scan_node(xc, yc, ex, ey, nc, h, a0, inc, n, rlim, obs, rob):
     """Flags V, O, R, F of a node cut by the scan plane: its centre (xc, yc) in the plane (scanner frame, m),
     its corners at offsets (ex, ey)[:nc], ``h`` its half diagonal; 0 when no ray meets it."""
@@ -34,27 +40,33 @@ def _scan_node(xc, yc, ex, ey, nc, h, a0, inc, n, rlim, obs, rob):
     rhi = math.sqrt(r2hi)
     rc = math.sqrt(rc2)
     rlo = max(0.0, rc - h)
+    fl = 0
     if rc <= h:  # the node holds the scanner: every ray may meet it
-        i0, i1 = 0, n - 1
         in_fov = False
+        for r in range(n):
+            fl |= _ray_bits(obs[r], rob[r], rhi)
     else:
         phic = math.atan2(yc, xc)
         lo_rel, hi_rel = math.atan(tlo), math.atan(thi)
-        i0 = int(math.ceil((phic + lo_rel - a0 - 0.5 * inc) / inc))
-        i1 = int(math.floor((phic + hi_rel - a0 + 0.5 * inc) / inc))
-        if i1 < 0:  # the angle wrapped past -pi
-            i0 += int(round(2 * math.pi / inc))
-            i1 += int(round(2 * math.pi / inc))
-        in_fov = i0 >= 0 and i1 < n and rlo >= rlim[0] and rhi <= rlim[1]
-        i0, i1 = max(i0, 0), min(i1, n - 1)
-        if i0 > i1:
+        # the node's angles from ray 0, phic - a0 in [-2 pi, 2 pi] (a0 in [-pi, pi], see scanner_sets), taken
+        # as they are and one turn either way: the fan may cross the angle +-pi, and the increment need not
+        # divide a turn (a whole number of rays would not be one turn)
+        rel = phic - a0
+        hit = False
+        in_fov = False
+        for turn in (0.0, 2.0 * math.pi, -2.0 * math.pi):
+            i0 = int(math.ceil((rel + turn + lo_rel - 0.5 * inc) / inc))
+            i1 = int(math.floor((rel + turn + hi_rel + 0.5 * inc) / inc))
+            in_fov = in_fov or (i0 >= 0 and i1 < n)
+            i0, i1 = max(i0, 0), min(i1, n - 1)
+            if i0 > i1:
+                continue
+            hit = True
+            for r in range(i0, i1 + 1):
+                fl |= _ray_bits(obs[r], rob[r], rhi)
+        if not hit:
             return 0
-    fl = 0
-    for r in range(i0, i1 + 1):
-        if obs[r] <= rhi:
-            fl |= 4
-        if rob[r] <= rhi:
-            fl |= 8
+        in_fov = in_fov and rlo >= rlim[0] and rhi <= rlim[1]
     if in_fov:
         fl |= 1
         if fl == 1:
@@ -120,9 +132,13 @@ def scanner_sets(mask: np.ndarray, box, scanner, obstacle_range: np.ndarray, rob
         robot_range: (n_rays,) range at which each ray is blocked by the robot, ``inf`` elsewhere.
     """
     flags = np.zeros(box.shape, np.uint8)
+    # ray 0's angle in [-pi, pi] (the same rays: any finite angle_min is legal); unchanged when it lies there
+    a0 = float(scanner.angle_min)
+    if abs(a0) > math.pi:
+        a0 -= 2.0 * math.pi * round(a0 / (2.0 * math.pi))
     _scanner_kernel(
         mask, np.array(box.shape, np.int64), np.ascontiguousarray(box.origin, float), float(box.res),
-        np.ascontiguousarray(scanner.R), np.ascontiguousarray(scanner.t), scanner.angle_min,
+        np.ascontiguousarray(scanner.R), np.ascontiguousarray(scanner.t), a0,
         scanner.angle_increment, scanner.n_rays, (scanner.range_min, scanner.range_max),
         np.ascontiguousarray(obstacle_range, float), np.ascontiguousarray(robot_range, float), flags,
     )  # fmt: skip

@@ -18,6 +18,8 @@ def prune(occupied: np.ndarray, box: VoxelBox, levels: int = 16) -> list[tuple[f
         the box's, with cells aligned to multiples of ``2^l res`` from its origin.
     """
     occ = np.asarray(occupied, dtype=bool)
+    if isinstance(levels, bool) or int(levels) != levels or levels < 1:
+        raise ValueError(f"levels must be an integer >= 1, got {levels!r}")
     if occ.shape != box.shape:
         raise ValueError(f"occupied grid has shape {occ.shape}, expected the box's {box.shape}")
     out = []
@@ -27,6 +29,8 @@ def prune(occupied: np.ndarray, box: VoxelBox, levels: int = 16) -> list[tuple[f
         pad = np.zeros(tuple(2 * s for s in shp), dtype=bool)
         pad[: cur.shape[0], : cur.shape[1], : cur.shape[2]] = cur
         full = pad.reshape(shp[0], 2, shp[1], 2, shp[2], 2).all(axis=(1, 3, 5))
+        if lv == levels - 1:  # the coarsest level allowed: its nodes stay leaves (were dropped before)
+            full[...] = False
         # leaves at this level: occupied cells whose parent is not full
         parent_full = np.repeat(np.repeat(np.repeat(full, 2, 0), 2, 1), 2, 2)[
             : cur.shape[0], : cur.shape[1], : cur.shape[2]

@@ -28,12 +28,29 @@ SCANNER_MOUNTS = (
 )
 
 
+def _check_base(q_base: object) -> tuple[float, float, float]:
+    """(x, y, yaw) from the first three entries of a 1-D array, or ``ValueError`` naming ``q_base``."""
+    try:
+        q = np.asarray(q_base, dtype=float)
+    except (TypeError, ValueError):
+        q = None
+    if q is None or q.ndim != 1 or q.shape[0] < 3 or not np.all(np.isfinite(q[:3])):
+        raise ValueError(f"q_base must be a 1-D array of finite (x, y, yaw) (and any further joints), got {q_base!r}")
+    return float(q[0]), float(q[1]), float(q[2])
+
+
 def base_pose(q_base: np.ndarray, z0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """World rotation (3, 3) and position (3,) of the platform frame for base coordinates (x, y, yaw); the
-    floor under the platform is at height ``z0``."""
-    x, y, yaw = (float(v) for v in q_base[:3])
+    floor under the platform is at height ``z0``; ``ValueError`` naming ``q_base`` or ``z0`` when not finite."""
+    x, y, yaw = _check_base(q_base)
+    try:
+        z = float(z0)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        z = math.nan
+    if not math.isfinite(z):
+        raise ValueError(f"z0 must be a finite height in metres, got {z0!r}")
     c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x, y, float(z0)])
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([x, y, z])
 
 
 def platform_sensors(
@@ -41,6 +58,8 @@ def platform_sensors(
 ) -> tuple[list[Camera], list[LaserScanner]]:
     """World-frame cameras (Kinect v1-like, 0.5-4.5 m) and scanners (270°, 0.1-8 m) for the base at (x, y, yaw),
     floor at height ``z0``."""
+    if isinstance(n_rays, bool) or not isinstance(n_rays, int | np.integer) or n_rays < 2:
+        raise ValueError(f"n_rays must be an integer >= 2 (a fan of 270 degrees), got {n_rays!r}")
     Rb, pb = base_pose(q_base, z0)
     f = 525.0 * width / 640.0
     cams = []
