@@ -104,11 +104,35 @@ def _raster_clipped(p0, p1, p2, znear, fx, fy, cx, cy, snear, sfar, rows, depth,
         _raster_tri(a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2], snear, sfar, rows, depth, wn, sg)
 
 
+@njit(cache=True, nogil=True)
+def _origin_winding(P, F, f0, f1, v_start) -> float:
+    """Winding number of the origin (the camera) with respect to the triangles ``F[f0:f1]`` (outward wound)
+    whose vertices are the rows ``P[F - v_start]`` (camera frame): the sum of their signed solid angles
+    (Van Oosterom-Strackee) over 4 pi; 1 inside a closed shape, 0 outside it."""
+    total = 0.0
+    for f in range(f0, f1):
+        a, b, c = P[F[f, 0] - v_start], P[F[f, 1] - v_start], P[F[f, 2] - v_start]
+        la = np.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        lb = np.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+        lc = np.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+        cx = b[1] * c[2] - b[2] * c[1]
+        cy = b[2] * c[0] - b[0] * c[2]
+        cz = b[0] * c[1] - b[1] * c[0]
+        num = a[0] * cx + a[1] * cy + a[2] * cz
+        ab = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+        ac = a[0] * c[0] + a[1] * c[1] + a[2] * c[2]
+        bc = b[0] * c[0] + b[1] * c[1] + b[2] * c[2]
+        total += 2.0 * np.arctan2(num, la * lb * lc + ab * lc + ac * lb + bc * la)
+    return total / (4.0 * np.pi)
+
+
 @njit(cache=True, nogil=True, inline="always")
-def _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox) -> None:
+def _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox, inside=False) -> None:
     """After one shape is drawn: over its rows' spans, mark in ``mask`` the measured points inside it (depth
     in ``[near, far]`` and, unless ``whole``, winding number > 0), keep the nearest inflated depth in
-    ``near``, grow ``ubox``, and reset the shape's buffers (``snear`` 0, ``sfar`` inf, ``wn`` 0, ``rows``)."""
+    ``near``, grow ``ubox``, and reset the shape's buffers (``snear`` 0, ``sfar`` inf, ``wn`` 0, ``rows``).
+    ``inside``: the camera lies inside the inflated shape, so along every ray it starts at depth 0 (the
+    surfaces drawn are only where the rays leave it)."""
     for v in range(depth.shape[0]):
         if rows[v, 1] < 0:
             continue
@@ -119,6 +143,8 @@ def _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox) -> None:
             if izn == 0.0:
                 continue
             zn, zf = 1.0 / izn, 1.0 / sfar[v, u]
+            if inside:
+                zn = 0.0
             d = depth[v, u]
             if d > 0.0 and d < np.inf and zn <= d <= zf and (whole or wn[v, u] > 0):
                 mask[v, u] = True
@@ -198,6 +224,9 @@ def mesh_kernel(
                 S[i - v_start, 2] = iz
         # the interval alone decides for an open mesh, or one cut by the near plane (crossings incomplete)
         whole = not closed[s] or zmin <= znear
+        # a camera inside the inflated shape (within the margin of the robot): the shape has vertices behind
+        # it, and its rays start inside, so their near side is the camera itself, not the first surface drawn
+        inside = zmin <= znear and _origin_winding(P, F, fr[s, 0], fr[s, 1], v_start) > 0.5
         ex = -(T[s, 0, 0] * T[s, 0, 3] + T[s, 1, 0] * T[s, 1, 3] + T[s, 2, 0] * T[s, 2, 3])  # camera, joint frame
         ey = -(T[s, 0, 1] * T[s, 0, 3] + T[s, 1, 1] * T[s, 1, 3] + T[s, 2, 1] * T[s, 2, 3])
         ez = -(T[s, 0, 2] * T[s, 0, 3] + T[s, 1, 2] * T[s, 1, 3] + T[s, 2, 2] * T[s, 2, 3])
@@ -212,7 +241,7 @@ def mesh_kernel(
                 )  # fmt: skip
             elif P[i0, 2] > znear or P[i1, 2] > znear or P[i2, 2] > znear:
                 _raster_clipped(P[i0], P[i1], P[i2], znear, fx, fy, cx, cy, snear, sfar, rows, depth, wn, sg)
-        _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox)
+        _mark_shape(rows, snear, sfar, wn, depth, whole, mask, near, ubox, inside)
 
 
 @njit(cache=True, nogil=True)

@@ -85,9 +85,10 @@ def rounded_offset_mesh(core: np.ndarray, directions: np.ndarray) -> tuple[np.nd
     returns ``V`` (K, 3) core points, ``O`` (K, 3) unit directions, faces (F, 3) wound outward.
 
     The sum's faces do not depend on ``m > 0`` (its normal fan is the common refinement of the two
-    shapes'), so the convex hull at ``m = 1`` gives them once. Every vertex lies on the surface of the true
-    Minkowski sum (the polytope grown by a ball of radius ``m``), so the mesh lies within ``m`` of the
-    polytope; it contains the polytope grown by ``m`` times the polyhedral ball's inradius."""
+    shapes'), so the convex hull at ``m = 1`` gives them once. Every vertex is a core point moved by ``m``
+    along a unit direction, so the mesh lies within ``m`` of the polytope (exactly ``m`` where the direction
+    is normal to the polytope there, as for every vertex of a box; at least the inradius times ``m``
+    elsewhere); it contains the polytope grown by ``m`` times the polyhedral ball's inradius."""
     from scipy.spatial import ConvexHull
 
     pairs = np.array([(i, j) for i in range(len(core)) for j in range(len(directions))])

@@ -18,7 +18,9 @@ Output (:class:`SelfFilterResult`):
   A measured point in front of the inflated robot (a hand before the forearm) or behind it (background
   seen past a robot that has moved) is kept: it is not the robot.
 * ``robot_depth`` (H, W) float: inside the inflated silhouette, the nearest depth ``z_C`` of the inflated
-  robot, NaN elsewhere. It is a conservative (nearer) robot depth (RA-L'16 case iv).
+  robot, NaN elsewhere. It is a conservative (nearer) robot depth (RA-L'16 case iv). A camera inside the
+  inflated robot (within ``margin`` of it, e.g. on a link) has it at 0 along every ray that starts inside a
+  shape, and removes every measured point up to where the ray leaves that shape.
 
 Limits: obstacles closer than ``margin`` to the robot are removed with it, and so are points in a
 concavity of an open mesh between its first and last surface along the ray; mixed "flying" pixels at depth
