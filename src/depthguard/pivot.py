@@ -105,10 +105,15 @@ class PivotFilter:
         return self._vdot.copy()
 
     def step(self, V: np.ndarray, dt: float) -> np.ndarray:
-        """Feed the latest repulsive vector ``V`` (3,) after ``dt`` seconds; return the pivoted vector."""
+        """Feed the latest repulsive vector ``V`` (3,) after ``dt`` seconds; return the pivoted vector.
+
+        A ``V`` that is not 3 finite numbers or a ``dt`` that is not a finite number > 0 raises ValueError and
+        leaves the filter as it was (one NaN would otherwise make every later estimate NaN)."""
         V = np.asarray(V, dtype=float)
-        if not dt > 0:
+        if not (dt > 0 and np.isfinite(dt)):
             raise ValueError(f"dt must be positive seconds, got {dt!r}")
+        if V.shape != (3,) or not np.all(np.isfinite(V)):
+            raise ValueError(f"V must be 3 finite numbers (m/s), got {V!r}")
         if self._prev is not None:
             raw = (V - self._prev) / dt
             k = dt / (self.tau + dt)

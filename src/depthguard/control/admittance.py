@@ -20,6 +20,7 @@ result is scaled uniformly into the joint velocity limits.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,14 +33,16 @@ __all__ = ["AdmittanceParams", "SOFT", "STIFF", "admittance_step", "task_priorit
 
 @dataclass(frozen=True)
 class AdmittanceParams:
-    """Cartesian admittance at a contact point: ``mass`` kg, ``damping`` N s/m, ``stiffness`` N/m (0: none)."""
+    """Cartesian admittance at a contact point: ``mass`` kg, ``damping`` N s/m, ``stiffness`` N/m (0: none);
+    finite numbers."""
 
     mass: float
     damping: float
     stiffness: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (self.mass > 0 and self.damping >= 0 and self.stiffness >= 0):
+        finite = all(np.isfinite(x) for x in (self.mass, self.damping, self.stiffness))
+        if not (finite and self.mass > 0 and self.damping >= 0 and self.stiffness >= 0):
             raise ValueError(f"admittance needs mass > 0, damping >= 0, stiffness >= 0; got {self}")
 
 
@@ -135,14 +138,26 @@ class ContactAdmittance:
             ee_target: (3,) end-effector position to hold, m.
             dt: control period, s.
             ee_velocity: optional (3,) feed-forward end-effector velocity, m/s (a moving target).
+        Raises:
+            ValueError naming the argument when one is of the wrong shape or not finite (or dt <= 0).
         """
         import pinocchio as pin
 
         m = self.model
         q = m.check_q(q)
-        F = np.asarray(forces, float).reshape(-1, 3)
+        try:
+            F = np.asarray(forces, float).reshape(-1, 3)
+        except (TypeError, ValueError):
+            raise ValueError(f"forces must have shape ({len(self.contacts)}, 3), got {forces!r}") from None
         if len(F) != len(self.contacts):
             raise ValueError(f"forces must have shape ({len(self.contacts)}, 3), got {F.shape}")
+        if not np.all(np.isfinite(F)):  # (a NaN would also escape the scaling into the joint limits)
+            raise ValueError("forces must be finite (no NaN or inf)")
+        ee_target = check_finite_array(ee_target, (3,), "ee_target")
+        if ee_velocity is not None:
+            ee_velocity = check_finite_array(ee_velocity, (3,), "ee_velocity")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be a finite number of seconds > 0, got {dt!r}")
         pin.computeJointJacobians(m.model, m.data, q)
         pin.updateFramePlacements(m.model, m.data)
         x_ee = m.data.oMf[m.ee_frame_id].translation.copy()

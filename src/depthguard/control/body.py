@@ -96,18 +96,22 @@ def body_velocity_bounds(
         distances: (N,) distances from the sphere surfaces to the nearest obstacle, m (inf = none).
         directions: (N, 3) unit repulsive directions, from the obstacle towards the point; finite
             wherever the distance is finite (ignored where it is inf).
-        v_max: (n,) original joint velocity bounds ``V_max,i`` (> 0), rad/s.
-        rho: distance of influence, m; alpha: steepness of the risk function.
+        v_max: (n,) original joint velocity bounds ``V_max,i`` (finite, > 0), rad/s.
+        rho: distance of influence, m; alpha: steepness of the risk function (both finite, > 0).
         use: (N,) bool, points that take part (default all); the end effector is usually excluded
             because it is handled by the repulsive velocity (eqs. 10-11).
         contact_distance: at or below it the motion towards the obstacle is denied, m.
-        influence_eps: ``|J_C^T n|_i`` below this (m/rad) counts as no influence.
+        influence_eps: ``|J_C^T n|_i`` below this (m/rad, finite >= 0) counts as no influence.
     Returns:
         ``(qdot_min, qdot_max)``, each (n,), with ``-v_max <= qdot_min <= 0 <= qdot_max <= v_max``.
+    Raises:
+        ValueError naming the argument: wrong shapes, non-finite Jacobians, NaN distances, ...
     """
     jac = np.ascontiguousarray(jacobians, dtype=np.float64)
     if jac.ndim != 3 or jac.shape[1] != 3:
         raise ValueError(f"jacobians must have shape (N, 3, n), got {jac.shape}")
+    if not np.all(np.isfinite(jac)):  # (a NaN column would restrict nothing)
+        raise ValueError("jacobians must be finite (no NaN or inf)")
     N, _, n = jac.shape
     dist = np.ascontiguousarray(distances, dtype=np.float64)
     dirs = np.ascontiguousarray(directions, dtype=np.float64)
@@ -116,16 +120,22 @@ def body_velocity_bounds(
         raise ValueError(f"distances must have shape ({N},), got {dist.shape}")
     if dirs.shape != (N, 3):
         raise ValueError(f"directions must have shape ({N}, 3), got {dirs.shape}")
-    if vmax.shape != (n,) or np.any(~(vmax > 0)):
+    if vmax.shape != (n,) or np.any(~(vmax > 0)) or not np.all(np.isfinite(vmax)):
         raise ValueError(f"v_max must be ({n},) positive numbers, got {v_max!r}")
     if np.any(np.isnan(dist)) or np.any(dist < 0):
         raise ValueError("distances must be >= 0 (inf for none), without NaN")
     bad = np.isfinite(dist) & ~np.all(np.isfinite(dirs), axis=1)
     if np.any(bad):
         raise ValueError(f"directions must be finite where the distance is finite (point {int(np.argmax(bad))} is not)")
-    if not (rho > 0 and alpha > 0):
-        raise ValueError(f"rho and alpha must be > 0, got rho={rho}, alpha={alpha}")
+    if not (rho > 0 and alpha > 0 and np.isfinite(rho) and np.isfinite(alpha)):
+        raise ValueError(f"rho and alpha must be finite numbers > 0, got rho={rho}, alpha={alpha}")
+    if np.isnan(contact_distance):
+        raise ValueError("contact_distance must be a number of metres, got NaN")
+    if not (np.isfinite(influence_eps) and influence_eps >= 0):
+        raise ValueError(f"influence_eps must be a finite number >= 0, got {influence_eps!r}")
     use_a = np.ones(N, dtype=np.bool_) if use is None else np.ascontiguousarray(use, dtype=np.bool_)
+    if use_a.shape != (N,):  # (the kernel does not check bounds)
+        raise ValueError(f"use must have shape ({N},), got {use_a.shape}")
     qmin, qmax = -vmax.copy(), vmax.copy()
     body_bounds_inplace(jac, dist, dirs, use_a, vmax, rho, alpha, contact_distance, influence_eps, qmin, qmax)
     return qmin, qmax

@@ -54,7 +54,10 @@ def _stop_from_rest_acc(speed: float, a_max: float, j_max: float) -> tuple[float
 @njit(cache=True, nogil=True)
 def stop_one(v: float, a: float, a_max: float, j_max: float) -> tuple[float, float]:
     """Stopping time (s) and unsigned path length (rad or m) of one joint from velocity ``v`` and
-    acceleration ``a`` (module docstring); exact for Ruckig's time-optimal velocity-mode stop."""
+    acceleration ``a`` (module docstring); exact for Ruckig's time-optimal velocity-mode stop. A non-finite
+    ``v`` or ``a`` (an unknown motion) gives ``(inf, inf)``: the only upper bound (NaN would compare False)."""
+    if not (np.isfinite(v) and np.isfinite(a)):
+        return np.inf, np.inf
     speed = abs(v)
     a = min(max(a, -a_max), a_max)
     if v < 0.0:
@@ -139,10 +142,12 @@ def point_stopping_distance(
         prismatic: (n,) bool, prismatic coordinates (lever 1 whatever the configuration); default none.
     Returns:
         ``S[k] = sum_j lever_kj * travel_j`` with ``lever_kj = min(L_kj, |J_k[:, j]| + sum_{i after j} L_ki
-        travel_i)``, m.
+        travel_i)``, m (a prismatic ``i`` moves the point by its travel itself: ``L_ki`` is 1 there).
     """
     lever0 = np.linalg.norm(jacobians, axis=1)  # (N, n): distance from each joint axis now
     moved = lengths * travel[None, :]  # (N, n): how far each joint can move the point
+    if prismatic is not None:  # (a prismatic joint moves the point by its travel, whatever its chain length)
+        moved = np.where(np.asarray(prismatic, bool)[None, :], (lengths > 0) * travel[None, :], moved)
     # joints after j along the chain have higher indices: suffix sums of their displacements
     after = np.cumsum(moved[:, ::-1], axis=1)[:, ::-1] - moved
     lever = np.minimum(lengths, lever0 + after)

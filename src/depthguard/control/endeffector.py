@@ -33,15 +33,26 @@ def repulsive_velocity(distance: float, direction: np.ndarray, v_max: float, rho
     Args:
         distance: D from the control sphere's surface to the obstacle, m (>= 0, inf = none).
         direction: (3,) unit vector from the obstacle towards the point.
-        v_max: largest repulsive speed, m/s; rho: m; alpha: steepness.
+        v_max: largest repulsive speed, m/s (finite, >= 0); rho: m; alpha: steepness (both finite, > 0).
+    Raises:
+        ValueError naming the argument: a NaN distance, a direction of another shape or not finite (where it
+        is used: ``distance < rho``), a non-finite or non-positive parameter.
     """
-    d = float(distance)
+    d, v_max, rho, alpha = float(distance), float(v_max), float(rho), float(alpha)
+    if math.isnan(d):  # (``not d < rho`` would silently turn the repulsion off)
+        raise ValueError("distance must be a number of metres (inf = none), got NaN")
+    if not (math.isfinite(v_max) and v_max >= 0):
+        raise ValueError(f"v_max must be a finite speed >= 0, got {v_max!r}")
+    if not (math.isfinite(rho) and rho > 0 and math.isfinite(alpha) and alpha > 0):
+        raise ValueError(f"rho and alpha must be finite numbers > 0, got rho={rho!r}, alpha={alpha!r}")
     if not d < rho:  # (the direction is not looked at)
         return np.zeros(3)
     dvec = np.ascontiguousarray(direction, dtype=np.float64)
     if dvec.shape != (3,):
         raise ValueError(f"direction must have shape (3,), got {dvec.shape}")
-    return repulsive_velocity_kernel(d, dvec, float(v_max), float(rho), float(alpha))
+    if not (math.isfinite(dvec[0]) and math.isfinite(dvec[1]) and math.isfinite(dvec[2])):
+        raise ValueError(f"direction must be finite where the distance is below rho, got {dvec!r}")
+    return repulsive_velocity_kernel(d, dvec, v_max, rho, alpha)
 
 
 @njit(cache=True, nogil=True)

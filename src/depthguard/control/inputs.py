@@ -3,12 +3,13 @@
 Rules (docs/conventions.md, safety principles): whatever a cycle is given, it never raises; anything
 malformed stops the robot.
 
-* ``STOP_INVALID_INPUT``: a time stamp that is not a finite number, ``t`` earlier than the previous
-  cycle's ``t``, ``t_joints`` or ``t_distances`` more than one period ``dt`` after ``t``; ``q``, ``qdot``
-  or ``xdot_d`` missing, of the wrong shape or not finite; ``distances``/``directions`` of the wrong shape,
-  a NaN or -inf distance, a non-finite direction paired with a finite distance; the same for the
-  optional ``monitor_distances``/``monitor_directions`` (speed and separation monitoring's own distances),
-  and one of those two given without the other.
+* ``STOP_INVALID_INPUT``: a time stamp that is not a finite number (a string, a bool or an array is none),
+  ``t`` earlier than the previous cycle's ``t``, ``t_joints`` or ``t_distances`` more than one period ``dt``
+  after ``t``; ``q``, ``qdot`` or ``xdot_d`` missing, of the wrong shape, not real numbers (strings, bools,
+  complex numbers) or not finite; ``distances``/``directions`` of the wrong shape or not real numbers, a NaN
+  or -inf distance, a non-finite direction paired with a finite distance; the same for the optional
+  ``monitor_distances``/``monitor_directions`` (speed and separation monitoring's own distances), and one of
+  those two given without the other.
 * ``STOP_STALE_JOINTS``: ``t - t_joints > joint_timeout``.
 * ``STOP_STALE_DISTANCES``: distances or directions missing (None), or ``t - t_distances >
   distance_timeout``.
@@ -19,6 +20,7 @@ A +inf distance means "nothing within rho": it is valid and its direction is ign
 from __future__ import annotations
 
 import math
+import numbers
 from typing import NamedTuple
 
 import numpy as np
@@ -57,7 +59,7 @@ class CheckedInput(NamedTuple):
 
 def _time(x: object) -> float:
     """A finite float time stamp, or NaN for anything else (None, str, bool, inf, arrays...)."""
-    if isinstance(x, bool):
+    if isinstance(x, (bool, np.bool_, str, bytes, bytearray, np.ndarray)):  # (float() would parse "1.5", b"1")
         return math.nan
     try:
         v = float(x)  # type: ignore[arg-type]
@@ -78,7 +80,10 @@ def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndar
         a = x  # the usual case, without a copy
     else:
         try:
-            a = np.array(x, dtype=np.float64, order="C")  # (a copy: writable)
+            raw = np.asarray(x)
+            if not _real_numbers(raw):  # strings, bools, complex numbers are not numbers of this kind
+                return None
+            a = np.array(raw, dtype=np.float64, order="C")  # (a copy: writable)
         except (TypeError, ValueError, OverflowError):
             return None
     if a.shape != shape:
@@ -86,6 +91,16 @@ def as_vector(x: object, shape: tuple[int, ...], finite: bool = True) -> np.ndar
     if finite and not _all_finite(a.reshape(-1)):
         return None
     return a
+
+
+def _real_numbers(a: np.ndarray) -> bool:
+    """``a`` holds real numbers only: integer or float dtype, or objects that are all real numbers (not
+    bools). Strings ("0.1") and bools would convert to floats, complex numbers would lose their imaginary part."""
+    if a.dtype.kind in "iuf":
+        return True
+    if a.dtype.kind != "O":
+        return False
+    return all(isinstance(e, numbers.Real) and not isinstance(e, (bool, np.bool_)) for e in a.flat)
 
 
 def _plain_array(x: object) -> bool:

@@ -203,7 +203,7 @@ def _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_no
     def ok(s):
         _s_p(s, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_nom, a_max, j_max, v_h_meas, prm, sp)
         for k in range(N):
-            if dist[k] < sp[k]:
+            if not dist[k] >= sp[k]:  # (a NaN S_p, from a non-finite motion, is not kept)
                 return False
         return True
 
@@ -249,7 +249,10 @@ def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, 
     for k in range(N):
         d = distances[k]
         dist[k] = 0.0 if np.isnan(d) else min(d, rng)
-        good = np.isfinite(dirs[k, 0]) and np.isfinite(dirs[k, 1]) and np.isfinite(dirs[k, 2])
+        # the direction is known only for a finite distance and a finite, nonzero vector: +inf ("nothing within
+        # range", taken as the range) may lie in any direction (check_inputs hands on 0 there)
+        norm = np.sqrt(dirs[k, 0] ** 2 + dirs[k, 1] ** 2 + dirs[k, 2] ** 2)
+        good = d != np.inf and np.isfinite(norm) and norm > 0.0
         dc, dn, nc, nn = 0.0, 0.0, 0.0, 0.0
         for i in range(3):
             vc, vn = 0.0, 0.0
@@ -259,17 +262,27 @@ def _update(jac, qd, qdd, qn, distances, dirs, rng, lengths, a_max, j_max, v_h, 
             nc += vc * vc
             nn += vn * vn
             if good:
-                dc -= dirs[k, i] * vc
-                dn -= dirs[k, i] * vn
+                dc -= dirs[k, i] / norm * vc
+                dn -= dirs[k, i] / norm * vn
         appr_cur[k] = max(dc, 0.0) if good else np.sqrt(nc)
         appr_nom[k] = max(dn, 0.0) if good else np.sqrt(nn)
         for j in range(n):
             lever0[k, j] = np.sqrt(jac[k, 0, j] ** 2 + jac[k, 1, j] ** 2 + jac[k, 2, j] ** 2)
     s = _largest_scale(dist, lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm)
+    unknown = False  # an unknown (non-finite) motion: its S_p is unknown, stop (and no release)
+    for j in range(n):
+        if not (np.isfinite(qd[j]) and np.isfinite(qdd[j]) and np.isfinite(qn[j])):
+            unknown = True
+    for k in range(N):
+        for j in range(n):
+            if not np.isfinite(lever0[k, j]):
+                unknown = True
+    if unknown:
+        s = -1.0
     ended = False
     if stopped:
         _s_p(0.0, lever0, lengths, appr_cur, appr_nom, qd, qdd, qn, a_max, j_max, v_h, prm, sp)
-        release = True
+        release = not unknown
         for k in range(N):
             if not dist[k] >= sp[k] + hyst:
                 release = False
@@ -341,19 +354,31 @@ class SsmMonitor:
             qdot_nominal: (n,) the joint velocity the task asks for at full scale, rad/s.
             distances: (N,) lower bounds of the separation from each point's sphere, m; inf = nothing
                 within range (taken as ``config.sensing_range``); NaN counts as 0 (unknown: stop).
-            directions: (N, 3) repulsive unit directions (obstacle -> point); non-finite rows count as
-                pointing straight at the obstacle along the motion (worst case).
+            directions: (N, 3) repulsive unit directions (obstacle -> point); non-finite or zero rows, and the
+                rows of +inf distances, count as pointing straight at the obstacle along the motion (worst case).
             data_age: age of the distances, s, from the capture of their frames (T_r covers it from the
                 capture; the outputs are shifted to now by it, module docstring).
             obstacle_speed: (N,) measured speed of each point's nearest obstacle, m/s, or None (ISO 13855).
+
+        A wrong shape raises ValueError naming the argument; a non-finite motion (``qdot``, ``qddot``,
+        ``qdot_nominal``, ``jacobians``) is a protective stop.
         """
         age, T_r, prm, v_h = self.kernel_inputs(data_age, obstacle_speed)
         c = _as_f64
-        N = self.lengths.shape[0]
+        N, n = self.lengths.shape
+        jacobians, qdot, qddot, qdot_nominal = c(jacobians), c(qdot), c(qddot), c(qdot_nominal)
+        distances, directions = c(distances), c(directions)
+        for name, arr, shape in (
+            ("jacobians", jacobians, (N, 3, n)), ("qdot", qdot, (n,)), ("qddot", qddot, (n,)),
+            ("qdot_nominal", qdot_nominal, (n,)), ("distances", distances, (N,)), ("directions", directions, (N, 3)),
+            ("obstacle_speed", v_h, (N,)),
+        ):  # fmt: skip
+            if arr.shape != shape:  # (the kernel does not check bounds: a short array would be read past its end)
+                raise ValueError(f"SsmMonitor.update: {name} must have shape {shape}, got {arr.shape}")
         dist, sp = np.empty(N), np.empty(N)
         cfg = self.config
         s, stopped, stop_ended, T_s, binding = _update(
-            c(jacobians), c(qdot), c(qddot), c(qdot_nominal), c(distances), c(directions), float(cfg.sensing_range),
+            jacobians, qdot, qddot, qdot_nominal, distances, directions, float(cfg.sensing_range),
             self.lengths, self.a_max, self.j_max, v_h, prm, self.stopped, float(cfg.hysteresis), dist, sp, age,
         )  # fmt: skip
         return self.finish(s, stopped, stop_ended, T_s, binding, dist, sp, dist - sp, T_r)
