@@ -93,6 +93,33 @@ def test_point_stopping_distance_bounds_the_swept_path(seed):
     assert np.all(bound <= 3.0 * swept + 0.02)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_point_stopping_distance_bounds_the_swept_path_with_a_base_on_rails(seed):
+    """The youBot (base x and y prismatic, then revolute joints): the points near the base move by the
+    base's whole travel, which the bound missed when it took their chain length (< 1 m) for the prismatic
+    joints' lever (16 cm under the swept path before). Same check as above, with the monitor's own form of
+    the bound (no ``prismatic`` flags: :func:`chain_lengths` carries them)."""
+    from depthguard.robot.control_points import ControlPointSet
+    from depthguard.robot.youbot import load_youbot
+
+    rng = np.random.default_rng(seed)
+    model = load_youbot()
+    cps = ControlPointSet.build(model, "auto")
+    n = model.n_dof
+    q = rng.uniform(np.maximum(model.q_min, -3.0) * 0.8, np.minimum(model.q_max, 3.0) * 0.8)
+    v = rng.uniform(-1.5, 1.5, n)
+    a = rng.uniform(-8, 8, n)
+    a_max, j_max = np.full(n, 10.0), np.full(n, 500.0)
+    _, dq = _path(_ruckig_stop(v, a, a_max, j_max))
+    paths = np.array([cps.evaluate(q + d).centres for d in dq])  # (T, N, 3)
+    swept = np.sum(np.linalg.norm(np.diff(paths, axis=0), axis=2), axis=0)  # (N,)
+    st_ = joint_stopping(v, a, a_max, j_max)
+    L = chain_lengths(model, cps.joints, cps.offsets)
+    bound = point_stopping_distance(cps.evaluate(q).jacobians, st_.travel, L)
+    assert np.all(bound >= swept - 1e-9), (bound, swept)
+    assert np.all(bound <= 4.0 * swept + 0.02)  # (looser than the arm's: the base's yaw has long levers)
+
+
 def test_chain_lengths_bound_lever_arms():
     """Every Jacobian column norm (distance from the joint axis) stays below the chain length, anywhere."""
     from depthguard.robot.control_points import ControlPointSet

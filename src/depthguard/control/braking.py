@@ -114,20 +114,36 @@ def chain_lengths(model, joints: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         offsets: (N, 3) point in that joint's frame, m.
     Returns:
         ``L[k, c]`` = sum of the joint-placement translations from coordinate ``c``'s joint to point ``k``'s
-        joint, plus ``|offset_k|`` (triangle inequality, any configuration); 0 where ``c`` does not move ``k``.
+        joint, plus the largest extension (``max(|q_min|, |q_max|)``, m) of each prismatic joint between
+        them, plus ``|offset_k|`` (triangle inequality, any configuration within the limits); 0 where ``c``
+        does not move ``k``. A prismatic coordinate ``c`` moves the point by its own travel (lever 1 m/m):
+        its ``L[k, c]`` is at least 1, so that ``min(L, |J| + ...)`` never cuts its lever below 1 (a base on
+        rails moved the points near its origin by its whole travel, while the bound took their tiny
+        ``L``: 16 cm under the youBot's swept path, found by a property test).
     """
     pm = model.model
     N, n = len(joints), model.n_dof
+    prismatic = [_is_prismatic(pm, j) for j in range(pm.njoints)]
+    reach = [0.0] * pm.njoints  # a prismatic joint's largest extension from its placement, m
+    for j in range(1, pm.njoints):
+        if prismatic[j]:
+            q0 = pm.idx_qs[j]
+            reach[j] = float(max(abs(pm.lowerPositionLimit[q0]), abs(pm.upperPositionLimit[q0])))
     L = np.zeros((N, n))
     for k, (jk, off) in enumerate(zip(joints, offsets, strict=True)):
         chain = [int(j) for j in pm.supports[int(jk)] if j > 0]  # root .. jk
         for pos, j in enumerate(chain):
             length = float(np.linalg.norm(off))
             for i in chain[pos + 1 :]:
-                length += float(np.linalg.norm(pm.jointPlacements[i].translation))
+                length += float(np.linalg.norm(pm.jointPlacements[i].translation)) + reach[i]
             c0, nv = pm.idx_vs[j], pm.nvs[j]
-            L[k, c0 : c0 + nv] = length
+            L[k, c0 : c0 + nv] = max(length, 1.0) if prismatic[j] else length
     return L
+
+
+def _is_prismatic(pm, j: int) -> bool:
+    """Joint ``j`` of the pinocchio model ``pm`` is prismatic (its one coordinate a length, m)."""
+    return pm.joints[j].shortname() in ("JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned")
 
 
 def point_stopping_distance(
@@ -145,7 +161,7 @@ def point_stopping_distance(
         travel_i)``, m (a prismatic ``i`` moves the point by its travel itself: ``L_ki`` is 1 there).
     """
     lever0 = np.linalg.norm(jacobians, axis=1)  # (N, n): distance from each joint axis now
-    moved = lengths * travel[None, :]  # (N, n): how far each joint can move the point
+    moved = np.where(travel[None, :] > 0, lengths * travel[None, :], 0.0)  # (N, n): how far each joint moves it
     if prismatic is not None:  # (a prismatic joint moves the point by its travel, whatever its chain length)
         moved = np.where(np.asarray(prismatic, bool)[None, :], (lengths > 0) * travel[None, :], moved)
     # joints after j along the chain have higher indices: suffix sums of their displacements

@@ -183,7 +183,8 @@ def _s_p(s, lever0, lengths, appr_cur, appr_nom, v_cur, a_cur, v_nom, a_max, j_m
         for j in range(n - 1, -1, -1):
             lev = min(lengths[k, j], lever0[k, j] + after)
             S_s += lev * travel[j]
-            after += lengths[k, j] * travel[j]
+            if travel[j] > 0.0:  # (a prismatic joint without limits has an infinite L; inf * 0 is NaN)
+                after += lengths[k, j] * travel[j]
         v_r = max(appr_cur[k], s * appr_nom[k])
         rest = v_r * T_r + S_s + const
         if v_h_meas[k] >= 0.0:
