@@ -67,6 +67,23 @@ def test_joint_stop_closed_forms():
     assert s.travel[1] == pytest.approx(0.05 * np.sqrt(0.05 / 500))
 
 
+def _bound_and_swept_path(model, cps, seed: int, q_lo: np.ndarray, q_hi: np.ndarray):
+    """A random state (q within 0.8 of [q_lo, q_hi], random velocity and acceleration): the monitor's bound of
+    each control point's path during Ruckig's stop, and that path's length (forward kinematics along it)."""
+    rng = np.random.default_rng(seed)
+    n = model.n_dof
+    q = rng.uniform(q_lo * 0.8, q_hi * 0.8)
+    v = rng.uniform(-1.5, 1.5, n)
+    a = rng.uniform(-8, 8, n)
+    a_max, j_max = np.full(n, 10.0), np.full(n, 500.0)
+    _, dq = _path(_ruckig_stop(v, a, a_max, j_max))
+    paths = np.array([cps.evaluate(q + d).centres for d in dq])  # (T, N, 3)
+    swept = np.sum(np.linalg.norm(np.diff(paths, axis=0), axis=2), axis=0)  # (N,)
+    st_ = joint_stopping(v, a, a_max, j_max)
+    L = chain_lengths(model, cps.joints, cps.offsets)
+    return point_stopping_distance(cps.evaluate(q).jacobians, st_.travel, L), swept
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_point_stopping_distance_bounds_the_swept_path(seed):
     """Random states of the shipped arm: the bound is never below the control points' path length along
@@ -74,21 +91,8 @@ def test_point_stopping_distance_bounds_the_swept_path(seed):
     from depthguard.robot.control_points import ControlPointSet
     from depthguard.robot.model import load_lwr4
 
-    rng = np.random.default_rng(seed)
     model = load_lwr4()
-    cps = ControlPointSet.build(model, "ral-9")
-    n = model.n_dof
-    q = rng.uniform(model.q_min * 0.8, model.q_max * 0.8)
-    v = rng.uniform(-1.5, 1.5, n)
-    a = rng.uniform(-8, 8, n)
-    a_max, j_max = np.full(n, 10.0), np.full(n, 500.0)
-    traj = _ruckig_stop(v, a, a_max, j_max)
-    _, dq = _path(traj)
-    paths = np.array([cps.evaluate(q + d).centres for d in dq])  # (T, N, 3)
-    swept = np.sum(np.linalg.norm(np.diff(paths, axis=0), axis=2), axis=0)  # (N,)
-    st_ = joint_stopping(v, a, a_max, j_max)
-    L = chain_lengths(model, cps.joints, cps.offsets)
-    bound = point_stopping_distance(cps.evaluate(q).jacobians, st_.travel, L)
+    bound, swept = _bound_and_swept_path(model, ControlPointSet.build(model, "ral-9"), seed, model.q_min, model.q_max)
     assert np.all(bound >= swept - 1e-9), (bound, swept)
     assert np.all(bound <= 3.0 * swept + 0.02)
 
@@ -102,20 +106,9 @@ def test_point_stopping_distance_bounds_the_swept_path_with_a_base_on_rails(seed
     from depthguard.robot.control_points import ControlPointSet
     from depthguard.robot.youbot import load_youbot
 
-    rng = np.random.default_rng(seed)
     model = load_youbot()
-    cps = ControlPointSet.build(model, "auto")
-    n = model.n_dof
-    q = rng.uniform(np.maximum(model.q_min, -3.0) * 0.8, np.minimum(model.q_max, 3.0) * 0.8)
-    v = rng.uniform(-1.5, 1.5, n)
-    a = rng.uniform(-8, 8, n)
-    a_max, j_max = np.full(n, 10.0), np.full(n, 500.0)
-    _, dq = _path(_ruckig_stop(v, a, a_max, j_max))
-    paths = np.array([cps.evaluate(q + d).centres for d in dq])  # (T, N, 3)
-    swept = np.sum(np.linalg.norm(np.diff(paths, axis=0), axis=2), axis=0)  # (N,)
-    st_ = joint_stopping(v, a, a_max, j_max)
-    L = chain_lengths(model, cps.joints, cps.offsets)
-    bound = point_stopping_distance(cps.evaluate(q).jacobians, st_.travel, L)
+    lo, hi = np.maximum(model.q_min, -3.0), np.minimum(model.q_max, 3.0)
+    bound, swept = _bound_and_swept_path(model, ControlPointSet.build(model, "auto"), seed, lo, hi)
     assert np.all(bound >= swept - 1e-9), (bound, swept)
     assert np.all(bound <= 4.0 * swept + 0.02)  # (looser than the arm's: the base's yaw has long levers)
 
