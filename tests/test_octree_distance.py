@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from depthguard.octree.distance import capsule_distances, sphere_distances
@@ -38,6 +38,7 @@ def brute_segment(occ, a, b, n=1601):
 @settings(deadline=None, max_examples=60)
 @given(seed=st.integers(0, 10_000), x=st.floats(-0.6, 0.6), y=st.floats(-0.6, 0.6), z=st.floats(-0.1, 0.9),
        r=st.floats(0.0, 0.1))  # fmt: skip
+@example(seed=130, x=0.55, y=0.0625, z=0.0, r=0.0)  # a node exactly at the reach (fresh seeds found it)
 def test_sphere_distance_equals_brute_force(seed, x, y, z, r):
     occ = random_occupancy(seed)
     P = np.array([x, y, z])
@@ -48,7 +49,10 @@ def test_sphere_distance_equals_brute_force(seed, x, y, z, r):
         assert res.distance[0] == np.inf and res.obstacle_pixels[0] == 0
         return
     assert res.distance[0] == pytest.approx(max(d.min() - r, 0.0), abs=1e-12)
-    assert res.obstacle_pixels[0] == within.sum()
+    # (a node at the reach itself counts either way: the two computations differ in the last bit, as
+    # seed 130 at (0.55, 0.0625, 0) with a node 0.4 m away showed)
+    near_edge = np.abs(d - (0.4 + r)) <= 1e-12
+    assert (within & ~near_edge).sum() <= res.obstacle_pixels[0] <= (within | near_edge).sum()
     assert np.linalg.norm(res.direction[0]) == pytest.approx(1.0)
     # the nearest point lies on an occupied node box and at the reported distance
     assert np.linalg.norm(P - res.nearest[0]) == pytest.approx(d.min(), abs=1e-12)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 pin = pytest.importorskip("pinocchio")
@@ -27,7 +27,7 @@ from depthguard.robot.hand_locate import foreground_mask, image_box  # noqa: E40
 from depthguard.robot.inflation import is_closed, rounded_convex_mesh  # noqa: E402
 from depthguard.robot.model import load_lwr4  # noqa: E402
 from depthguard.robot.robots import load_robot, robot_data_dir, robot_urdf  # noqa: E402
-from depthguard.robot.selffilter import self_filter  # noqa: E402
+from depthguard.robot.selffilter import ZNEAR, self_filter  # noqa: E402
 from depthguard.robot.sensor_kinematics import SensorArray  # noqa: E402
 from depthguard.robot.shapes import Shape  # noqa: E402
 from depthguard.robot.spheres import cover_points, shape_cover  # noqa: E402
@@ -265,14 +265,39 @@ def _pixel_points(cam: Camera, depth: np.ndarray) -> np.ndarray:
 JUNK = (np.nan, 0.0, np.inf, -np.inf, -0.5)
 
 
-def _check_self_filter(name: str, seed: int, mode: str, margin: float, noise: float, tol) -> None:
-    """The self-filter's documented guarantees in one random scene (module docstring of selffilter)."""
+def _grazes_a_mesh_shell(model, q, cam: Camera, margin: float) -> bool:
+    """The camera lies outside an inflated mesh shape but closer to it than twice the near plane
+    (``selffilter.ZNEAR``): rays that enter the shape there have their entry clipped (a documented limit)."""
+    from scipy.spatial import ConvexHull
+
+    g = model.geometry
+    if not g.n_triangles:
+        return False
+    H, _ = model.joint_kinematics(model.check_q(q))
+    T = g.mesh_transforms(H[:, :3, :3], H[:, :3, 3], cam.R, cam.t)
+    infl = np.maximum(margin - g.excess, g.slack)
+    for s in range(g.vr.shape[0]):
+        v0, v1 = g.vr[s]
+        P = (T[s, :, :3] @ (g.V[v0:v1] + infl[s] * g.O[v0:v1]).T).T + T[s, :, 3]
+        outside_by = float(ConvexHull(P).equations[:, 3].max())  # (the origin: the camera)
+        if 0.0 < outside_by < 2.0 * ZNEAR:
+            return True
+    return False
+
+
+def _check_self_filter(
+    name: str, seed: int, mode: str, margin: float, noise: float, tol, exact_from: float = 1e-9
+) -> None:
+    """The self-filter's documented guarantees in one random scene (module docstring of selffilter);
+    ``exact_from``: the least margin at which exactly read robot pixels must all go (below it, the drawn
+    surface is the robot's own, and the last bit decides)."""
     model = _model(name)
     truth = _truth(name)
     rng = np.random.default_rng(seed)
     q = _random_q(model, rng, beyond=1.0)
     cam = _random_camera(truth, q, rng, mode, margin)
     assume(truth.distance(q, cam.position[None])[0] > 1e-3)  # (a camera inside the robot sees nothing real)
+    assume(not _grazes_a_mesh_shell(model, q, cam, margin))  # (seed 268151132 of the shell test: 0.19 mm out)
     exact = truth.depth(cam, q)
     robot = np.isfinite(exact)
     # the scene: a wall far behind everything, the robot's exact depth, noise, holes of every kind
@@ -287,7 +312,7 @@ def _check_self_filter(name: str, seed: int, mode: str, margin: float, noise: fl
     tol_out = tol(margin)
     # 1. every robot pixel read exactly (no noise) is removed (with a margin: at margin 0 the surface depth
     #    itself decides, to the last bit of two ways of computing it)
-    exact_robot = robot & valid & ~noisy & (margin >= 1e-9)
+    exact_robot = robot & valid & ~noisy & (margin >= exact_from)
     assert np.all(res.mask[exact_robot]), ("robot pixels left", int(np.sum(exact_robot & ~res.mask)), cam.position)
     # 2. every removed reading lies within the margin of the robot (+ the documented tolerance)
     removed = res.mask & valid
@@ -295,7 +320,7 @@ def _check_self_filter(name: str, seed: int, mode: str, margin: float, noise: fl
     assert np.all(d_removed <= margin + tol_out), ("removed beyond the margin", d_removed.max(), margin)
     # 3. noisy robot readings within half the margin of the robot are removed
     near = robot & valid & noisy
-    if near.any():
+    if near.any() and margin >= exact_from:
         d_near = truth.distance(q, pts[near])
         assert np.all(res.mask[near][d_near <= 0.5 * margin - 1e-6]), ("noisy robot pixel left", margin)
     # 4. a pixel without a reading whose ray meets the robot is robot
@@ -340,8 +365,15 @@ def test_lwr_self_filter_guarantees(seed, mode, margin, noise) -> None:
     margin=st.one_of(st.just(0.0), st.floats(0.0, 0.08)),
     noise=st.floats(0.0, 0.05),
 )
+@example(seed=0, mode="far", margin=2.02e-06, noise=0.0)  # (a margin below the hull's excess: fresh seeds)
 def test_panda_self_filter_guarantees(seed, mode, margin, noise) -> None:
-    _check_self_filter("panda", seed, mode, margin, noise, _panda_tol)
+    _check_self_filter("panda", seed, mode, margin, noise, _panda_tol, _panda_exact_from())
+
+
+def _panda_exact_from() -> float:
+    # below the hull's excess over the mesh the hull itself is drawn, and a robot pixel on a face the mesh
+    # shares with its hull lies on the drawn surface (seed 0, far, margin 2e-6: 21 such pixels kept)
+    return float(_model("panda").geometry.excess.max()) + 1e-5
 
 
 @pytest.mark.parametrize("kind", ["box", "cylinder"])
@@ -792,4 +824,4 @@ def test_capsule_surface_points_lie_on_the_surface_with_outward_normals(L, r, sp
 def test_panda_self_filter_guarantees_from_inside_the_margin(seed, margin, noise) -> None:
     """A camera within the margin of a link (a wrist camera, or the arm passing close to a fixed one),
     looking at it: it sits inside the inflated shape."""
-    _check_self_filter("panda", seed, "shell", margin, noise, _panda_tol)
+    _check_self_filter("panda", seed, "shell", margin, noise, _panda_tol, _panda_exact_from())
