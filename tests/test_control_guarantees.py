@@ -128,6 +128,7 @@ def _integrated_stop(v, a, A, J, n_steps):
     log_a=st.floats(-2.0, 3.0),
     log_j=st.floats(0.0, 5.0),
 )
+@example(v=0.5, a_frac=-1.0, log_a=2.0975402094631076e-16, log_j=0.0)
 def test_braking_stop_is_the_integrated_time_optimal_stop(v, a_frac, log_a, log_j):
     """braking.stop_one: 'exact for Ruckig's time-optimal velocity-mode stop', so never below the path
     length or the time of an independent integration of that stop, and equal to them, over extreme but
@@ -136,8 +137,10 @@ def test_braking_stop_is_the_integrated_time_optimal_stop(v, a_frac, log_a, log_
     a = a_frac * A
     t_ref, p_ref = _integrated_stop(v, a, A, J, 2000)
     t, p = stop_one(v, a, A, J)
-    assert t >= t_ref * (1 - 1e-9) - 1e-15 and p >= p_ref * (1 - 1e-6) - 1e-15
-    assert t == pytest.approx(t_ref, rel=1e-9, abs=1e-15)
+    # (1e-6 relative for the time too: where the speed left is just the ramp-down's A^2/(2J), both take the
+    # square root of a difference that rounding leaves at 1e-16, and differ by 1e-7: v=0.5, a=-A, A=J=1)
+    assert t >= t_ref * (1 - 1e-6) - 1e-15 and p >= p_ref * (1 - 1e-6) - 1e-15
+    assert t == pytest.approx(t_ref, rel=1e-6, abs=1e-15)
     assert p == pytest.approx(p_ref, rel=1e-6, abs=1e-15)
 
 
