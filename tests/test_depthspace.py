@@ -210,10 +210,13 @@ def test_property_never_larger_than_truth_plus_tolerance(data):
     # declared tolerance: one pixel footprint at the far end of the region (sampling through pixel centres)
     tol = np.array([_footprint(cam, p[2] + 0.5) for p in cam.world_to_camera(pts)])
     finite = np.isfinite(res.distance)
-    assert np.all(res.distance[finite] <= np.maximum(truth[finite], 0.0) + tol[finite])
-    # "nothing within rho" must be true: no obstacle closer than rho - tolerance. Only under the conservative
-    # policy: with "ignore", space outside the field of view is free by request, and obstacles there are missed.
+    # Both claims hold under the conservative policy only: with "ignore", space outside the field of view is
+    # free by request, and obstacles there are missed, so a point near the edge of the view may be reported at
+    # the distance of the visible part of an obstacle (fresh seeds: a point at y = -0.5 m, z = 1 m, out of
+    # the view, 0.308 m reported against 0.296 m to the part of a sphere outside it)
     if policy == "conservative":
+        assert np.all(res.distance[finite] <= np.maximum(truth[finite], 0.0) + tol[finite])
+        # "nothing within rho" must be true: no obstacle closer than rho - tolerance
         assert np.all(truth[~finite] >= 0.4 - tol[~finite])
 
 
