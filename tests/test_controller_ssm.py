@@ -137,7 +137,7 @@ _SLOW_OK = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
 
 # found with fresh seeds: the first, a target that turns, 1.7 mm nearer (2.8 before); the others before each joint's own
 # time-optimal profile gave way to the phase-synchronized step whenever it moved the end effector nearer
-# (control.cycle.generate): 4.9, 3.2 and 1.2 mm nearer, now 0.3, 0.1 and 0.02 mm
+# (control.step.generate): 4.9, 3.2 and 1.2 mm nearer, now 0.3, 0.1 and 0.02 mm
 _NEARER_BEFORE = [
     ([-0.390625, 0.0, -1.192092896e-07, 0.0, 0.0, -0.375, 0.0], (0.0, -1.0, 0.0), 0.125),  # the target turns
     (

@@ -39,12 +39,13 @@ from typing import NamedTuple
 import numpy as np
 
 from depthguard.control.body import body_bounds_inplace
-from depthguard.control.bounded import braking_step, enforce_bounds_kernel, enforce_velocity_bounds
+from depthguard.control.bounded import braking_step, enforce_velocity_bounds
 from depthguard.control.endeffector import commanded_task_velocity, dls_apply, dls_damping, repulsive_velocity
 from depthguard.control.inputs import CheckedInput, check_inputs
 from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
 from depthguard.control.plan_kernel import both_finite, cycle_layout, plan_cycle, plan_params
 from depthguard.control.sns import sns_velocity_unchecked
+from depthguard.control.step import generate
 from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
 from depthguard.robot.control_points import ControlPointSet
 
@@ -211,7 +212,7 @@ def _cycle(ctrl: AvoidanceController, inp: CycleInput, st: ControllerState) -> t
     away = None
     if status == CycleStatus.STOP_PROTECTIVE and _evades(ctrl.config):
         away = _evasion_gradient(ctrl, otg, chk)
-    new, ok, limited = generate(ctrl, otg, plan.target, b.lo, b.hi, away)
+    new, ok, limited = generate(ctrl.otg, otg, plan.target, b.lo, b.hi, away)
     if not ok:
         status = CycleStatus.ERROR_OTG
     # the SSM stop has its own hysteresis (the monitor releases it): it does not latch the resume wait
@@ -351,52 +352,6 @@ _NO_SPEED = np.zeros(1)
 def _evades(cfg: ControllerConfig) -> bool:
     """A protective stop keeps the end effector's repulsion ("both" mode with ``stop_evades``)."""
     return cfg.avoidance == "both" and cfg.stop_evades
-
-
-def generate(
-    ctrl: AvoidanceController,
-    otg: OtgState,
-    target: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    away: np.ndarray | None = None,
-) -> tuple[OtgState, bool, bool]:
-    """Ruckig towards ``target`` (or the fallback braking step if it fails), kept within ``[lo, hi]``.
-
-    ``away`` (n,): in an evading protective stop, ``J_eeᵀ n``, the joint-space gradient of the end
-    effector's distance to its obstacle (``n`` its repulsive direction). Each joint reaches its target on
-    its own time-optimal profile, so on the way the joint velocities are not proportional to the target's
-    and the end effector can move towards the obstacle although the target moves it away (up to 4.9 mm
-    from rest, found by a property test). When this cycle's step would do so, the phase-synchronized step
-    (:meth:`JointOtg.advance <depthguard.control.otg.JointOtg.advance>`) is taken instead if it approaches
-    less. Its joints accelerate and brake more gently, never harder, so its stop is never shorter; the
-    joint bounds are enforced on it in the same way.
-
-    Returns the new state, whether Ruckig succeeded, and whether a bound won over the jerk limit.
-    """
-    j = ctrl.otg
-    planned, code = j.advance(otg, target)
-    ok = code >= 0
-    if not ok:
-        planned = braking_step(otg, j.a_max, j.j_max, j.dt)
-    p, v, a, limited = _enforce(j, otg, planned, lo, hi)
-    if away is not None and ok:
-        nearer = float(away @ (p - otg.position))
-        if nearer < 0.0:  # the time-optimal step moves the end effector towards its obstacle
-            synced, code_s = j.advance(otg, target, synchronized=True)
-            if code_s >= 0:
-                ps, vs, as_, limited_s = _enforce(j, otg, synced, lo, hi)
-                if float(away @ (ps - otg.position)) > nearer:
-                    p, v, a, limited = ps, vs, as_, limited_s
-    return OtgState(p, v, a), ok, bool(limited)
-
-
-def _enforce(j, otg: OtgState, planned: OtgState, lo: np.ndarray, hi: np.ndarray):
-    """:func:`~depthguard.control.bounded.enforce_bounds_kernel` on the step from ``otg`` to ``planned``."""
-    return enforce_bounds_kernel(
-        otg.position, otg.velocity, otg.acceleration, planned.position, planned.velocity,
-        planned.acceleration, lo, hi, j.a_max, j.j_max, j.dt,
-    )  # fmt: skip
 
 
 def _evasion_gradient(ctrl: AvoidanceController, otg: OtgState, chk: CheckedInput) -> np.ndarray:

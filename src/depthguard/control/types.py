@@ -68,7 +68,7 @@ class ControllerConfig:
             repulsion (eq. 10) may still move the arm *away* from what approaches, within the body bounds
             (eqs. 12-14: each point's speed towards its obstacle is limited, to zero at contact); a cycle
             whose time-optimal step would bring the end effector nearer takes the phase-synchronized step
-            (:func:`depthguard.control.cycle.generate`). False: the plain jerk-limited stop, as in "ssm"
+            (:func:`depthguard.control.step.generate`). False: the plain jerk-limited stop, as in "ssm"
             mode. A person who walks into a stopped arm is then hit.
         resume_time: after any stop, motion resumes only once every input has been valid (and fresh)
             for this long in a row, s (cycles in a row and elapsed time both count); until then the
