@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from depthguard.validation import check_finite_array, check_positive
+
 __all__ = ["pivot", "PivotFilter"]
 
 _EPS = 1e-9
@@ -45,9 +47,16 @@ def pivot(
         parallel_tol: below this ``|r - a (aᵀr)|``, ``a`` is perturbed by a small deterministic rotation.
     Returns:
         (3,) ``V_Rpivot`` with the magnitude of ``V``.
+    Raises:
+        ValueError: ``V`` or ``V_dot`` not 3 finite numbers, ``dv_max`` or ``c`` not a finite number > 0,
+            ``parallel_tol`` not in (0, 0.1].
     """
-    V = np.asarray(V, dtype=float)
-    V_dot = np.asarray(V_dot, dtype=float)
+    V = check_finite_array(V, (3,), "V")
+    V_dot = check_finite_array(V_dot, (3,), "V_dot")
+    dv_max = check_positive(dv_max, "dv_max")
+    c = check_positive(c, "c")
+    if not (isinstance(parallel_tol, int | float) and 0.0 < parallel_tol <= 0.1):
+        raise ValueError(f"parallel_tol must be a number in (0, 0.1], got {parallel_tol!r}")
     nv = float(np.linalg.norm(V))
     nd = float(np.linalg.norm(V_dot))
     if nv < _EPS or nd < _EPS:

@@ -22,11 +22,14 @@ def _check_profile(rho: float, alpha: float) -> None:
 
 
 def risk(distance: np.ndarray | float, rho: float, alpha: float) -> np.ndarray:
-    """Collision risk ``f(D) = 1 / (1 + exp((D 2/ρ - 1) α))`` in [0, 1] (ICRA'12 eq. 12); 0 for D = inf."""
+    """Collision risk ``f(D) = 1 / (1 + exp((D 2/ρ - 1) α))`` in [0, 1] (ICRA'12 eq. 12); 0 for D = inf.
+
+    A NaN distance (unknown) is given risk 1, the value at contact: when in doubt, the robot slows."""
     _check_profile(rho, alpha)
     d = np.asarray(distance, dtype=float)
-    with np.errstate(over="ignore"):
-        return 1.0 / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
+    with np.errstate(over="ignore", invalid="ignore"):
+        f = 1.0 / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
+    return np.where(np.isnan(d), 1.0, f)
 
 
 def magnitude(distance: np.ndarray | float, vmax: float, rho: float, alpha: float) -> np.ndarray:

@@ -24,6 +24,7 @@ the GID as opaque, so DepthGuard derives it from the same string with BLAKE2b-12
 from __future__ import annotations
 
 import hashlib
+import re
 import struct
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -82,10 +83,15 @@ class Attachment(NamedTuple):
     gid: bytes
 
 
+_NAME_PART = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+_DOMAIN = re.compile(r"[0-9]{1,3}")
+_HASH = re.compile(r"RIHS01_[0-9a-f]{64}")
+
+
 def _split_type(typename: str) -> tuple[str, str, str]:
     parts = str(typename).split("/")
-    if len(parts) != 3 or parts[1] not in ("msg", "srv", "action") or not all(parts):
-        raise ValueError(f"type name must be 'pkg/msg/Type', got {typename!r}")
+    if len(parts) != 3 or parts[1] not in ("msg", "srv", "action") or not all(_NAME_PART.fullmatch(p) for p in parts):
+        raise ValueError(f"type name must be 'pkg/msg/Type' (letters, digits, '_'), got {typename!r}")
     return parts[0], parts[1], parts[2]
 
 
@@ -141,9 +147,17 @@ class TopicKey(NamedTuple):
 
 
 def parse_topic_keyexpr(key: str) -> TopicKey:
-    """Split a data key expression into domain, topic (with its leading slash), ROS type name and hash."""
+    """Split a data key expression into domain, topic (with its leading slash), ROS type name and hash.
+
+    Raises ``ValueError`` unless the key is ``<domain 0-232>/<topic>/<pkg>::msg::dds_::<Type>_/RIHS01_<64 hex>``."""
     parts = str(key).split("/")
-    if len(parts) < 4 or not parts[0].isdigit() or not parts[-1].startswith("RIHS01_"):
+    if (
+        len(parts) < 4
+        or not _DOMAIN.fullmatch(parts[0])
+        or int(parts[0]) > 232
+        or not _HASH.fullmatch(parts[-1])
+        or not all(parts[1:-2])
+    ):
         raise ValueError(f"not an rmw_zenoh topic key expression: {key!r}")
     return TopicKey(int(parts[0]), "/" + "/".join(parts[1:-2]), ros_type_name(parts[-2]), parts[-1])
 

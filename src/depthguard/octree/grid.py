@@ -51,6 +51,8 @@ class VoxelBox:
         if np.any(hi_a < lo_a):
             raise ValueError(f"box hi {hi_a} must be >= lo {lo_a} on every axis")
         res = check_positive(res, "res")
+        if isinstance(pad, bool) or not isinstance(pad, int | np.integer) or pad < 0:
+            raise ValueError(f"box pad must be a whole number of cells >= 0, got {pad!r}")
         i0 = np.floor(lo_a / res).astype(int) - pad
         i1 = np.floor(hi_a / res).astype(int) + 1 + pad
         shape = tuple(int(x) for x in (i1 - i0))

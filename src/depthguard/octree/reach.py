@@ -200,6 +200,10 @@ def reachability_grid(
     if isinstance(cells, bool) or int(cells) != cells or cells < 8:
         raise ValueError(f"cells must be an integer >= 8, got {cells!r}")
     if box is not None:
+        check_res(box.res, "box.res")
+        if len(box.shape) != 3 or any(isinstance(n, bool) or int(n) != n or n < 1 for n in box.shape):
+            raise ValueError(f"box.shape must be 3 whole numbers of cells >= 1, got {box.shape!r}")
+        check_finite_array(box.origin, (3,), "box.origin")
         return _reach(ch, horizon, box, int(cells), strict=True)
     res = check_res(res)
     for scale in (1.0, 2.0, 4.0):

@@ -21,6 +21,7 @@ rotations (:func:`sym_eig_jacobi`).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -124,7 +125,16 @@ def estimate_contact_forces(
             is about 1 cm on the LWR) and damps only true near-singularities.
         lambda_max: largest damping factor λ (m).
         tol: relative singular value below which a direction is reported unobservable.
+    Raises:
+        ValueError: Jacobians or ``r`` of the wrong shape or not finite; ``eps`` not a finite number > 0,
+            ``lambda_max`` not a finite number >= 0, ``tol`` not in [0, 1).
     """
+    if not (0.0 < eps < math.inf):
+        raise ValueError(f"eps must be a positive finite lever arm in metres, got {eps!r}")
+    if not (0.0 <= lambda_max < math.inf):
+        raise ValueError(f"lambda_max must be a finite damping factor >= 0 m, got {lambda_max!r}")
+    if not (0.0 <= tol < 1.0):
+        raise ValueError(f"tol must be a relative singular value in [0, 1), got {tol!r}")
     if type(jacobians) is np.ndarray and jacobians.ndim == 2:  # one contact: Aᵀ = J_c
         At = jacobians if jacobians.dtype is _F64 else jacobians.astype(float)
         if At.shape[0] != 3:

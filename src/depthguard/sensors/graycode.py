@@ -15,6 +15,7 @@ Bit ``i`` of a code is line ``i``. Table 1 writes the Gray code with line 2 firs
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -193,20 +194,25 @@ class SkewedLines:
         if code not in ("gray", "binary"):
             raise ValueError(f"code must be 'gray' or 'binary', got {code!r}")
         self.delays = np.asarray(line_delays, float)
-        if self.delays.shape != (3,) or np.any(self.delays < 0):
-            raise ValueError(f"line_delays must be 3 delays >= 0 s, got {line_delays!r}")
+        if self.delays.shape != (3,) or not np.all((self.delays >= 0) & np.isfinite(self.delays)):
+            raise ValueError(f"line_delays must be 3 finite delays >= 0 s, got {line_delays!r}")
         self.code = code
         self.t_writes: list[float] = [-np.inf]
         self.levels: list[int] = [0]
 
     def write(self, t: float, level: int) -> None:
-        """The host writes ``level`` at time ``t`` (s, non-decreasing)."""
+        """The host writes ``level`` at time ``t`` (s, finite, non-decreasing)."""
         _check_level(np.asarray(level))
-        self.t_writes.append(float(t))
+        t = float(t)
+        if not (math.isfinite(t) and t >= self.t_writes[-1]):
+            raise ValueError(f"write time t must be finite and >= the last write ({self.t_writes[-1]} s), got {t!r}")
+        self.t_writes.append(t)
         self.levels.append(int(level))
 
     def read(self, t: float) -> int:
-        """The level the robot decodes from the three lines sampled at time ``t``."""
+        """The level the robot decodes from the three lines sampled at time ``t`` (s, not NaN)."""
+        if math.isnan(t):
+            raise ValueError("read time t must be a number of seconds, got nan")
         enc = gray_encode if self.code == "gray" else binary_encode
         code = 0
         for bit in range(3):

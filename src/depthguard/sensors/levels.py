@@ -18,6 +18,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -128,9 +129,12 @@ class LevelStepper:
             raise ValueError(f"hold must be a finite time >= 0 s, got {self.hold!r}")
 
     def update(self, t: float, target: int) -> tuple[int, bool]:
-        """Step towards ``target`` (0-7) at time ``t`` (s). Returns (level on the lines, written now)."""
-        if not 0 <= int(target) <= 7:
-            raise ValueError(f"target must be in 0..7, got {target!r}")
+        """Step towards ``target`` (0-7) at time ``t`` (s, finite, non-decreasing). Returns (level on the lines,
+        written now)."""
+        if isinstance(target, bool) or not isinstance(target, int | np.integer) or not 0 <= target <= 7:
+            raise ValueError(f"target must be an integer in 0..7, got {target!r}")
+        if not (math.isfinite(t) and t >= self.t_last):
+            raise ValueError(f"time t must be finite and >= the last write ({self.t_last} s), got {t!r}")
         if int(target) == self.level or t - self.t_last < self.hold - 1e-12:
             return self.level, False
         self.level += 1 if target > self.level else -1
