@@ -213,7 +213,10 @@ class RobotGeometry:
         n_triangles: total triangle count of the meshes used by the filter.
         face_planes (Ft, 4): outward unit normal and offset ``h`` (``n . x = h``) of each face, joint frame.
         closed (S,) bool: the mesh is closed (every edge shared by two faces in opposite directions), so
-            that the self-filter may count its crossings (winding number).
+            that the self-filter may count its crossings (winding number); False for a convex shape (a box or
+            a hull's rounded offset), whose depth interval is exact without them.
+        watertight (S,) bool: the mesh drawn is closed (convex shapes included), so that its cross-section
+            with the camera's near plane is a closed polygon.
     """
 
     def __init__(self, model, shapes: Sequence[Shape], max_triangles: int | None = None) -> None:
@@ -221,7 +224,7 @@ class RobotGeometry:
         caps, rest = capsule_idiom(list(self.shapes))
         self.geoms: list[ShapeGeometry] = caps + [shape_geometry(s) for s in rest]
         cj, ca, cb, cr = [], [], [], []
-        mj, Vs, Os, Fs, vr, fr, slack, excess, closed = [], [], [], [], [], [], [], [], []
+        mj, Vs, Os, Fs, vr, fr, slack, excess, closed, shut = [], [], [], [], [], [], [], [], [], []
         nv = nf = 0
         for g in self.geoms:
             fid = model.frame_id(g.shape.link)
@@ -237,6 +240,7 @@ class RobotGeometry:
             g.inscribed = _inscribed_mesh_capsule(g.vertices, g.faces) if g.shape.kind == "mesh" else None
             v, o, f, is_shut = _filter_mesh(g, max_triangles)
             closed.append(is_shut)
+            shut.append(is_shut or is_closed(f))  # (a convex shape's winding is not needed, but it is watertight)
             mj.append(int(frame.parentJoint))
             Vs.append(v @ Rl.T + pl)
             Os.append(o @ Rl.T)
@@ -262,6 +266,7 @@ class RobotGeometry:
         self.n_triangles = int(len(self.F))
         self.face_planes = _face_planes(self.V, self.F)
         self.closed = np.array(closed, dtype=np.bool_)
+        self.watertight = np.array(shut, dtype=np.bool_)
         ij, ia, ib, ir = [], [], [], []
         for g in self.geoms:  # capsules inscribed in the mesh-rendered boxes, cylinders and meshes
             frame = model.model.frames[model.frame_id(g.shape.link)]

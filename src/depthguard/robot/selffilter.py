@@ -33,11 +33,12 @@ offset that moves all of the vertex's faces by 1; at least ``margin / 2``; a cyl
 ``margin / sqrt(2)``); convex meshes keep at least 93 % of it everywhere, boxes 86 % at edges and corners.
 A cylinder is drawn as the prism that circumscribes it (0.9 % of its radius out), so points up to that
 much beyond the margin may go at the prism's side edges. Triangles are clipped at ``ZNEAR`` (1 mm) in front
-of the camera: a camera *outside* an inflated mesh shape but within about 1 mm of it loses the entry of the
-rays that enter the shape there, and robot points along them may be kept (found by a property test with the
-camera 0.19 mm outside a Panda link's shell, robot points 2-4 cm away; a real depth camera measures nothing
-that near, and its pixels without a reading inside the silhouette are robot). A camera inside the shape is
-handled (its rays start at depth 0).
+of the camera. A camera inside an inflated shape has its rays start at depth 0; a camera outside a closed
+shape that the near plane cuts has the rays through the cut start at ``ZNEAR`` (the cut's cross-section is
+counted in, :func:`depthguard.robot._raster._near_plane_cap`; before, a camera up to 1 mm outside a shell
+lost the entry of those rays and kept robot points behind it: a property test found one 0.19 mm outside a
+Panda link's shell, robot points 2-4 cm away). Readings nearer than ``ZNEAR`` on such rays are kept (no
+depth camera measures that near; its pixels without a reading inside the silhouette are robot).
 """
 
 from __future__ import annotations
@@ -131,7 +132,7 @@ def _run(camera: Camera, depth: np.ndarray, margin: float, caps, meshes, with_de
     if meshes is not None:
         g, T = meshes
         infl = np.maximum(float(margin) - g.excess, g.slack)  # decimated: within margin of the original
-        winding = (wn, g.face_planes, g.closed)
+        winding = (wn, g.face_planes, g.closed, g.watertight)
         mesh_kernel(g.V, g.O, g.F, g.vr, g.fr, T, infl, *cam, ZNEAR, d, mask, near, snear, sfar, *winding, ubox)
     finish_kernel(d, mask, near, robot_depth, ubox, bool(with_depth))
     return SelfFilterResult(mask, robot_depth if with_depth else None)
