@@ -59,6 +59,7 @@ __all__ = [
     "DISTANCE_MODELS",
     "lower_bound_slack",
     "tile_min",
+    "check_query",
 ]
 
 TILE = 16
@@ -278,6 +279,40 @@ def prepare_frame(
 
 
 # ---------------------------------------------------------------------------------------------- query stage
+def _real(value: object, name: str, what: str) -> float:
+    """``value`` as a float if it is a real number (not a bool), else ``ValueError`` naming ``name``."""
+    try:
+        if isinstance(value, bool | np.bool_) or np.ndim(value) != 0:
+            raise TypeError
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be {what}, got {value!r}") from None
+
+
+def check_query(
+    centres: object, radii: object, rho: object, alpha: object
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The checks of the query arguments shared by :func:`query_distances` and the fused query: ``ValueError``
+    naming the bad one (``rho`` a finite number > 0; ``alpha`` a finite number, so that the eq. 9 weights are
+    numbers; ``centres`` a finite (N, 3) array or one (3,) point; ``radii`` (N,) or one number, finite and
+    >= 0). Returns ``(centres, radii, rho, alpha)`` as float arrays and floats."""
+    rho_f = _real(rho, "rho", "a positive number of metres")
+    if not (math.isfinite(rho_f) and rho_f > 0):
+        raise ValueError(f"rho must be a positive number of metres, got {rho!r}")
+    alpha_f = _real(alpha, "alpha", "a finite number")
+    if not math.isfinite(alpha_f):
+        raise ValueError(f"alpha must be a finite number, got {alpha!r}")
+    try:
+        c = np.atleast_2d(np.asarray(centres, dtype=float))
+        r = np.asarray(radii, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"points centres and radii must be numbers, got {centres!r} and {radii!r}") from None
+    if c.ndim == 2 and r.ndim <= 1 and r.size == 1:
+        r = np.broadcast_to(r.reshape(-1), (c.shape[0],))
+    c, r = check_points(c, r)
+    return c, r, rho_f, alpha_f
+
+
 def query_distances(
     frame: DepthFrame,
     centres: np.ndarray,
@@ -310,16 +345,15 @@ def query_distances(
     Returns:
         :class:`PointDistances` in the world frame (``obstacle_pixels``: the lattice's count times
         ``direction_stride²`` in modes ``"all"`` and ``"hybrid"``).
+    Raises:
+        ValueError: naming the argument, for a bad mode, model, stride, rho, alpha (a finite number), centres
+            or radii (:func:`check_query`).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if model not in DISTANCE_MODELS:
         raise ValueError(f"model must be one of {DISTANCE_MODELS}, got {model!r}")
-    if not (np.isfinite(rho) and rho > 0):
-        raise ValueError(f"rho must be a positive number of metres, got {rho!r}")
-    c = np.atleast_2d(np.asarray(centres, dtype=float))
-    r = np.broadcast_to(np.asarray(radii, dtype=float), (c.shape[0],)) if c.ndim == 2 else radii
-    c, r = check_points(c, r)
+    c, r, rho, alpha = check_query(centres, radii, rho, alpha)
     cam = frame.camera
     kernel = query_many_parallel if parallel else query_many
     raw = kernel(

@@ -110,13 +110,13 @@ from depthguard.depthspace import (
     MODES,
     TILE,
     PointDistances,
+    check_query,
     to_world,
 )
 from depthguard.kernels.hits import merge_hits
 from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
 from depthguard.sidethread import run_parts
-from depthguard.validation import check_points
 
 __all__ = ["DepthGridFusion"]
 
@@ -306,16 +306,15 @@ class DepthGridFusion:
         Returns:
             :class:`depthguard.depthspace.PointDistances` (world frame); ``distance`` is a lower bound
             of the true clearance within :meth:`tolerance`.
+        Raises:
+            ValueError: naming the argument, for a bad mode, stride, rho, alpha (a finite number), centres or
+                radii (:func:`depthguard.depthspace.check_query`).
         """
         if not self._ready:
             raise RuntimeError("DepthGridFusion.query: call update() with a set of frames first")
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-        if not (np.isfinite(rho) and rho > 0):
-            raise ValueError(f"rho must be a positive number of metres, got {rho!r}")
-        c = np.atleast_2d(np.asarray(centres, dtype=float))
-        r = np.broadcast_to(np.asarray(radii, dtype=float), (c.shape[0],))
-        c, r = check_points(c, r)
+        c, r, rho, alpha = check_query(centres, radii, rho, alpha)
         cam = self.cameras[0]
         g = self.grid
         stride = resolve_stride(direction_stride, cam.width)
