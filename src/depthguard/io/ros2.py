@@ -105,7 +105,8 @@ def joints_in_order(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray
     Joints are matched by name, in any order, and joints the model does not have (a gripper's) are left
     out: a ros2_control ``joint_state_broadcaster`` orders its joints by its own configuration, not by the
     URDF. A message that names no joint is taken by position. Raises ``ValueError`` when a joint of
-    ``names`` is missing, the positions or velocities do not match the names, or a value is not finite.
+    ``names`` is missing or a joint is named twice, the positions or velocities do not match the names, or a
+    value is not finite.
     (The order found for a list of names is kept: a driver sends the same names at every message.)
     """
     got = tuple(str(x) for x in msg.name)
@@ -133,6 +134,9 @@ def _joint_order(got: tuple[str, ...], names: tuple[str, ...]) -> np.ndarray | N
     if key in _JOINT_ORDERS:
         return _JOINT_ORDERS[key]
     where = {n: i for i, n in enumerate(got)}
+    if len(where) != len(got):  # (which of two values would hold is anybody's guess: the spheres would move)
+        twice = sorted({n for n in got if got.count(n) > 1})
+        raise ValueError(f"JointState names {twice[:8]} more than once")
     missing = [n for n in names if n not in where]
     if missing:
         raise ValueError(f"JointState names no {missing[:8]} (it names {list(got[:8])})")

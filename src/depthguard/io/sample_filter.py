@@ -18,10 +18,19 @@ from typing import Any
 from depthguard.io import ros2
 from depthguard.io.rmw_zenoh import decode_attachment
 
-__all__ = ["SampleFilter", "MAX_FUTURE_S"]
+__all__ = ["SampleFilter", "MAX_FUTURE_S", "MAX_PUBLISHERS", "MAX_GAPS"]
 
 MAX_FUTURE_S = 0.5
 """How far (s) a header stamp may lie ahead of the receiver's clock and still be taken."""
+
+MAX_PUBLISHERS = 256
+"""Publishers (GIDs) whose sequence numbers a filter keeps: a peer that sends every sample under another GID
+must not grow it without end. Past this many, the publisher seen first is forgotten: its next sample is
+taken as a first one (its stamp must still be newer than the last accepted, so a replay stays dropped)."""
+
+MAX_GAPS = 256
+"""Missing sequence numbers kept per publisher, so that a sample that comes late (after later ones) is taken
+back out of :attr:`SampleFilter.missed`; a gap of more samples than this is counted and not kept."""
 
 
 class SampleFilter:
@@ -29,7 +38,12 @@ class SampleFilter:
     decoded ``(message, attachment)`` or None, counting every drop by reason in :attr:`dropped`, and in
     :attr:`missed` the samples that never reached it (gaps in a publisher's sequence numbers: lost on the way
     by a publisher that drops under congestion, or pushed out of a full ``pull`` ring; a sample that arrives
-    and is dropped here counts in :attr:`dropped` only).
+    and is dropped here counts in :attr:`dropped` only, and one that arrives late, after later ones, is taken
+    back out of :attr:`missed`, within the last :data:`MAX_GAPS` missing ones of its publisher).
+
+    A message that passes but that the node then refuses (:meth:`reject`) was never applied: the stamp order
+    goes back to the last message taken before it, so that one refused message stamped ahead (within
+    ``max_future``) does not make the good messages after it "stale".
 
     Args:
         typename: the ROS type of the payload.
@@ -54,6 +68,8 @@ class SampleFilter:
         self.seen_seq: dict[bytes, int] = {}  # per publisher, the highest sequence number that reached here
         self.missed = 0  # samples that never reached here: gaps in a publisher's sequence numbers
         self.last_stamp = -float("inf")
+        self._gaps: dict[bytes, set[int]] = {}  # per publisher, the newest missing sequence numbers
+        self._undo: float | None = None  # the stamp order before the last accepted message (for reject)
         self.dropped: dict[str, int] = {}
         self.rejected_publishers: set[str] = set()
         self.last_refusal: str | None = None
@@ -66,7 +82,10 @@ class SampleFilter:
         """Count a message that passed this filter but that the node could not use (its callback raised
         ``exc``: an image of another encoding, a size that contradicts the data...), by the error's type;
         :attr:`last_refusal` keeps the newest error's text. True the first time this text comes (the
-        subscription says it once, not at every message)."""
+        subscription says it once, not at every message). Called right after :meth:`accept` returned that
+        message, it puts the stamp order back to where it was before it (the message was never applied)."""
+        if self._undo is not None:
+            self.last_stamp, self._undo = self._undo, None
         self._drop(f"refused by the node ({type(exc).__name__})")
         self.last_refusal = str(exc)[:300]
         said = self.last_refusal in self._refusals_said or len(self._refusals_said) >= 20  # (20 kinds at most)
@@ -77,6 +96,7 @@ class SampleFilter:
     def accept(self, attachment: bytes | None, payload: bytes, now: float | None = None) -> tuple[Any, Any] | None:
         """The decoded ``(message, attachment)``, or None when the sample is dropped; ``now``: the receiver's
         clock (s since the epoch; default ``time.time()``)."""
+        self._undo = None
         try:
             att = decode_attachment(attachment if attachment is not None else b"")
         except ValueError:
@@ -89,13 +109,18 @@ class SampleFilter:
                 self.rejected_publishers.add(str(name))
                 return None
         if att.seq <= self.last_seq.get(att.gid, -(2**63) - 1):
+            self._came_late(att.gid, att.seq)
             self._drop("duplicate or reordered sequence number")
             return None
         seen = self.seen_seq.get(att.gid)
         if seen is None or att.seq > seen:
-            if seen is not None:
-                self.missed += att.seq - seen - 1  # (lost on the way, or pushed out of a full ring)
+            if seen is None:
+                self._forget_oldest(self.seen_seq)
+            elif att.seq > seen + 1:
+                self._missing(att.gid, seen, att.seq)  # (lost on the way, or pushed out of a full ring)
             self.seen_seq[att.gid] = att.seq
+        elif att.seq < seen:
+            self._came_late(att.gid, att.seq)
         try:
             msg = ros2.deserialize(payload, self.typename)
         except Exception:  # noqa: BLE001 - any malformed payload is dropped, never raised into Zenoh
@@ -109,6 +134,37 @@ class SampleFilter:
             if not st > self.last_stamp:
                 self._drop("stale or reordered stamp")
                 return None
-            self.last_stamp = st
+            self._undo, self.last_stamp = self.last_stamp, st
+        if att.gid not in self.last_seq:
+            self._forget_oldest(self.last_seq)
         self.last_seq[att.gid] = att.seq
         return msg, att
+
+    def _missing(self, gid: bytes, seen: int, seq: int) -> None:
+        """Sequence numbers ``seen + 1 .. seq - 1`` of publisher ``gid`` did not come (yet)."""
+        self.missed += seq - seen - 1
+        gaps = self._gaps.get(gid)
+        if gaps is None:
+            gaps = self._gaps[gid] = set()
+        if seq - seen - 1 >= MAX_GAPS:
+            gaps.clear()
+            gaps.update(range(seq - MAX_GAPS, seq))
+        else:
+            gaps.update(range(seen + 1, seq))
+            while len(gaps) > MAX_GAPS:
+                gaps.discard(min(gaps))
+
+    def _came_late(self, gid: bytes, seq: int) -> None:
+        """Sample ``seq`` of ``gid`` came after later ones: no longer missed if it was counted so."""
+        gaps = self._gaps.get(gid)
+        if gaps and seq in gaps:
+            gaps.discard(seq)
+            self.missed -= 1
+
+    def _forget_oldest(self, table: dict[bytes, int]) -> None:
+        """Make room for one more publisher in ``table`` (at most :data:`MAX_PUBLISHERS`)."""
+        while len(table) >= MAX_PUBLISHERS:
+            gid = next(iter(table))
+            del table[gid]
+            if table is self.seen_seq:
+                self._gaps.pop(gid, None)

@@ -32,8 +32,8 @@ def joint_command(msg, names: list[str] | tuple[str, ...]) -> tuple[np.ndarray, 
 
     The message's joints are matched by name, in any order, as a ros2_control driver does (by position only
     when the message names none; :func:`depthguard.io.ros2.joints_in_order`). Raises ``ValueError`` for a
-    command that lacks a joint, has no velocities, or is not finite: the driver keeps its last command and
-    its watchdog holds the arm once that is ``watchdog`` seconds old.
+    command that lacks a joint, names one twice, has no velocities, or is not finite: the driver keeps its
+    last command and its watchdog holds the arm once that is ``watchdog`` seconds old.
     """
     q, qd = ros2.joints_in_order(msg, names)
     if qd is None:
