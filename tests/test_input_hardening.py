@@ -207,3 +207,27 @@ def test_level_stepper_refuses_nan_time_which_disabled_the_hold():
     for bad in (7.5, True, "3", -1, 8):
         with pytest.raises(ValueError, match="target"):
             s.update(0.1, bad)
+
+
+# --- depth images: an integer image is not read as metres ------------------------------------------------
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.int32, np.int64, np.bool_])
+def test_integer_depth_images_are_refused_not_read_as_metres(dtype):
+    """A 16-bit millimetre image passed as it comes from a driver was read as metres: every obstacle 1000
+    times too far, so a distance over-reported by orders of magnitude (found by the distance property tests,
+    stop 47). Float images in metres are taken as before; uint16 converts with ``metres_or_nan``."""
+    from depthguard.camera import Camera
+    from depthguard.depthgrid import DepthGridFusion
+    from depthguard.depthspace import prepare_frame, query_distances
+    from depthguard.kernels.depthimage import metres_or_nan
+
+    cam = Camera(width=32, height=24, fx=30.0, fy=30.0, cx=16.0, cy=12.0)
+    mm = np.full(cam.shape, 1000, dtype=np.uint16)  # a wall 1 m in front of the camera
+    with pytest.raises(ValueError, match="depth must be a float image in metres"):
+        prepare_frame(cam, mm.astype(dtype))
+    with pytest.raises(ValueError, match=r"depths\[0\] must be a float image in metres"):
+        DepthGridFusion([cam, cam]).update([mm.astype(dtype), mm.astype(np.float32) / 1000])
+    frame = prepare_frame(cam, metres_or_nan(mm, 1000.0), invalid="ignore")  # (out of view: free)
+    d = query_distances(frame, np.array([[0.0, 0.0, 0.5]]), np.array([0.1]), rho=2.0).distance[0]
+    assert 0.3 < d <= 0.4 + 1e-9  # (the truth is 0.4 m; the depth space gives a lower bound near it)

@@ -60,6 +60,7 @@ __all__ = [
     "lower_bound_slack",
     "tile_min",
     "check_query",
+    "check_float_depth",
 ]
 
 TILE = 16
@@ -217,16 +218,30 @@ class FilledDepth(NamedTuple):
     unknown_pixels: int
 
 
+def check_float_depth(depth: np.ndarray, name: str = "depth") -> np.ndarray:
+    """``depth`` (an array) unless its dtype is not a float one: ``ValueError`` naming ``name``. An integer
+    image is most likely millimetres (a 16-bit driver image), which read as metres would place every obstacle
+    1000 times too far."""
+    if depth.dtype.kind != "f":
+        raise ValueError(
+            f"{name} must be a float image in metres, got dtype {depth.dtype}: convert a 16-bit millimetre image "
+            "with depthguard.kernels.depthimage.metres_or_nan(depth, 1000.0) (read as metres it would place "
+            "every obstacle 1000 times too far)"
+        )
+    return depth
+
+
 def check_depth_policy(
     camera: Camera, depth: np.ndarray, mask: np.ndarray | None, invalid: str, fill_radius: int
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The checks of :func:`fill_missing_depth`'s arguments: ``ValueError`` naming the bad one, else the (H, W)
-    float32 depth and the mask as given (an (H, W) array, not copied) or None."""
+    """The checks of :func:`fill_missing_depth`'s arguments: ``ValueError`` naming the bad one (a depth image
+    that is not of a float dtype too: integers are most likely millimetres), else the (H, W) float32 depth
+    and the mask as given (an (H, W) array, not copied) or None."""
     if invalid not in INVALID_POLICIES:
         raise ValueError(f"invalid must be one of {INVALID_POLICIES}, got {invalid!r}")
     if isinstance(fill_radius, bool) or not isinstance(fill_radius, int | np.integer) or fill_radius < 0:
         raise ValueError(f"fill_radius must be an integer >= 0, got {fill_radius!r}")
-    d = np.asarray(camera.check_image(depth, "depth"), dtype=np.float32)
+    d = np.asarray(check_float_depth(camera.check_image(depth, "depth")), dtype=np.float32)
     return d, None if mask is None else np.asarray(camera.check_image(mask, "mask"))
 
 

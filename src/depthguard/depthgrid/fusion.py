@@ -110,6 +110,7 @@ from depthguard.depthspace import (
     MODES,
     TILE,
     PointDistances,
+    check_float_depth,
     check_query,
     to_world,
 )
@@ -255,6 +256,8 @@ class DepthGridFusion:
             raise ValueError(f"masks: got {len(masks)} entries for {len(self.cameras)} cameras")
         if windows is not None and not callable(windows) and len(windows) != len(self.cameras):
             raise ValueError(f"windows: got {len(windows)} entries for {len(self.cameras)} cameras")
+        for k, d in enumerate(depths):
+            check_float_depth(np.asarray(d), f"depths[{k}]")
         conservative = invalid == "conservative"
         self._ready = False  # (until both parts are done: a failed update leaves no answer)
 
