@@ -67,12 +67,18 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows, depth, wn
     holds each row's touched span [lo, hi]. ``wn`` (H, W) counts the crossings in front of the measured
     ``depth``: ``sg`` = +1 where the triangle's original face looks at the camera (the ray enters the
     shape), -1 where it looks away, so that ``wn > 0`` at a pixel means that its measured point lies inside
-    the closed shape (its winding number)."""
+    the closed shape (its winding number). Scanline: the vertices sorted by y, each row's span lies between
+    the long edge and one of the two short ones. (The set-up is written out here, not taken from
+    :func:`_scan_setup` and :func:`_row_span` as :func:`_count_tri` does: sharing them made the Panda's
+    filter 1.1-1.9 times slower, measured.)"""
     H, W = snear.shape
     area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
     if abs(area) < 1e-12:
         return  # edge-on: its neighbours cover the pixels
-    v_lo, v_hi, u_lo, u_hi, ax, ay, bx, by, cy_, s_ac, s_ab, s_bc = _scan_setup(x0, y0, x1, y1, x2, y2, H, W)
+    v_lo = max(int(np.ceil(min(y0, y1, y2) - 0.5 - 1e-7)), 0)
+    v_hi = min(int(np.floor(max(y0, y1, y2) - 0.5 + 1e-7)), H - 1)
+    u_lo = max(int(np.ceil(min(x0, x1, x2) - 0.5 - 1e-7)), 0)
+    u_hi = min(int(np.floor(max(x0, x1, x2) - 0.5 + 1e-7)), W - 1)
     if v_lo > v_hi or u_lo > u_hi:
         return
     inv = 1.0 / area
@@ -82,12 +88,37 @@ def _raster_tri(x0, y0, w0, x1, y1, w1, x2, y2, w2, snear, sfar, rows, depth, wn
     B = ((x2 - x1) * d0 + (x0 - x2) * d1) * inv
     C = w2 + ((x1 * y2 - x2 * y1) * d0 + (x2 * y0 - x0 * y2) * d1) * inv
     w_lo, w_hi = min(w0, w1, w2), max(w0, w1, w2)
+    # sort the vertices by y: (ax, ay) <= (bx, by) <= (cx, cy)
+    ax, ay, bx, by, cx_, cy_ = x0, y0, x1, y1, x2, y2
+    if ay > by:
+        ax, ay, bx, by = bx, by, ax, ay
+    if by > cy_:
+        bx, by, cx_, cy_ = cx_, cy_, bx, by
+    if ay > by:
+        ax, ay, bx, by = bx, by, ax, ay
+    s_ac = (cx_ - ax) / (cy_ - ay) if cy_ > ay else 0.0
+    s_ab = (bx - ax) / (by - ay) if by > ay else 0.0
+    s_bc = (cx_ - bx) / (cy_ - by) if cy_ > by else 0.0
     for v in range(v_lo, v_hi + 1):
-        ua, ub = _row_span(v, u_lo, u_hi, ax, ay, bx, by, cy_, s_ac, s_ab, s_bc, rows)
+        py = v + 0.5
+        xl = ax + (py - ay) * s_ac
+        if py < by:
+            xr = ax + (py - ay) * s_ab
+        elif cy_ > by:
+            xr = bx + (py - by) * s_bc
+        else:  # py == by == cy: the flat edge b-c
+            xr = bx
+        lo, hi = min(xl, xr), max(xl, xr)
+        ua = max(int(np.ceil(lo - 0.5 - 1e-7)), u_lo)
+        ub = min(int(np.floor(hi - 0.5 + 1e-7)), u_hi)
         if ua > ub:
             continue
+        if ua < rows[v, 0]:
+            rows[v, 0] = ua
+        if ub > rows[v, 1]:
+            rows[v, 1] = ub
         row_n, row_f, row_d, row_w = snear[v], sfar[v], depth[v], wn[v]
-        base = B * (v + 0.5) + C
+        base = B * py + C
         for u in range(ua, ub + 1):  # branch-free, so that the compiler can vectorise the span
             iz = min(max(A * (u + 0.5) + base, w_lo), w_hi)  # clamp: rounding at the edges
             row_n[u] = max(row_n[u], iz)
