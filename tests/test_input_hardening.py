@@ -231,3 +231,25 @@ def test_integer_depth_images_are_refused_not_read_as_metres(dtype):
     frame = prepare_frame(cam, metres_or_nan(mm, 1000.0), invalid="ignore")  # (out of view: free)
     d = query_distances(frame, np.array([[0.0, 0.0, 0.5]]), np.array([0.1]), rho=2.0).distance[0]
     assert 0.3 < d <= 0.4 + 1e-9  # (the truth is 0.4 m; the depth space gives a lower bound near it)
+
+
+# --- the nodes' JSON lines are strict JSON ----------------------------------------------------------------
+
+
+def test_node_json_lines_are_strict_json(tmp_path):
+    """The monitor wrote ``"d_min": Infinity`` when nothing was within range, and the node logs NaN for an
+    unknown value: Python reads them, strict parsers (jq, JavaScript's JSON.parse, serde_json) refuse the line.
+    Non-finite numbers are now null, as in the distances' JSON."""
+    import json
+
+    from depthguard.nodes.common import JsonLog, json_line
+
+    rec = {"d_min": float("inf"), "x": [1.0, float("nan"), np.float32(2.5)], "n": {"a": -float("inf")}, "s": "k"}
+    line = json_line(rec)
+    strict = json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard constant {c}"))
+    assert strict == {"d_min": None, "x": [1.0, None, 2.5], "n": {"a": None}, "s": "k"}
+    assert json_line({"t": 1.5, "q": np.float64(0.25)}) == '{"t": 1.5, "q": 0.25}'
+    log = JsonLog(tmp_path / "log.jsonl")
+    log.write(ev="status", qd_max=float("nan"))
+    log.close()
+    assert json.loads((tmp_path / "log.jsonl").read_text()) == {"ev": "status", "qd_max": None}

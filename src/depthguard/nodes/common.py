@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import math
 import os
 import signal
 import threading
@@ -33,6 +34,7 @@ __all__ = [
     "camera_at_size",
     "StopFlag",
     "JsonLog",
+    "json_line",
     "now_s",
     "JOINT_RING",
     "wait_reading",
@@ -217,6 +219,26 @@ class StopFlag:
         return self._ev.wait(s)
 
 
+def _finite_or_none(v: Any) -> Any:
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite_or_none(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_finite_or_none(x) for x in v]
+    return v
+
+
+def json_line(rec: dict) -> str:
+    """One strict JSON object (RFC 8259) on one line: NaN and ±inf, which Python writes as the non-standard
+    ``NaN`` / ``Infinity`` that strict parsers refuse, become ``null``, as in the distances' JSON (README).
+    numpy numbers become floats."""
+    try:
+        return json.dumps(rec, default=float, allow_nan=False)
+    except ValueError:  # (a non-finite number somewhere: the rare path)
+        return json.dumps(_finite_or_none(json.loads(json.dumps(rec, default=float))), allow_nan=False)
+
+
 class JsonLog:
     """JSON-lines log file (one object per line, flushed), or nothing when ``path`` is None."""
 
@@ -228,7 +250,7 @@ class JsonLog:
         if self._f is None:
             return
         with self._lock:
-            self._f.write(json.dumps(rec, default=float) + "\n")
+            self._f.write(json_line(rec) + "\n")
             self._f.flush()
 
     def close(self) -> None:

@@ -7,7 +7,6 @@ how many samples the subscriptions dropped (duplicates, reordered or stale stamp
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
 import time
@@ -16,7 +15,7 @@ import numpy as np
 
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import parse_liveliness_token
-from depthguard.nodes.common import StopFlag, Topics, open_node
+from depthguard.nodes.common import StopFlag, Topics, json_line, open_node
 
 __all__ = ["live_nodes", "run_monitor_node"]
 
@@ -89,7 +88,7 @@ def run_monitor_node(
             rec["dropped"] = {s.topic: dict(s.dropped) for s in subs if s.dropped}
             if malformed:
                 rec["malformed_tokens"] = malformed
-            sys.stdout.write(json.dumps(rec) + "\n")
+            sys.stdout.write(json_line(rec) + "\n")  # (strict JSON: no distance within range is null)
             sys.stdout.flush()
             lines += 1
     finally:
