@@ -364,14 +364,10 @@ def _panda_exact_from() -> float:
     return float(_model("panda").geometry.excess.max()) + 1e-5
 
 
-@pytest.mark.parametrize("kind", ["box", "cylinder"])
-@pytest.mark.parametrize("gap", [0.005, 0.02])
-def test_camera_within_the_margin_of_a_mesh_still_removes_it(kind, gap) -> None:
-    """A camera 0.5-2 cm off a box or a cylinder (drawn as meshes) sits inside their inflated shell: every
-    ray starts inside it and crosses only the surface where it leaves. The robot's surface in front of
-    that exit must still go, and ``robot_depth`` must not lie behind it (found by the property tests
-    above: the mesh rasteriser took the exit for the near side and kept every robot pixel, while a
-    capsule in the same place was removed)."""
+def _shape_beside_the_camera(kind: str, gap: float, askew: list) -> tuple:
+    """The LWR with a box or a cylinder (drawn as a mesh) attached to its base at (1.5, 0, 0.6) m, and 48x36
+    cameras ``gap`` m off the shape's +x face, looking at the shape and along each ``askew`` offset from the
+    eye: ``(model, [(camera, exact depth of the shape's first crossing, inf where the ray misses)])``."""
     model = load_lwr4()
     centre = np.array([1.5, 0.0, 0.6])
     if kind == "box":
@@ -382,12 +378,26 @@ def test_camera_within_the_margin_of_a_mesh_still_removes_it(kind, gap) -> None:
         obj, face = coal.Cylinder(*size), 0.08
     model.attach(Shape(link="lwr_link_0", kind=kind, size=size, xyz=tuple(centre)))  # the base: world frame
     eye = centre + np.array([face + gap, 0.0, 0.0])
-    for target in (centre + [0.0, 0.01, 0.0], eye + [-0.3, 0.4, 0.2]):  # at the shape, and askew
+    views = []
+    for target in [centre + [0.0, 0.01, 0.0]] + [eye + np.asarray(a) for a in askew]:
         R, t = look_at(eye, target)
         cam = Camera(width=48, height=36, fx=30.0, fy=30.0, cx=24.0, cy=18.0, R=R, t=t, min_depth=0.01)
         dirs = cam.pixel_ray_directions().reshape(-1, 3) @ cam.R
         T = _crossings(kind, obj, eye - centre, dirs)
-        first = np.min(np.where(T > 0, T, np.inf), axis=1).reshape(cam.shape)
+        views.append((cam, np.min(np.where(T > 0, T, np.inf), axis=1).reshape(cam.shape)))
+    return model, views
+
+
+@pytest.mark.parametrize("kind", ["box", "cylinder"])
+@pytest.mark.parametrize("gap", [0.005, 0.02])
+def test_camera_within_the_margin_of_a_mesh_still_removes_it(kind, gap) -> None:
+    """A camera 0.5-2 cm off a box or a cylinder (drawn as meshes) sits inside their inflated shell: every
+    ray starts inside it and crosses only the surface where it leaves. The robot's surface in front of
+    that exit must still go, and ``robot_depth`` must not lie behind it (found by the property tests
+    above: the mesh rasteriser took the exit for the near side and kept every robot pixel, while a
+    capsule in the same place was removed)."""
+    model, views = _shape_beside_the_camera(kind, gap, [[-0.3, 0.4, 0.2]])  # at the shape, and askew
+    for cam, first in views:
         robot = np.isfinite(first)
         assert robot.sum() > 100
         for margin in (0.03, 2.0 * gap + 2e-3):  # (a prism's side edges move out by margin / sqrt(2))
@@ -405,24 +415,10 @@ def test_camera_just_outside_the_inflated_shape_still_removes_it(kind, outside_b
     enter the shell before the plane lost their entry with the clipped triangles, and the robot's surface
     between the plane and their exit was kept (the documented limit of stop 46; the Panda case had the
     camera 0.19 mm out). The near plane's cross-section of the shape now counts as its near side."""
-    model = load_lwr4()
-    centre = np.array([1.5, 0.0, 0.6])
-    if kind == "box":
-        size = (0.2, 0.12, 0.16)
-        obj, face = coal.Box(*size), 0.1
-    else:
-        size = (0.08, 0.3)
-        obj, face = coal.Cylinder(*size), 0.08
-    model.attach(Shape(link="lwr_link_0", kind=kind, size=size, xyz=tuple(centre)))
     gap = 0.005
     margin = gap - outside_by  # (the side facets move out by exactly the margin)
-    eye = centre + np.array([face + gap, 0.0, 0.0])
-    for target in (centre + [0.0, 0.01, 0.0], eye + [-0.3, 0.25, 0.1], eye + [-0.3, -0.1, -0.35]):
-        R, t = look_at(eye, target)
-        cam = Camera(width=48, height=36, fx=30.0, fy=30.0, cx=24.0, cy=18.0, R=R, t=t, min_depth=0.01)
-        dirs = cam.pixel_ray_directions().reshape(-1, 3) @ cam.R
-        T = _crossings(kind, obj, eye - centre, dirs)
-        first = np.min(np.where(T > 0, T, np.inf), axis=1).reshape(cam.shape)
+    model, views = _shape_beside_the_camera(kind, gap, [[-0.3, 0.25, 0.1], [-0.3, -0.1, -0.35]])
+    for cam, first in views:
         robot = np.isfinite(first)
         assert robot.sum() > 100
         measured = np.where(robot, first, 5.0)
