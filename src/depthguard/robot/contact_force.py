@@ -82,7 +82,7 @@ def point_jacobian(model, q: np.ndarray, link: str, point_world: np.ndarray, upd
                 return J
         _, Jw = model.joint_kinematics(model.check_q(q))
     else:  # computeJointJacobians already ran on model.data for this q
-        Jw = np.asarray(model.data.J)
+        Jw = model.world_jacobian()  # ((6, n) also for a 1-DOF robot, whose data.J pinocchio gives as (6,))
     return world_point_jacobian(Jw, p, support)
 
 

@@ -232,7 +232,8 @@ class ControlPointSet:
             return ControlPointState(centres, self.radii.copy(), jac, self.names)
         oMi = self.model.data.oMi
         H = np.array([oMi[j].homogeneous for j in self._unique_joints])  # (U, 4, 4)
-        Jw = np.asarray(self.model.data.J)  # (6, n): linear part at the world origin, angular part
+        # (6, n): linear part at the world origin, angular part (reshaped: pinocchio gives (6,) when n = 1)
+        Jw = np.asarray(self.model.data.J).reshape(6, self.model.n_dof)
         centres, jac = fixed_points(H, self._joint_slot, self.offsets, Jw, self.support)
         return ControlPointState(centres, self.radii.copy(), jac, self.names)
 

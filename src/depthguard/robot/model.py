@@ -45,7 +45,7 @@ from depthguard.robot.geometry import RobotGeometry
 from depthguard.robot.shapes import Shape, parse_collision_shapes, rpy_to_matrix
 from depthguard.validation import check_finite_array
 
-__all__ = ["LinkCapsule", "RobotModel", "load_lwr4", "lwr4_urdf_path"]
+__all__ = ["LinkCapsule", "RobotModel", "check_urdf", "load_lwr4", "lwr4_urdf_path"]
 
 
 def lwr4_urdf_path() -> Path:
@@ -77,6 +77,87 @@ def _origin(elem: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
     xyz = np.array([float(x) for x in elem.get("xyz", "0 0 0").split()])
     rpy = np.array([float(x) for x in elem.get("rpy", "0 0 0").split()])
     return rpy_to_matrix(rpy), xyz
+
+
+_GEOMETRIES = ("box", "cylinder", "sphere", "mesh", "capsule")
+
+
+def _numbers(text: str | None, n: int, what: str) -> list[float] | None:
+    """``n`` finite numbers from an XML attribute (None if absent), or ``ValueError`` naming ``what``."""
+    if text is None:
+        return None
+    try:
+        vals = [float(x) for x in text.split()]
+    except ValueError:
+        vals = []
+    if len(vals) != n or not all(np.isfinite(vals)):
+        raise ValueError(f"{what}: expected {n} finite numbers, got {text!r}")
+    return vals
+
+
+def check_urdf(root: ET.Element, urdf_path: Path) -> None:
+    """``ValueError`` naming the element for what :class:`RobotModel` cannot represent faithfully.
+
+    Joints must be ``revolute`` or ``prismatic`` with a ``<limit>`` (``lower <= upper``) and a non-zero
+    axis, or ``fixed``: a ``continuous``, ``planar`` or ``floating`` joint has no one-coordinate limited
+    form here (pinocchio would give it 2-7 coordinates). Origins need 3 finite numbers per ``xyz`` / ``rpy``;
+    ``<collision>`` elements one geometry of box, cylinder, sphere, mesh or capsule, with positive finite
+    sizes (a mesh: a filename). Mimic joints are loaded as coordinates of their own (docs/robots.md).
+    """
+    where = f"URDF {urdf_path}"
+    for joint in root.findall("joint"):
+        name, typ = joint.get("name", ""), joint.get("type", "")
+        jw = f"{where}: joint '{name}'"
+        if typ in ("continuous", "planar", "floating"):
+            raise ValueError(
+                f"{jw} is {typ}: not supported (only revolute and prismatic joints with <limit>, and fixed "
+                "joints; a continuous joint can be given type revolute with its real travel as <limit>)"
+            )
+        if typ not in ("revolute", "prismatic", "fixed"):
+            raise ValueError(f"{jw}: unknown joint type {typ!r}")
+        org = joint.find("origin")
+        if org is not None:
+            _numbers(org.get("xyz"), 3, f"{jw} <origin xyz>")
+            _numbers(org.get("rpy"), 3, f"{jw} <origin rpy>")
+        if typ == "fixed":
+            continue
+        ax = joint.find("axis")
+        axis = _numbers(ax.get("xyz") if ax is not None else None, 3, f"{jw} <axis xyz>")
+        if axis is not None and np.linalg.norm(axis) < 1e-12:
+            raise ValueError(f"{jw}: <axis xyz> is zero, {ax.get('xyz')!r}")
+        lim = joint.find("limit")
+        if lim is None:
+            raise ValueError(f"{jw} is {typ} without <limit> (URDF requires one)")
+        lo = _numbers(lim.get("lower", "0"), 1, f"{jw} <limit lower>")[0]
+        hi = _numbers(lim.get("upper", "0"), 1, f"{jw} <limit upper>")[0]
+        if lo > hi:
+            raise ValueError(f"{jw}: <limit> lower {lo} > upper {hi}")
+    for link in root.findall("link"):
+        lname = link.get("name", "")
+        for i, col in enumerate(link.findall("collision")):
+            cw = f"{where}: link '{lname}' <collision> {col.get('name') or i}"
+            org = col.find("origin")
+            if org is not None:
+                _numbers(org.get("xyz"), 3, f"{cw} <origin xyz>")
+                _numbers(org.get("rpy"), 3, f"{cw} <origin rpy>")
+            geom = col.find("geometry")
+            if geom is None or len(geom) != 1:
+                raise ValueError(f"{cw}: needs exactly one geometry in <geometry>")
+            g = geom[0]
+            if g.tag not in _GEOMETRIES:
+                raise ValueError(f"{cw}: geometry <{g.tag}> is not supported (only {', '.join(_GEOMETRIES)})")
+            if g.tag == "mesh":
+                if not g.get("filename"):
+                    raise ValueError(f"{cw}: <mesh> has no filename")
+                sc = g.get("scale")
+                if sc is not None and len(sc.split()) != 1:
+                    _numbers(sc, 3, f"{cw} <mesh scale>")
+                continue
+            need = {"box": [("size", 3)], "sphere": [("radius", 1)]}.get(g.tag, [("radius", 1), ("length", 1)])
+            for attr, n in need:
+                vals = _numbers(g.get(attr), n, f"{cw} <{g.tag} {attr}>")
+                if vals is None or min(vals) <= 0:
+                    raise ValueError(f"{cw}: <{g.tag}> needs {attr} of {n} positive number(s), got {g.get(attr)!r}")
 
 
 def _parse_capsules(urdf_path: Path, default_radius: float) -> list[LinkCapsule]:
@@ -151,13 +232,15 @@ class RobotModel:
         if not self.urdf_path.is_file():
             raise ValueError(f"urdf_path '{self.urdf_path}' is not a file")
         try:  # (a clear one-line error before the URDF parser, which logs its own to stderr, sees bad XML)
-            ET.parse(self.urdf_path)
+            root = ET.parse(self.urdf_path).getroot()
         except (ET.ParseError, UnicodeDecodeError) as exc:
             raise ValueError(f"{self.urdf_path}: not a valid URDF (XML): {exc}") from None
+        check_urdf(root, self.urdf_path)  # what cannot be represented: a ValueError naming the element
         self.model = pin.buildModelFromUrdf(str(self.urdf_path))
         self.data = self.model.createData()
-        if self.model.nq != self.model.nv:
-            raise ValueError("RobotModel supports only one-coordinate joints (revolute/prismatic), nq == nv")
+        odd = [self.model.names[j] for j in range(1, self.model.njoints) if self.model.joints[j].nq != 1]
+        if self.model.nq != self.model.nv or odd:
+            raise ValueError(f"RobotModel supports only one-coordinate joints (revolute/prismatic); joints {odd}")
         self.n_dof = int(self.model.nv)
         self.joint_names = tuple(self.model.names[i] for i in range(1, self.model.njoints))
         self.q_min = np.array(self.model.lowerPositionLimit, dtype=float)
@@ -229,10 +312,15 @@ class RobotModel:
 
     # ------------------------------------------------------------------ helpers
     def frame_id(self, name: str) -> int:
-        """Pinocchio frame index of ``name``; ``ValueError`` if the model has no such frame."""
+        """Pinocchio frame index of ``name``; ``ValueError`` if the model has no such frame.
+
+        A name that is both a link's and a joint's (URDF allows it) means the link (its BODY frame)."""
+        body = self._pin.FrameType.BODY
+        if self.model.existFrame(name, body):
+            return int(self.model.getFrameId(name, body))
         if not self.model.existFrame(name):
             raise ValueError(f"frame '{name}' is not in the model; frames: {[f.name for f in self.model.frames]}")
-        return int(self.model.getFrameId(name))
+        return next(i for i, f in enumerate(self.model.frames) if f.name == name)
 
     def _parent_joint(self, link: str) -> int:
         return int(self.model.frames[self.frame_id(link)].parentJoint)
@@ -262,7 +350,7 @@ class RobotModel:
         if chain is not None:
             return chain.compute(q)
         self.update(q)
-        return np.array([M.homogeneous for M in self.data.oMi]), np.array(self.data.J)
+        return np.array([M.homogeneous for M in self.data.oMi]), self.world_jacobian()
 
     @cached_property
     def _chain_kinematics(self) -> ChainKinematics | None:
@@ -280,7 +368,8 @@ class RobotModel:
         """(6, n) Jacobian of ``frame``'s origin, world-aligned: rows 0-2 linear m/s, 3-5 angular rad/s."""
         q = self.check_q(q)
         fid = self.ee_frame_id if frame is None else self.frame_id(frame)
-        return np.array(self._pin.computeFrameJacobian(self.model, self.data, q, fid, self._pin.LOCAL_WORLD_ALIGNED))
+        J = self._pin.computeFrameJacobian(self.model, self.data, q, fid, self._pin.LOCAL_WORLD_ALIGNED)
+        return np.array(J).reshape(6, self.n_dof)  # (pinocchio gives a 1-DOF robot's as (6,))
 
     def point_jacobian(
         self, q: np.ndarray, frame: str | None = None, point: np.ndarray | None = None
@@ -313,8 +402,9 @@ class RobotModel:
         """(6, n) stacked joint motion axes in the WORLD frame from the last :meth:`update`.
 
         Column j is the spatial velocity (linear part at the world origin, angular part) of unit q̇_j.
+        Always two-dimensional, also for a 1-DOF robot (whose ``data.J`` pinocchio returns as (6,)).
         """
-        return np.array(self.data.J)
+        return np.array(self.data.J).reshape(6, self.n_dof)
 
     def joint_support_mask(self, joint: int) -> np.ndarray:
         """(n,) bool: the coordinates that move pinocchio joint ``joint`` (its kinematic support)."""

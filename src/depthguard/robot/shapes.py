@@ -162,11 +162,16 @@ def resolve_mesh_path(filename: str, urdf_path: Path) -> Path:
     )
 
 
-def _vec3(text: str | None, default=(0.0, 0.0, 0.0), what: str = "") -> tuple[float, float, float]:
+def _vec3(
+    text: str | None, default=(0.0, 0.0, 0.0), what: str = "", uniform: bool = False
+) -> tuple[float, float, float]:
     if text is None:
         return default
-    vals = [float(x) for x in text.split()]
-    if len(vals) == 1:  # URDF allows a uniform mesh scale
+    try:
+        vals = [float(x) for x in text.split()]
+    except ValueError:
+        raise ValueError(f"URDF {what}: expected 3 numbers, got {text!r}") from None
+    if len(vals) == 1 and uniform:  # URDF allows a uniform mesh scale (one number), nothing else
         vals = vals * 3
     if len(vals) != 3:
         raise ValueError(f"URDF {what}: expected 3 numbers, got {text!r}")
@@ -192,7 +197,7 @@ def parse_collision_shapes(urdf_path: str | Path) -> list[Shape]:
             kw = dict(link=lname, xyz=xyz, rpy=rpy, name=name)
             if g.tag == "mesh":
                 path = resolve_mesh_path(g.get("filename", ""), urdf_path)
-                scale = _vec3(g.get("scale"), (1.0, 1.0, 1.0), f"link {lname} mesh scale")
+                scale = _vec3(g.get("scale"), (1.0, 1.0, 1.0), f"link {lname} mesh scale", uniform=True)
                 out.append(Shape(kind="mesh", mesh=str(path), scale=scale, **kw))
             elif g.tag == "box":
                 out.append(Shape(kind="box", size=_vec3(g.get("size"), what=f"link {lname} box"), **kw))
@@ -200,6 +205,10 @@ def parse_collision_shapes(urdf_path: str | Path) -> list[Shape]:
                 out.append(Shape(kind=g.tag, size=(float(g.get("radius")), float(g.get("length"))), **kw))
             elif g.tag == "sphere":
                 out.append(Shape(kind="sphere", size=(float(g.get("radius")),), **kw))
+            else:  # (RobotModel checks this first; here for direct callers)
+                raise ValueError(
+                    f"URDF {urdf_path}: link '{lname}' <collision> {name}: geometry <{g.tag}> not supported"
+                )
     return out
 
 
@@ -232,7 +241,10 @@ def _prism_mesh(radius: float, length: float, n_sides: int) -> tuple[np.ndarray,
 
 
 def load_mesh(path: str, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) m and faces (F, 3) of a mesh file, duplicate vertices merged, ``scale`` applied."""
+    """Vertices (V, 3) m and faces (F, 3) of a mesh file, duplicate vertices merged, ``scale`` applied.
+
+    A mirroring ``scale`` (an odd number of negative components, as URDF allows) also reverses every face's
+    winding, so that the normals still point out of the solid."""
     try:
         import trimesh
     except ImportError as e:  # pragma: no cover
@@ -246,7 +258,10 @@ def load_mesh(path: str, scale=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]
     v, f = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
     if len(f) == 0 or not np.all(np.isfinite(v)):
         raise ValueError(f"mesh file '{path}' has no triangles or non-finite vertices")
-    return v * np.asarray(scale, float), f
+    scale = np.asarray(scale, float)
+    if np.prod(np.sign(scale)) < 0:  # a mirror turns the outward normals inward: reverse the winding
+        f = np.ascontiguousarray(f[:, ::-1])
+    return v * scale, f
 
 
 def capsule_balls(a: np.ndarray, b: np.ndarray, radius: float, spacing: float = 0.005) -> dict:
