@@ -13,8 +13,9 @@ Conventions: SI units; the world frame is the robot base frame, whose root link 
 origin (``docs/conventions.md``). Only models whose joints
 all have one coordinate (revolute, prismatic; ``nq == nv``) are supported.
 
-Collision geometry is read back from the URDF as *capsules* (segment ``a``-``b`` swept by a sphere of
-``radius``), the one description that the self-filter, the control points and the simulator share:
+Collision geometry is also read back from the URDF as coarse *capsules* (segment ``a``-``b`` swept by a
+sphere of ``radius``, :meth:`RobotModel.link_capsules`; used by the capsule self-filter baseline, the
+robot-interior windows and the calibration's robot model):
 
 * ``<cylinder>`` -> the capsule over its axis (it bounds the cylinder);
 * ``<sphere>`` at an end of such a cylinder, no larger than it -> absorbed; any other sphere -> a
