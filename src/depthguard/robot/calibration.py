@@ -38,6 +38,8 @@ __all__ = ["CalibrationResult", "calibrate_extrinsics", "capsule_surface_points"
 
 LINK_STILL_M = 1e-3  # m: a carrying link that moves more than this between the poses is refused
 LINK_STILL_RAD = np.deg2rad(0.1)
+MIN_OBSERVABILITY = 0.01  # below: a direction of the camera pose that the robot surface seen does not fix
+_TWIST_NAMES = (*(f"rotation about world {a}" for a in "xyz"), *(f"translation along world {a}" for a in "xyz"))
 
 
 @dataclass(frozen=True)
@@ -204,6 +206,9 @@ def _moving_points(camera: Camera, depth: np.ndarray, moving: np.ndarray) -> np.
 def still_link_pose(model, link: str, qs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """World pose ``(R_l (3, 3), p_l (3,))`` of ``link`` over the joint positions ``qs``; ``ValueError`` naming
     the motion when the link moves by more than 1 mm or 0.1 degrees between them."""
+    for i, q in enumerate(qs):
+        if not np.all(np.isfinite(np.asarray(q, float))):
+            raise ValueError(f"the joint state of calibration pose {i} is not finite: {np.asarray(q).tolist()}")
     poses = [model.frame_pose(np.asarray(q, float), link) for q in qs]
     R0, p0 = (np.asarray(a, float) for a in poses[0])
     for i, (R, p) in enumerate(poses[1:], start=1):
@@ -233,6 +238,7 @@ def calibrate_extrinsics(
     min_inlier_fraction: float = 0.6,
     iterations: int = 15,
     seed: int = 0,
+    min_observability: float = MIN_OBSERVABILITY,
 ) -> CalibrationResult:
     """Estimate the extrinsics of ``camera`` (its pose is the initial guess) from ``frames``.
 
@@ -250,7 +256,14 @@ def calibrate_extrinsics(
             still over the poses (:func:`still_link_pose`, else ``ValueError``).
         spacing: surface sampling of the model, m. max_points_per_pose: measured points kept per pose.
         inlier_distance, max_rmse, min_inlier_fraction: the acceptance test.
+        min_observability: the result is also refused (``"refused: degenerate geometry ..."``) when the robot
+            surface seen leaves a direction of the camera pose undetermined (:func:`_observability`: e.g. only
+            straight links all parallel to one axis, which slide along it unseen), whatever its fitness.
+
+    ``ValueError`` (naming the frame or the setting) for a depth image that is not ``camera.shape``, a joint
+    state that is not finite or not of the model's joints, and settings that are not positive finite numbers.
     """
+    _check_inputs(camera, frames, model, locals())
     if link is not None:  # the link frame is a fixed world frame here: calibrate in the world, move back
         settings = {k: v for k, v in locals().items() if k not in ("camera", "frames", "model", "link")}
         return _in_link_frame(camera, frames, model, link, settings)
@@ -276,16 +289,86 @@ def calibrate_extrinsics(
         n_pts = sum(s.size() for s in sources)
     rmse, frac = _fitness(camera.with_pose(R, t), frames, model, spacing, fine[-1], inlier_distance, moving)
     ok = rmse <= max_rmse and frac >= min_inlier_fraction
-    return CalibrationResult(
-        R,
-        t,
-        float(rmse),
-        float(frac),
-        int(n_pts),
-        total_it,
-        bool(ok),
-        _verdict(ok, rmse, frac, max_rmse, min_inlier_fraction),
-    )
+    message = _verdict(ok, rmse, frac, max_rmse, min_inlier_fraction)
+    if ok:
+        obs, weakest = _observability(camera.with_pose(R, t), frames, model, spacing, inlier_distance, moving)
+        if not obs >= min_observability:
+            ok = False
+            message = (
+                f"refused: degenerate geometry: the robot surface seen in these poses does not fix the camera"
+                f" pose along {weakest} (observability {obs:.4f}, min {min_observability:g}), so any error there"
+                " goes unseen; add poses that turn the arm's links in other directions"
+            )
+    return CalibrationResult(R, t, float(rmse), float(frac), int(n_pts), total_it, bool(ok), message)
+
+
+def _check_inputs(camera: Camera, frames, model, opts: dict) -> None:
+    """``ValueError`` naming the frame or the setting: depth images of ``camera.shape``, finite joint states of
+    the model's length, positive finite correspondence distances (``fine`` not empty) and thresholds."""
+    n_joints = len(getattr(model, "joint_names", ())) or None
+    for i, (depth, q) in enumerate(frames):
+        shape = np.shape(depth)
+        if shape != tuple(camera.shape):
+            raise ValueError(
+                f"calibration frame {i}: depth image of shape {shape}, expected (height, width) = {camera.shape}"
+                " from the camera"
+            )
+        qa = np.asarray(q, float)
+        if qa.ndim != 1 or (n_joints is not None and qa.shape[0] != n_joints):
+            raise ValueError(f"calibration frame {i}: joint state of shape {qa.shape}, expected ({n_joints},)")
+        if not np.all(np.isfinite(qa)):
+            raise ValueError(f"calibration frame {i}: the joint state is not finite: {qa.tolist()}")
+    if len(opts["fine"]) == 0:
+        raise ValueError("fine: at least one fine correspondence distance is needed")
+    for name in ("coarse", "fine"):
+        bands = np.asarray(opts[name], float)
+        if not np.all(np.isfinite(bands) & (bands > 0)):
+            raise ValueError(f"{name}: correspondence distances must be positive finite metres, got {opts[name]}")
+    for name in ("spacing", "inlier_distance", "max_rmse"):
+        v = opts[name]
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be a positive finite number, got {v}")
+    for name in ("min_inlier_fraction", "min_observability"):
+        v = opts[name]
+        if not (np.isfinite(v) and 0 <= v <= 1):
+            raise ValueError(f"{name} must be a number in [0, 1], got {v}")
+    for name in ("max_points_per_pose", "iterations"):
+        if int(opts[name]) < (1 if name == "max_points_per_pose" else 0):
+            raise ValueError(f"{name} must be a positive integer, got {opts[name]}")
+
+
+def _observability(cam: Camera, frames, model, spacing: float, inlier: float, moving) -> tuple[float, str]:
+    """How well the measured robot points (their surface normals) fix the camera pose: the smallest eigenvalue
+    of the point-to-plane Gauss-Newton matrix ``J^T J / N`` over the inliers of all poses, with the rows
+    ``[((s - c) x n) / L, n]`` (``c`` the points' centroid, ``L`` their RMS distance from it, so that a
+    rotation counts by the motion it gives at ``L``): the mean squared normal displacement of the points per
+    unit of motion of the weakest direction (about 0.05-0.15 for an arm seen in varied poses; 0 for straight
+    parallel links sliding along their axes). Returns it and that direction's name (its largest component)."""
+    from scipy.spatial import cKDTree
+
+    T_wc = _pose(cam.R, cam.t)
+    S, N = [], []
+    for (depth, q), mv in zip(frames, moving, strict=True):
+        a, b, r = model.link_capsules(np.asarray(q, float))
+        p, n = capsule_surface_points(a, b, r, spacing * 0.5)
+        facing = np.einsum("ij,ij->i", n, cam.position - p) > 0
+        p, n = p[facing], n[facing]
+        s_c = _moving_points(cam, depth, mv)
+        if len(s_c) == 0 or len(p) == 0:
+            continue
+        s_w = s_c @ T_wc[:3, :3].T + T_wc[:3, 3]
+        d, idx = cKDTree(p).query(s_w)
+        keep = d < inlier
+        S.append(s_w[keep])
+        N.append(n[idx[keep]])
+    if not S or sum(len(x) for x in S) < 6:
+        return 0.0, "every direction"
+    s, n = np.concatenate(S), np.concatenate(N)
+    c = s.mean(axis=0)
+    L = max(float(np.sqrt(np.mean(np.sum((s - c) ** 2, axis=1)))), 1e-6)
+    J = np.hstack([np.cross(s - c, n) / L, n])
+    w, v = np.linalg.eigh(J.T @ J / len(s))
+    return float(w[0]), _TWIST_NAMES[int(np.argmax(np.abs(v[:, 0])))]
 
 
 def _round_clouds(cam: Camera, frames, moving, model, band: float | None, keep: int, spacing: float, rng):

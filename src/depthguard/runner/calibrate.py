@@ -219,7 +219,15 @@ def _intrinsics(cam) -> dict[str, float]:
     return dict(width=cam.width, height=cam.height, fx=cam.fx, fy=cam.fy, cx=cam.cx, cy=cam.cy)
 
 
+def _toml_string(s: str) -> str:
+    """``s`` as a TOML basic string that reads back as ``s`` for every name a cell file can hold: JSON's escapes
+    are TOML's, except ``\\uXXXX`` surrogate pairs (non-BMP characters such as an emoji), which TOML refuses:
+    those stay literal UTF-8, and DEL, which TOML wants escaped, is escaped."""
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
 def _write_calibration(path: Path, results) -> None:
+    """The calibration file (UTF-8 TOML); the names (camera, parent) are written so that they read back."""
     date = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
     lines = [
         "# Camera extrinsics from `depthguard calibrate` (SAPHARI §3.3): P_camera = R P_world + t.",
@@ -229,12 +237,12 @@ def _write_calibration(path: Path, results) -> None:
         lines += [
             "",
             "[[cameras]]",
-            f"name = {json.dumps(name)}",
-            f"parent = {json.dumps(parent)}  # the frame of R, t: P_camera = R P_parent + t",
+            f"name = {_toml_string(name)}",
+            f"parent = {_toml_string(parent)}  # the frame of R, t: P_camera = R P_parent + t",
             f"R = {json.dumps(np.round(res.R, 12).tolist())}",
             f"t = {json.dumps(np.round(res.t, 12).tolist())}",
             f"date = {json.dumps(date)}",
             f"rmse = {res.rmse:.6g}",
             f"inlier_fraction = {res.inlier_fraction:.4g}",
         ]
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
