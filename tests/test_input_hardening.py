@@ -253,3 +253,22 @@ def test_node_json_lines_are_strict_json(tmp_path):
     log.write(ev="status", qd_max=float("nan"))
     log.close()
     assert json.loads((tmp_path / "log.jsonl").read_text()) == {"ev": "status", "qd_max": None}
+
+
+@pytest.mark.parametrize("scale", ["1 0 1", "0", "0.0 -0.0 1", "nan"])
+def test_a_mesh_scale_that_flattens_or_is_not_a_number_is_refused(tmp_path, scale):
+    """A zero factor in a URDF mesh ``scale`` gave a flat mesh (no volume to filter or to cover with spheres),
+    loaded silently (noticed by the URDF property tests, stop 47)."""
+    import trimesh
+
+    from depthguard.robot.model import RobotModel
+
+    trimesh.creation.box((0.1, 0.1, 0.1)).export(tmp_path / "box.stl")
+    (tmp_path / "r.urdf").write_text(
+        '<robot name="r"><link name="a"/><link name="b"><collision><geometry>'
+        f'<mesh filename="box.stl" scale="{scale}"/></geometry></collision></link>'
+        '<joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" velocity="1" effort="1"/></joint></robot>'
+    )
+    with pytest.raises(ValueError, match="mesh scale"):
+        RobotModel.from_urdf(tmp_path / "r.urdf")

@@ -151,8 +151,10 @@ def check_urdf(root: ET.Element, urdf_path: Path) -> None:
                 if not g.get("filename"):
                     raise ValueError(f"{cw}: <mesh> has no filename")
                 sc = g.get("scale")
-                if sc is not None and len(sc.split()) != 1:
-                    _numbers(sc, 3, f"{cw} <mesh scale>")
+                if sc is not None:
+                    vals = _numbers(sc, 1 if len(sc.split()) == 1 else 3, f"{cw} <mesh scale>")
+                    if min(abs(v) for v in vals) == 0.0:
+                        raise ValueError(f"{cw}: <mesh scale> {sc!r} flattens the mesh (a zero factor)")
                 continue
             need = {"box": [("size", 3)], "sphere": [("radius", 1)]}.get(g.tag, [("radius", 1), ("length", 1)])
             for attr, n in need:
