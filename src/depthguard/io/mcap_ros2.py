@@ -75,6 +75,41 @@ class Ros2McapWriter:
         self.close()
 
 
+def _one_line(exc: BaseException, limit: int = 300) -> str:
+    """An exception's text on one line, at most ``limit`` characters (rosbags quotes whole schemas)."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _field_names(store, msgtype: str, depth: int = 0) -> list:
+    """The field names of ``msgtype`` in ``store``, nested types expanded (a few levels)."""
+    out: list = []
+    for name, (kind, rest) in store.fielddefs[msgtype][1]:
+        sub = rest if getattr(kind, "name", "") == "NAME" else None
+        if sub is None and isinstance(rest, tuple) and rest and isinstance(rest[0], tuple):
+            if getattr(rest[0][0], "name", "") == "NAME":  # (an array or sequence of messages)
+                sub = rest[0][1]
+        out.append((name, _field_names(store, sub, depth + 1) if sub in store.fielddefs and depth < 4 else None))
+    return out
+
+
+def _same_definition(path: Path, topic: str, msgtype: str, bag_store, ours) -> None:
+    """``ValueError`` naming the bag and the topic when the bag's definition of ``msgtype`` (a type ROS 2 Jazzy
+    or DepthGuard defines) has other fields than ours: a damaged or foreign schema would give messages that
+    lack fields the pipeline reads (an Image without ``is_bigendian``), failing later far from the cause."""
+    if msgtype not in ours.fielddefs or msgtype not in bag_store.fielddefs:
+        return
+    try:
+        same = _field_names(bag_store, msgtype) == _field_names(ours, msgtype)
+    except (KeyError, TypeError, ValueError, IndexError):
+        same = False
+    if not same:
+        raise ValueError(
+            f"{path}: the bag's definition of {msgtype} on '{topic}' has other fields than ROS 2 Jazzy's"
+            " (a damaged or foreign message schema)"
+        )
+
+
 def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, str, float, Any]]:
     """``(topic, typename, log time s, message)`` of a ROS 2 bag in log-time order.
 
@@ -82,7 +117,10 @@ def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
         path: a ``.mcap`` file or a rosbag2 folder (``metadata.yaml`` with MCAP or sqlite3 storage).
         topics: only these topics (None = all).
     Raises:
-        ValueError: the path is not a readable ROS 2 bag (naming it and the reason).
+        ValueError: the path is not a readable ROS 2 bag (naming it and the reason); a bag that turns out
+            corrupt or truncated while it is read (a chunk that fails its checksum or does not decompress, a
+            message that does not deserialize) names the bag, the topic and the message's index on it where
+            known, else the index of the message in the bag and the last topic read.
     """
     from rosbags.highlevel import AnyReader
 
@@ -93,10 +131,35 @@ def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
         reader = AnyReader([p], default_typestore=ros2.typestore())
         reader.open()
     except Exception as exc:  # rosbags raises several types; name the file in one error
-        raise ValueError(f"{p}: not a readable ROS 2 bag ({type(exc).__name__}: {exc})") from None
+        raise ValueError(f"{p}: not a readable ROS 2 bag ({type(exc).__name__}: {_one_line(exc)})") from None
     try:
         conns = [c for c in reader.connections if topics is None or c.topic in topics]
-        for conn, t_ns, raw in reader.messages(connections=conns):
-            yield conn.topic, conn.msgtype, t_ns * 1e-9, reader.deserialize(raw, conn.msgtype)
+        for c in conns:
+            _same_definition(p, c.topic, c.msgtype, reader.typestore, ros2.typestore())
+        per_topic: dict[str, int] = {}
+        n, last = 0, None
+        messages = reader.messages(connections=conns)
+        while True:
+            try:
+                item = next(messages, None)
+            except Exception as exc:  # (rosbags, zstd, lz4: several types) a corrupt or cut chunk
+                after = f" (after message {per_topic[last] - 1} on '{last}')" if last is not None else ""
+                raise ValueError(
+                    f"{p}: corrupt or truncated bag at message {n}{after}: {type(exc).__name__}: {_one_line(exc)}"
+                ) from None
+            if item is None:
+                break
+            conn, t_ns, raw = item
+            k = per_topic.get(conn.topic, 0)
+            try:
+                msg = reader.deserialize(raw, conn.msgtype)
+            except Exception as exc:
+                raise ValueError(
+                    f"{p}: message {k} on '{conn.topic}' ({conn.msgtype}) does not deserialize:"
+                    f" {type(exc).__name__}: {_one_line(exc)}"
+                ) from None
+            per_topic[conn.topic] = k + 1
+            n, last = n + 1, conn.topic
+            yield conn.topic, conn.msgtype, t_ns * 1e-9, msg
     finally:
         reader.close()

@@ -8,13 +8,20 @@ whose ``extrinsics = "tf"``, and optionally ``/depthguard/task_velocity``
 
 Images at a reduced resolution of the cell file's sensor (same aspect ratio) get proportionally scaled
 intrinsics. Time synchronisation is by header stamps: one tick per joint-state message; the frames whose stamps are at
-or before the tick (one per camera, the newest) form a frame set when every camera has a new frame.
+or before the tick (one per camera, the newest by stamp) form a frame set when every camera has a new frame; a frame
+stamped later than the tick waits for a later tick. A frame stamped at or before the last frame used of its camera
+(a duplicate, or out of order) is skipped and named as a fault. The frame set is self-filtered (and a carried camera
+placed) with the joint state read so far whose stamp is nearest to the set's newest frame (``Tick.q_frames``); when
+that joint state is more than :data:`MAX_JOINT_SKEW` from a frame of the set, the set is skipped and named as a fault
+(as the camera and distance nodes do), never paired with a joint state of another time. A CameraInfo whose size or
+calibration changes mid-bag is refused (a ValueError naming the bag, the topic and the message's index).
 Cameras with lens distortion (``plumb_bob``, ``rational_polynomial``) are undistorted through a remap
 computed once (nearest neighbour: depth is never interpolated across edges).
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -25,9 +32,17 @@ from depthguard.io import ros2
 from depthguard.io.cellfile import CellCamera, CellFile, refuse_align
 from depthguard.io.mcap_ros2 import read_messages
 from depthguard.io.ros2 import TASK_TOPIC
+from depthguard.nodes.common import MAX_JOINT_SKEW
 from depthguard.runner.sources import Tick
 
-__all__ = ["BagSource", "undistort_map", "TASK_TOPIC"]
+__all__ = ["BagSource", "undistort_map", "TASK_TOPIC", "MAX_JOINT_SKEW", "MAX_PENDING"]
+
+#: Joint states kept for pairing frame sets (the latest ones read: 2 s at 1 kHz).
+JOINT_HISTORY = 2000
+
+#: Frames of one camera kept waiting for a joint state stamped at or after them; beyond it the oldest is dropped
+#: (a fault names it).
+MAX_PENDING = 32
 
 
 def _distort(x: np.ndarray, y: np.ndarray, model: str, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -182,11 +197,17 @@ class BagSource:
                     Rl = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
                     tl = tr.transform.translation
                     tf_tree.setdefault(tr.child_frame_id, (tr.header.frame_id, Rl, np.array([tl.x, tl.y, tl.z])))
-            elif any(topic == c.info_topic for c in cams) and topic not in infos:
-                infos[topic] = msg
+            elif any(topic == c.info_topic for c in cams):
+                if topic not in infos:
+                    infos[topic] = msg
+                else:  # (one camera, one calibration: a CameraInfo that changes is refused, not half followed)
+                    _same_camera_info(self.path, topic, seen[topic] - 1, infos[topic], msg)
             elif any(topic == c.topic for c in cams) and topic not in sizes:
                 sizes[topic] = (int(msg.width), int(msg.height))
-                ros2.image_to_depth(msg)  # encoding check now: a clear error rather than mid-run
+                try:  # encoding check now: a clear error rather than mid-run
+                    ros2.image_to_depth(msg)
+                except ValueError as exc:
+                    raise ValueError(f"{self.path}: the first image on '{topic}' (message 0): {exc}") from None
         self.duration = 0.0 if t0 is None else float(t - t0)
         return seen, infos, sizes, tf_tree
 
@@ -208,7 +229,10 @@ class BagSource:
         cams = self.cell.cameras
         topics = self.cell.topics
         cam_of = {c.topic: i for i, c in enumerate(cams)}
-        self._pending: list[tuple[float, np.ndarray] | None] = [None] * len(cams)
+        # per camera: the frames (stamp, depth) read and not yet used, and the stamp of the last one used
+        self._pending: list[list[tuple[float, np.ndarray]]] = [[] for _ in cams]
+        self._used: list[float] = [-np.inf] * len(cams)
+        self._joints: deque[tuple[float, np.ndarray]] = deque(maxlen=JOINT_HISTORY)  # (stamp, q) of the latest
         self._xdot = np.zeros(3)
         self._faults: dict[str, str] = {}  # camera name -> fault, reported with the next tick
         wanted = sorted(set(cam_of) | {topics["joint_states"], TASK_TOPIC})
@@ -222,19 +246,56 @@ class BagSource:
             group.append((topic, msg))
         yield from self._flush(group, cam_of)
 
+    def _add_frame(self, i: int, msg) -> None:
+        """Camera ``i``'s image ``msg`` to its pending frames, or a fault naming why it is not used."""
+        name = self.cell.cameras[i].name
+        try:
+            depth = ros2.image_to_depth(msg)
+        except ValueError as exc:  # (a corrupt message mid-run: a named fault, the frame missing)
+            self._faults[name] = f"undecodable image ({exc})"
+            return
+        s = ros2.to_seconds(msg.header.stamp)
+        if not s > self._used[i]:  # (NaN too)
+            self._faults[name] = "frame stamped at or before the last frame used (duplicate or out of order): skipped"
+            return
+        if self._maps[i] is not None:
+            depth = _apply_map(depth, self._maps[i])
+        pend = self._pending[i]
+        pend.append((s, depth))
+        if len(pend) > MAX_PENDING:  # (stamps ahead of every joint state: keep the newest ones)
+            pend.remove(min(pend, key=lambda p: p[0]))
+            self._faults[name] = f"more than {MAX_PENDING} frames stamped after every joint state: oldest dropped"
+
+    def _frame_set(self, t: float) -> tuple[list[np.ndarray] | None, float, np.ndarray | None]:
+        """The frame set at a tick stamped ``t``: per camera the newest pending frame stamped at or before ``t``
+        when every camera has one, its oldest frame's stamp and the joint positions to filter it with (the joint
+        state read so far nearest to its newest frame); ``(None, -inf, None)`` when there is none or it is
+        skipped."""
+        chosen = []
+        for pend in self._pending:
+            ready = [p for p in pend if p[0] <= t + 1e-9]
+            if not ready:
+                return None, -np.inf, None
+            chosen.append(max(ready, key=lambda p: p[0]))
+        for i, (s, _) in enumerate(chosen):  # (used: it and every older frame of its camera)
+            self._used[i] = s
+            self._pending[i] = [p for p in self._pending[i] if p[0] > s]
+        tf = max(s for s, _ in chosen)
+        tj, qj = min(self._joints, key=lambda j: abs(j[0] - tf)) if self._joints else (np.inf, None)
+        skew = [abs(tj - s) for s, _ in chosen]
+        if not max(skew) <= MAX_JOINT_SKEW:
+            worst = self.cell.cameras[int(np.argmax(skew))].name
+            self._faults[worst] = f"no joint state within {MAX_JOINT_SKEW} s of the frame: frame set skipped"
+            return None, -np.inf, None
+        # the set's stamp is its oldest frame's, as the distance node's: its distances never look fresher than
+        # the data they come from
+        return [d for _, d in chosen], min(s for s, _ in chosen), qj
+
     def _flush(self, group: list, cam_of: dict[str, int]) -> Iterator[Tick]:
         """Messages logged at one instant: images and the task first, then the joint states (ticks)."""
         for topic, msg in group:
             if topic in cam_of:
-                i = cam_of[topic]
-                try:
-                    depth = ros2.image_to_depth(msg)
-                except ValueError as exc:  # (a corrupt message mid-run: a named fault, the frame missing)
-                    self._faults[self.cell.cameras[i].name] = f"undecodable image ({exc})"
-                    continue
-                if self._maps[i] is not None:
-                    depth = _apply_map(depth, self._maps[i])
-                self._pending[i] = (ros2.to_seconds(msg.header.stamp), depth)
+                self._add_frame(cam_of[topic], msg)
             elif topic == TASK_TOPIC:
                 self._xdot = np.array([msg.vector.x, msg.vector.y, msg.vector.z], float)
         for topic, msg in group:
@@ -242,14 +303,11 @@ class BagSource:
                 continue
             t = ros2.to_seconds(msg.header.stamp)
             q, qd = self._reorder(msg)
-            frames, tf = None, -np.inf
-            pend = self._pending
-            if all(p is not None and p[0] <= t + 1e-9 for p in pend):
-                frames = [p[1] for p in pend]
-                tf = max(p[0] for p in pend)
-                self._pending = [None] * len(pend)
+            if q is not None and np.isfinite(t):  # (a non-finite q too: run names it and skips the set)
+                self._joints.append((t, q))
+            frames, tf, q_frames = self._frame_set(t)
             faults, self._faults = self._faults, {}
-            yield Tick(t, q, qd, t, self._xdot.copy(), frames, tf, faults)
+            yield Tick(t, q, qd, t, self._xdot.copy(), frames, tf, faults, q_frames)
 
     def command(self, q_cmd: np.ndarray, qdot_cmd: np.ndarray) -> None:  # a recording cannot move
         pass
@@ -282,6 +340,27 @@ def _camera_params(name: str, c: CellCamera, w: int, h: int, info) -> dict:
         p = c.params  # the same sensor at a reduced resolution: scale the intrinsics
         return dict(width=w, height=h, fx=p["fx"] * sx, fy=p["fy"] * sx, cx=p["cx"] * sx, cy=p["cy"] * sx)
     return {}
+
+
+def _same_camera_info(name: str, topic: str, index: int, first, msg) -> None:
+    """Refuse a CameraInfo (``index``: its message on ``topic``) whose size, calibration or distortion differs
+    from the first one on that topic: the bag source reads one calibration per camera."""
+    what = None
+    if (int(msg.width), int(msg.height)) != (int(first.width), int(first.height)):
+        what = f"{msg.width}x{msg.height}, the first one {first.width}x{first.height}"
+    elif str(msg.distortion_model) != str(first.distortion_model):
+        what = f"distortion_model {msg.distortion_model!r}, the first one {first.distortion_model!r}"
+    else:
+        for key in ("k", "d"):
+            a, b = np.asarray(getattr(msg, key), float), np.asarray(getattr(first, key), float)
+            if a.shape != b.shape or not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+                what = f"{key.upper()} = {a.tolist()}, the first one {b.tolist()}"
+                break
+    if what is not None:
+        raise ValueError(
+            f"{name}: CameraInfo on '{topic}' changes mid-bag (message {index} says {what}): one calibration per"
+            " camera is read; split the bag where the camera changes"
+        )
 
 
 def _undistortion(name: str, c: CellCamera, cam: Camera, info) -> tuple[np.ndarray, np.ndarray] | None:

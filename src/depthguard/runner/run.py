@@ -134,14 +134,17 @@ def _progress(t: float, total: float, last: list[int], label: str) -> None:
 def _frame_stage(chain: Chain, tick, q_ok: bool, log: RunLog, sinks: list[Any]) -> None:
     """A new frame set through the chain's frame stage; the masks to the sinks. A joint state that is missing,
     of the wrong size or not finite cannot place the robot: no frame stage with it (the controller gets it as
-    it is and stops: STOP_INVALID_INPUT)."""
+    it is and stops: STOP_INVALID_INPUT). The frames are filtered with ``tick.q_frames`` when the source gives
+    it (a bag: the joint state nearest to the frames' stamps), else with ``tick.q``."""
     if tick.frames is None:
         return
+    q = getattr(tick, "q_frames", None)
+    q, q_ok = (tick.q, q_ok) if q is None else (q, _usable_q(q, len(chain.joint_names)))
     if not q_ok:
-        if tick.q is not None:
+        if q is not None:
             log.faults["joint state: not finite or wrong size"] += 1
         return
-    masks = chain.on_frames(tick.frames, tick.q, tick.t_frames)
+    masks = chain.on_frames(tick.frames, q, tick.t_frames)
     log.frames += 1
     log.faults.update(f"{k}: {v}" for k, v in chain.faults.items())
     for s in sinks:

@@ -28,8 +28,10 @@ class Tick(NamedTuple):
         xdot_d: (3,) desired end-effector velocity, m/s.
         frames: one depth image (H, W) float32 m (NaN = no reading) per camera when a new frame set
             arrived at this tick, else None.
-        t_frames: time stamp of ``frames``, s.
+        t_frames: time stamp of ``frames``, s (of a set from several cameras: the oldest frame's in a bag).
         faults: camera faults detected by the source (e.g. ``{"camera0": "disconnected"}``), empty if none.
+        q_frames: (n,) joint positions to self-filter ``frames`` with (and to place a carried camera), the joint
+            state nearest to their stamps (a bag); None: ``q``.
     """
 
     t: float
@@ -40,6 +42,7 @@ class Tick(NamedTuple):
     frames: list[np.ndarray] | None
     t_frames: float
     faults: dict
+    q_frames: np.ndarray | None = None
 
 
 class Source(Protocol):
