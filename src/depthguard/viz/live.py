@@ -5,17 +5,29 @@ What the page shows, in the world frame:
 * the robot from its URDF (viser's ``ViserUrdf``) at the latest joint state;
 * each camera's depth point cloud, one colour per camera (every ``stride``-th pixel), and the pixels the
   self-filter removed as the robot's (magenta); about 160 points per image row (``stride``);
-* the control spheres coloured by distance (red at contact, yellow half way, green at rho and beyond) and the
-  repulsive vectors (orange segments, longer when nearer);
+* the control spheres coloured by distance (red at contact, yellow half way, green at rho and beyond, grey
+  when the distance is unknown: NaN, or a distances array whose length is not the control points') and the
+  repulsive vectors (orange segments, longer when nearer); a sphere whose centre or radius is not finite
+  (or whose radius is not positive) is not drawn, and the spheres of a previous update beyond the current
+  number of control points are removed;
 * with the octree backend (``scenario --backend octree --view``, ``scenario saphari-octree --view``), the
   obstacle octree's nodes: occupied (red), occluded (orange) and unseen (grey; obstacles in the conservative
   mode) as squares of the node size;
-* a panel with the controller status, the smallest distance and the rates of frames, distance queries and
-  commands.
+* a panel with the controller status, the smallest distance (``inf``: nothing within range; ``unknown``
+  when a distance is NaN or the distances do not match the control points, with the smallest known one
+  beside it), the rates of frames, distance queries and commands, and how many updates were skipped.
 
 The producers (the runner's hooks, or Zenoh callbacks in the ``view`` node) only store references under a
 lock; one background thread turns the newest state into scene updates at most ``max_hz`` times a second, so
 the control loop never waits on the browser.
+
+Whatever the producers hand over, nothing raises into them and the drawing thread goes on: an input that
+cannot be used (a joint state of the wrong length or not finite, a depth image that is not 2-D or not a
+scaled image of its camera, a mask of another shape, a distances array that does not match, an octree frame
+without its fields) is skipped and counted in :attr:`LiveView.skipped` (by kind), and what it would have
+drawn is removed rather than left stale; the rest of the update is drawn. Each camera's cloud is decimated
+before anything is converted, so the work per update is bounded by the points drawn (at most
+``ceil(H/s) * ceil(W/s)`` per camera for stride ``s``), not by the image size.
 """
 
 from __future__ import annotations
@@ -39,11 +51,72 @@ CAMERA_COLOURS = [(40, 120, 255), (0, 190, 190), (250, 160, 0), (140, 90, 255)]
 ROBOT_PIXELS = (255, 0, 220)
 #: Colour of the octree's node kinds (depthguard.octree.fusion: 1 occupied, 2 occluded, 3 unseen).
 OCTREE_COLOURS = {"occupied": (1, (230, 30, 30)), "occluded": (2, (255, 150, 40)), "unseen": (3, (120, 120, 130))}
+#: Colour of a control sphere whose distance is unknown (NaN): never the green of "safe".
+UNKNOWN_DISTANCE = (150, 150, 150)
 
 
 def _distance_rgb(d: float, rho: float) -> tuple[int, int, int]:
-    f = 1.0 if not np.isfinite(d) else float(np.clip(d / max(rho, 1e-9), 0.0, 1.0))
+    """Colour of a control sphere at distance ``d`` (m): red at contact (``d <= 0``, ``-inf`` included),
+    yellow at ``rho / 2``, green at ``rho`` and beyond (``inf``: nothing within range); grey
+    (:data:`UNKNOWN_DISTANCE`) when ``d`` is NaN (unknown)."""
+    d = float(d)
+    if np.isnan(d):
+        return UNKNOWN_DISTANCE
+    f = 1.0 if d == np.inf else 0.0 if d == -np.inf else float(np.clip(d / max(rho, 1e-9), 0.0, 1.0))
     return (int(255 * min(1.0, 2.0 * (1.0 - f))), int(255 * min(1.0, 2.0 * f)), 0)
+
+
+def _nearest_text(d: np.ndarray | None) -> str:
+    """The panel's nearest distance: ``-`` without control points, ``inf`` when nothing is within range,
+    ``unknown`` when a distance is NaN (or ``d`` is None: the distances did not match), with the smallest
+    known distance beside it."""
+    if d is None:
+        return "unknown (distances do not match the control points)"
+    d = np.asarray(d, float).ravel()
+    if d.size == 0:
+        return "-"
+    known = d[~np.isnan(d)]
+    m = None if known.size == 0 else float(np.min(known))
+    txt = "-" if m is None else "inf" if m == np.inf else "-inf" if m == -np.inf else f"{m:.3f} m"
+    if known.size < d.size:
+        return f"unknown ({d.size - known.size} of {d.size} NaN; smallest known {txt})"
+    return txt
+
+
+def _stride(width: int, stride: int | None) -> int:
+    """The decimation of a depth image ``width`` pixels wide: ``stride``, or about 160 points per row."""
+    return max(1, int(stride)) if stride else max(1, round(width / 160))
+
+
+def _cloud_points(cam: Camera, depth: Any, mask: Any, stride: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """The world points of every ``s``-th pixel of a depth image (``s``: :func:`_stride`) with a finite
+    positive depth: ``(environment, robot)`` float32 arrays, robot where ``mask`` is set. ``depth`` may be a
+    scaled image of ``cam`` (same field of view). Raises ``ValueError`` when ``depth`` is not 2-D, is not a
+    scaled image of ``cam``, or ``mask`` is not of its shape. The image is decimated before it is converted."""
+    from depthguard.nodes.common import camera_at_size
+
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"depth image of shape {depth.shape}, not 2-D")
+    h, w = depth.shape
+    if h == 0 or w == 0:
+        e = np.zeros((0, 3), np.float32)
+        return e, e
+    s = _stride(w, stride)
+    d = np.asarray(depth[::s, ::s], float)
+    c = camera_at_size(cam, w, h)
+    if mask is None:
+        m = np.zeros(d.shape, bool)
+    else:
+        mask = np.asarray(mask)
+        if mask.shape != depth.shape:
+            raise ValueError(f"mask of shape {mask.shape} for a depth image of shape {depth.shape}")
+        m = np.asarray(mask[::s, ::s], bool)
+    v, u = np.mgrid[0:h:s, 0:w:s]
+    ok = np.isfinite(d) & (d > 0)
+    env, rob = ok & ~m, ok & m
+    pts = c.unproject(u[ok] + 0.5, v[ok] + 0.5, d[ok])
+    return pts[env[ok]].astype(np.float32), pts[rob[ok]].astype(np.float32)
 
 
 def _rate(times: deque) -> float:
@@ -107,6 +180,10 @@ class LiveView:
         self.times = {k: deque(maxlen=60) for k in ("frames", "queries", "commands")}
         self.clouds: dict[str, Any] = {}
         self.draws = 0
+        #: updates (or parts of one) skipped, by kind: "joints", "camera", "spheres", "octree", "input", "draw"
+        self.skipped: dict[str, int] = {}
+        self._skip_lock = threading.Lock()
+        self._spheres: set[int] = set()
         self._dirty = threading.Event()
         self._draw_lock = threading.Lock()
         self._stop = threading.Event()
@@ -127,10 +204,22 @@ class LiveView:
         return cls(cell, model, None, cameras, **kw)
 
     # ------------------------------------------------------------------ producer side (cheap, any thread)
+    # (each hook only stores references; one that cannot even do that is counted in skipped["input"], never
+    # raised into the producer)
+    def _skip(self, kind: str) -> None:
+        with self._skip_lock:
+            self.skipped[kind] = self.skipped.get(kind, 0) + 1
+
     def inputs(self, tick, frames) -> None:
+        try:
+            q = getattr(tick, "q", None)
+            q = None if q is None else np.asarray(q, float)
+        except (TypeError, ValueError):
+            q = None
+            self._skip("input")
         with self.lock:
-            if tick.q is not None:
-                self.state["q"] = np.asarray(tick.q, float)
+            if q is not None:
+                self.state["q"] = q
             if frames is not None:
                 self.state["frames"] = frames
                 self.times["frames"].append(time.perf_counter())
@@ -142,18 +231,29 @@ class LiveView:
             self.state["masks"] = masks
 
     def query(self, t: float, res, cps) -> None:
+        try:
+            got = (np.asarray(cps.centres, float), np.asarray(cps.radii, float), res)
+        except (AttributeError, TypeError, ValueError):
+            got = (np.zeros((0, 3)), np.zeros(0), None)  # (drawn as: distances unknown)
+            self._skip("input")
         with self.lock:
-            self.state["res"] = (np.asarray(cps.centres), np.asarray(cps.radii), res)
+            self.state["res"] = got
             self.times["queries"].append(time.perf_counter())
 
     def command(self, t: float, out) -> None:
+        status = getattr(getattr(out, "status", None), "name", None)
         with self.lock:
-            self.state["status"] = out.status.name
+            self.state["status"] = str(status) if status is not None else "?"
             self.times["commands"].append(time.perf_counter())
 
     def set_joints(self, q: np.ndarray) -> None:
+        try:
+            q = np.asarray(q, float)
+        except (TypeError, ValueError):
+            self._skip("input")
+            return
         with self.lock:
-            self.state["q"] = np.asarray(q, float)
+            self.state["q"] = q
 
     def set_frames(self, frames: list[np.ndarray], masks: list[np.ndarray] | None) -> None:
         with self.lock:
@@ -166,9 +266,14 @@ class LiveView:
             pass
 
         r = _R()
-        r.distance, r.direction = np.asarray(distance, float), np.asarray(direction, float)
+        try:
+            r.distance, r.direction = np.asarray(distance, float), np.asarray(direction, float)
+            got = (np.asarray(centres, float), np.asarray(radii, float), r)
+        except (TypeError, ValueError):
+            got = (np.zeros((0, 3)), np.zeros(0), None)  # (drawn as: distances unknown)
+            self._skip("input")
         with self.lock:
-            self.state["res"] = (np.asarray(centres, float), np.asarray(radii, float), r)
+            self.state["res"] = got
             self.times["queries"].append(time.perf_counter())
 
     def set_status(self, status: str) -> None:
@@ -196,27 +301,31 @@ class LiveView:
                 with self._draw_lock:
                     self.draw()
             except Exception:  # noqa: BLE001 - a drawing problem must never reach the control loop
-                pass
+                self._skip("draw")
 
-    def _cloud(self, cam: Camera, depth: np.ndarray, mask: np.ndarray | None, k: int) -> None:
-        from depthguard.nodes.common import camera_at_size
+    def _drop(self, key: str) -> None:
+        if key in self.clouds:
+            with contextlib.suppress(Exception):
+                self.clouds.pop(key).remove()
 
-        s = self.stride or max(1, round(depth.shape[1] / 160))
-        d = np.asarray(depth, float)[::s, ::s]
-        c = camera_at_size(cam, depth.shape[1], depth.shape[0])
-        v, u = np.mgrid[0 : depth.shape[0] : s, 0 : depth.shape[1] : s]
-        ok = np.isfinite(d) & (d > 0)
-        m = np.zeros_like(ok) if mask is None else np.asarray(mask, bool)[::s, ::s]
-        pts = c.unproject(u + 0.5, v + 0.5, np.where(ok, d, 0.0))
-        env, rob = ok & ~m, ok & m
+    def _cloud(self, cam: Camera | None, depth: np.ndarray, mask: np.ndarray | None, k: int) -> None:
+        """Camera ``k``'s cloud; one that cannot be drawn (no pose, bad image) is removed and counted."""
+        try:
+            if cam is None:
+                raise ValueError("camera not placed")
+            env, rob = _cloud_points(cam, depth, mask, self.stride)
+        except Exception:  # noqa: BLE001 - a bad image: this camera's cloud is skipped, not the update
+            self._skip("camera")
+            self._drop(f"cloud{k}")
+            self._drop(f"robot{k}")
+            return
         sc = self.server.scene
         col = CAMERA_COLOURS[k % len(CAMERA_COLOURS)]
-        self.clouds[f"cloud{k}"] = sc.add_point_cloud(f"/cloud/{k}", pts[env].astype(np.float32), col, point_size=0.02)
-        if rob.any():
-            h = sc.add_point_cloud(f"/robot_pixels/{k}", pts[rob].astype(np.float32), ROBOT_PIXELS, point_size=0.02)
-            self.clouds[f"robot{k}"] = h
-        elif f"robot{k}" in self.clouds:
-            self.clouds.pop(f"robot{k}").remove()
+        self.clouds[f"cloud{k}"] = sc.add_point_cloud(f"/cloud/{k}", env, col, point_size=0.02)
+        if len(rob):
+            self.clouds[f"robot{k}"] = sc.add_point_cloud(f"/robot_pixels/{k}", rob, ROBOT_PIXELS, point_size=0.02)
+        else:
+            self._drop(f"robot{k}")
 
     def _octree(self, frame: Any) -> None:
         """Draw the nodes of an octree frame by kind (squares of the node size at their centres)."""
@@ -242,52 +351,124 @@ class LiveView:
         from depthguard.runner.carried import place_carried
 
         try:
-            return place_carried(self.cameras, self._carried, self.model, np.asarray(q, float))
-        except (ValueError, TypeError):
+            q = np.asarray(q, float)
+            if not np.all(np.isfinite(q)):
+                return None
+            cams = place_carried(self.cameras, self._carried, self.model, q)
+        except Exception:  # noqa: BLE001 - no usable joint state: the carried cameras are not placed
             return None
+        return cams if all(np.all(np.isfinite(c.R)) and np.all(np.isfinite(c.t)) for c in cams) else None
 
     def draw(self) -> None:
-        """Push the newest state to the page (called by the view thread)."""
+        """Push the newest state to the page (called by the view thread). Each part (robot, clouds, octree,
+        spheres) that cannot be drawn is skipped and counted (:attr:`skipped`); the panel is always updated."""
         with self.lock:
             st = dict(self.state)
             rates = {k: _rate(v) for k, v in self.times.items()}
-        if st["q"] is not None and self._idx:
-            self.urdf.update_cfg(np.asarray(st["q"])[self._idx])
-        cams = self._world_cameras(st["q"])
-        if st["frames"] is not None and cams is not None:
-            masks = st["masks"] or [None] * len(st["frames"])
-            for k, (cam, dep) in enumerate(zip(cams, st["frames"], strict=False)):
+        joints = self._draw_robot(st["q"])
+        if st["frames"] is not None:
+            try:
+                frames = list(st["frames"])
+                masks = st["masks"]
+                masks = [None] * len(frames) if masks is None else list(masks)
+            except TypeError:
+                frames, masks = [], []
+                self._skip("camera")
+            cams = self._world_cameras(st["q"]) if frames else None
+            for k, dep in enumerate(frames[: len(self.cameras)]):
+                cam = None if cams is None else cams[k]
+                if cam is None and self._carried and all(i != k for i, _ in self._carried):
+                    cam = self.cameras[k]  # (a world camera needs no joint state)
                 self._cloud(cam, dep, masks[k] if k < len(masks) else None, k)
         if st["octree"] is not None:
-            self._octree(st["octree"])
-        dmin = None
-        if st["res"] is not None:
-            centres, radii, res = st["res"]
-            d, u = np.asarray(res.distance, float), np.asarray(res.direction, float)
-            dmin = float(np.min(d)) if d.size else None
-            sc = self.server.scene
-            segs, cols = [], []
-            for i, (c, r) in enumerate(zip(centres, radii, strict=True)):
-                sc.add_icosphere(
-                    f"/spheres/{i}", radius=float(r), color=_distance_rgb(d[i], self.rho), opacity=0.5,
-                    subdivisions=2, position=tuple(float(x) for x in c),
-                )  # fmt: skip
-                if np.isfinite(d[i]) and d[i] < self.rho and np.all(np.isfinite(u[i])):
-                    segs.append([c, c + u[i] * 0.3 * (1.0 - max(d[i], 0.0) / self.rho)])
-                    cols.append([(255, 120, 0), (255, 120, 0)])
-            if segs:
-                sc.add_line_segments(
-                    "/repulsion", np.asarray(segs, np.float32), np.asarray(cols, np.uint8), thickness=0.01
-                )
-            else:
-                sc.add_line_segments("/repulsion", np.zeros((1, 2, 3), np.float32), (255, 120, 0), thickness=0.0)
-        dm = "-" if dmin is None else ("inf" if not np.isfinite(dmin) else f"{dmin:.3f} m")
+            try:
+                self._octree(st["octree"])
+            except Exception:  # noqa: BLE001 - a malformed octree frame: skipped, not the update
+                self._skip("octree")
+                for name in OCTREE_COLOURS:
+                    self._drop(f"octree_{name}")
+        dm = "-" if st["res"] is None else self._draw_spheres(*st["res"])
+        with self._skip_lock:
+            skipped = ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items()))
         self.md.content = (
             f"**DepthGuard** cell `{self.cell.name}`  \nstatus: **{st['status']}**  \nnearest: {dm}  \n"
             f"frames {rates['frames']:.1f} Hz · distances {rates['queries']:.1f} Hz"
             f" · commands {rates['commands']:.0f} Hz"
+            + (f"  \njoints: {joints}" if joints else "")
+            + (f"  \nskipped: {skipped}" if skipped else "")
         )
         self.draws += 1
+
+    def _draw_robot(self, q: Any) -> str:
+        """The robot at joint positions ``q``; a state of the wrong length or not finite is skipped (the
+        robot stays where it was drawn last) and counted. Returns what the panel says about it ('' when
+        fine)."""
+        if q is None or not self._idx:
+            return ""
+        try:
+            q = np.asarray(q, float)
+            if q.ndim != 1 or len(q) != len(self.model.joint_names):
+                raise ValueError(f"{q.shape} joint positions for {len(self.model.joint_names)} joints")
+            if not np.all(np.isfinite(q)):
+                raise ValueError("not finite")
+            self.urdf.update_cfg(q[self._idx])
+        except Exception as exc:  # noqa: BLE001 - an unusable joint state: not drawn, the update goes on
+            self._skip("joints")
+            return f"unusable joint state ({exc}); robot as last drawn"
+        return ""
+
+    def _draw_spheres(self, centres: Any, radii: Any, res: Any) -> str:
+        """The control spheres coloured by distance and the repulsive vectors; returns the panel's nearest
+        distance. Distances that do not match the control points colour every sphere as unknown; centres
+        and radii that do not match draw no sphere; both are counted."""
+        sc = self.server.scene
+        try:
+            centres, radii = np.asarray(centres, float), np.asarray(radii, float)
+            if centres.ndim != 2 or centres.shape[1] != 3 or radii.shape != (len(centres),):
+                raise ValueError(f"centres {centres.shape}, radii {radii.shape}")
+        except Exception:  # noqa: BLE001 - control points that cannot be drawn: none is
+            self._skip("spheres")
+            centres, radii = np.zeros((0, 3)), np.zeros(0)
+            d = None
+        else:
+            n = len(centres)
+            try:
+                d = np.asarray(res.distance, float)
+                if d.shape != (n,):
+                    raise ValueError(f"{d.shape} distances for {n} control points")
+            except Exception:  # noqa: BLE001 - every sphere unknown (grey), none safe
+                self._skip("spheres")
+                d = None
+        n = len(centres)
+        dd = np.full(n, np.nan) if d is None else d
+        try:
+            u = np.asarray(res.direction, float)
+            if u.shape != (n, 3):
+                u = np.full((n, 3), np.nan)
+        except Exception:  # noqa: BLE001 - no direction: no repulsive vector
+            u = np.full((n, 3), np.nan)
+        segs, cols, drawn = [], [], set()
+        for i in range(n):
+            c, r, di = centres[i], float(radii[i]), float(dd[i])
+            if not (np.all(np.isfinite(c)) and np.isfinite(r) and r > 0):
+                continue
+            sc.add_icosphere(
+                f"/spheres/{i}", radius=r, color=_distance_rgb(di, self.rho), opacity=0.5,
+                subdivisions=2, position=tuple(float(x) for x in c),
+            )  # fmt: skip
+            drawn.add(i)
+            if np.isfinite(di) and di < self.rho and np.all(np.isfinite(u[i])):
+                segs.append([c, c + u[i] * 0.3 * (1.0 - max(di, 0.0) / self.rho)])
+                cols.append([(255, 120, 0), (255, 120, 0)])
+        for i in self._spheres - drawn:  # (spheres of an earlier update that this one does not have)
+            with contextlib.suppress(Exception):
+                sc.remove_by_name(f"/spheres/{i}")
+        self._spheres = drawn
+        if segs:
+            sc.add_line_segments("/repulsion", np.asarray(segs, np.float32), np.asarray(cols, np.uint8), thickness=0.01)
+        else:
+            sc.add_line_segments("/repulsion", np.zeros((1, 2, 3), np.float32), (255, 120, 0), thickness=0.0)
+        return _nearest_text(d)
 
     def show_clouds(self, visible: bool) -> None:
         """Show or hide every point cloud (the robot's pixels included)."""
@@ -316,7 +497,8 @@ def run_view_node(
     stop: Any = None,
 ) -> dict[str, Any]:
     """The ``view`` node: the live view of a cell's nodes on Zenoh (prepared frames, masks, joint states,
-    distances, status). Returns what it saw: ``draws``, ``frames``, ``distances``, ``status``."""
+    distances, status). Returns what it saw: ``draws``, ``frames``, ``distances``, ``status``, and ``skipped``
+    (the updates or parts of one it could not draw, by kind: :attr:`LiveView.skipped`)."""
     from depthguard.io import ros2
     from depthguard.io.cellfile import read_cell
     from depthguard.nodes.common import StopFlag, Topics, open_node
@@ -383,4 +565,5 @@ def run_view_node(
         "frames": len(view.times["frames"]),
         "distances": len(view.times["queries"]),
         "status": view.state["status"],
+        "skipped": dict(view.skipped),
     }
