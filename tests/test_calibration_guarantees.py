@@ -277,14 +277,18 @@ def test_robot_barely_in_view(az, side, up, q_seed, deg, metres):
 @settings(deadline=None, suppress_health_check=list(HealthCheck), max_examples=4)
 @given(q_seed=st.integers(0, 2**16), n_distinct=st.integers(1, 3), order=st.permutations(range(6)))
 @example(q_seed=966, n_distinct=2, order=[0, 2, 1, 3, 4, 5])  # accepted 10.0 mm / 0.26 deg off
+@example(q_seed=65536, n_distinct=2, order=[0, 1, 2, 3, 4, 5])  # accepted 40.6 mm / 0.97 deg off
 def test_few_distinct_configurations(q_seed, n_distinct, order):
     """Six frames from only 1-3 distinct arm configurations (a routine that did not move the arm widely): the
-    docs ask for 5 poses that move it widely; with fewer the result is refused or right."""
+    docs ask for 5 poses that move it widely. Fresh seeds found two configurations accepted 40.6 mm / 0.97
+    deg off (RMSE 4.4 mm, inliers 0.91; q_seed 65536): fewer than 5 distinct poses are now refused with a
+    refused naming the count."""
     model, _ = _cell("lwr4")
     cam = _camera(5.78, 1.98, 1.5)
     qs = _configs("lwr4", n_distinct, q_seed)
     frames = _render("lwr4", cam, [qs[i % n_distinct] for i in order], seed=q_seed)
-    _accepted_means_right(calibrate_extrinsics(_perturbed(cam, 5.0, 0.05, q_seed), frames, model), cam, tol=LOOSE)
+    res = calibrate_extrinsics(_perturbed(cam, 5.0, 0.05, q_seed), frames, model)
+    assert not res.accepted and res.message.startswith(f"refused: too few poses: {n_distinct} distinct"), res.message
 
 
 @pytest.mark.slow

@@ -38,6 +38,7 @@ __all__ = ["CalibrationResult", "calibrate_extrinsics", "capsule_surface_points"
 
 LINK_STILL_M = 1e-3  # m: a carrying link that moves more than this between the poses is refused
 LINK_STILL_RAD = np.deg2rad(0.1)
+SAME_POSE_RAD = 0.05  # rad (m for a prismatic joint): poses nearer than this in every joint are one pose
 MIN_OBSERVABILITY = 0.01  # below: a direction of the camera pose that the robot surface seen does not fix
 _TWIST_NAMES = (*(f"rotation about world {a}" for a in "xyz"), *(f"translation along world {a}" for a in "xyz"))
 
@@ -249,7 +250,9 @@ def calibrate_extrinsics(
     Args:
         camera: intrinsics and the initial guess of the extrinsics (``P_C = R P_W + t``; with ``link``,
             ``P_C = R P_L + t`` in the link's frame, and so is the result).
-        frames: ``(depth (H, W) m, q (n,))`` per arm pose; at least 5 poses that move the arm widely (so that
+        frames: ``(depth (H, W) m, q (n,))`` per arm pose; at least 5 (``ValueError``), of which at least 5
+            distinct (else refused, "too few poses": two configurations in six frames were accepted 40 mm
+            off) that move the arm widely (so that
             every pixel shows the background in some frame) and break its symmetries.
         model: the :class:`depthguard.robot.model.RobotModel` (its collision capsules are the surface model).
         link: None for a camera fixed in the world, or the robot link that carries it; that link must stay
@@ -269,6 +272,13 @@ def calibrate_extrinsics(
         return _in_link_frame(camera, frames, model, link, settings)
     if len(frames) < 5:
         raise ValueError(f"calibration needs at least 5 arm poses, got {len(frames)}")
+    n_distinct = _distinct_poses([q for _, q in frames])
+    if n_distinct < 5:  # (with fewer, a fit can look good and be centimetres off)
+        return CalibrationResult(
+            np.asarray(camera.R, float), np.asarray(camera.t, float), np.inf, 0.0, 0, 0, False,
+            f"refused: too few poses: {n_distinct} distinct arm poses among {len(frames)} frames (at least 5 that"
+            f" differ by {SAME_POSE_RAD} rad or more in some joint are needed)",
+        )  # fmt: skip
     rng = np.random.default_rng(seed)
     moving = moving_pixels([d for d, _ in frames])
     R, t = np.asarray(camera.R, float), np.asarray(camera.t, float)
@@ -300,6 +310,17 @@ def calibrate_extrinsics(
                 " goes unseen; add poses that turn the arm's links in other directions"
             )
     return CalibrationResult(R, t, float(rmse), float(frac), int(n_pts), total_it, bool(ok), message)
+
+
+def _distinct_poses(qs: list) -> int:
+    """How many of the joint states ``qs`` are distinct arm poses: greedily, a pose within ``SAME_POSE_RAD`` of
+    an earlier distinct one in every joint counts as that one."""
+    kept: list[np.ndarray] = []
+    for q in qs:
+        qa = np.asarray(q, float)
+        if all(np.max(np.abs(qa - k)) >= SAME_POSE_RAD for k in kept):
+            kept.append(qa)
+    return len(kept)
 
 
 def _check_inputs(camera: Camera, frames, model, opts: dict) -> None:
