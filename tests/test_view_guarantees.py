@@ -440,8 +440,8 @@ def test_octree_frame_drawn_or_skipped(view):
 # ----------------------------------------------------------------------------- never blocks the caller
 def test_producers_return_at_once_while_a_redraw_is_busy(model):
     """With every scene update taking 0.3 s (a busy server), the producers' calls still return in well under
-    that (bound 50 ms each: they only store references), only the newest frame set is kept (an older one
-    is freed), and the view redraws no more than max_hz."""
+    that (bound 0.2 s each, typically well under 1 ms: they only store references), only the newest frame set
+    is kept (an older one is freed), and the view redraws no more than max_hz."""
     v = LiveView.for_scene("busy", model, [_camera()], RHO, port=_free_port(), max_hz=20.0)
     try:
         sc = v.server.scene
@@ -469,12 +469,13 @@ def test_producers_return_at_once_while_a_redraw_is_busy(model):
             v.inputs(SimpleNamespace(q=np.zeros(7)), None)
             worst = max(worst, time.perf_counter() - t0)
         elapsed = time.perf_counter() - t_start
-        assert worst < 0.05, f"a producer call took {worst * 1e3:.0f} ms while a redraw was busy"
+        # (a call that waited for the redraw would take >= 0.3 s; 0.2 s leaves room for a loaded 2-core CI)
+        assert worst < 0.2, f"a producer call took {worst * 1e3:.0f} ms while a redraw was busy"
         d0 = v.draws  # (the redraw in flight may hold the first frame set until it ends)
         t0 = time.time()
-        while v.draws < d0 + 2 and time.time() - t0 < 10.0:
+        while (v.draws < d0 + 2 or ref() is not None) and time.time() - t0 < 15.0:
             time.sleep(0.05)
-        gc.collect()
+            gc.collect()
         assert ref() is None, "an older frame set is still held (not latest-wins)"
         assert v.draws <= (elapsed + 1.0) * 20.0 + 2
         assert v._thread.is_alive()
