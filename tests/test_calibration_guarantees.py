@@ -35,6 +35,7 @@ from depthguard.robot.calibration import (  # noqa: E402
     capsule_surface_points,
     still_link_pose,
 )
+from test_calibration import POSES, _perturbed  # noqa: E402  (the documented figure's six poses)
 
 W, H = 160, 120
 #: At 160x120 with random views and configurations (narrowed from the 5 mm of tests/test_calibration.py at
@@ -45,15 +46,7 @@ ANG_TOL_DEG = 0.5
 SHIFT_TOL_M = 0.25 * 0.03  # a quarter of the self-filter margin
 MARGIN = 0.03  # the self-filter's margin (runner.calibrate.SELF_FILTER_MARGIN)
 TARGET = np.array([0.0, 0.0, 0.45])
-#: The six poses of tests/test_calibration.py (the documented figure's).
-DOC_POSES = [
-    [0.3, 0.5, 0.0, -1.2, 0.0, 0.8, 0.0],
-    [-0.8, -0.4, 0.5, 1.4, 0.3, -0.6, 0.0],
-    [1.2, 0.9, -0.4, 0.6, -0.5, 0.9, 0.5],
-    [0.0, -0.9, 0.0, -1.5, 1.0, 0.5, 0.0],
-    [-0.4, 0.3, 1.2, 1.8, -1.0, -0.3, 0.2],
-    [0.9, -0.2, -1.0, -0.8, 0.6, 1.2, -0.4],
-]
+DOC_POSES = POSES
 SLOW = settings(deadline=None, suppress_health_check=list(HealthCheck), max_examples=5)
 
 _CELLS: dict[str, tuple] = {}
@@ -126,16 +119,6 @@ def _spheres_depth(cam, centres, radius: float) -> np.ndarray:
 def _person(cam, xy) -> np.ndarray:
     """Depth of a person (a stack of 0.18 m balls from the floor to 1.8 m) standing at ``xy``."""
     return _spheres_depth(cam, [[xy[0], xy[1], z] for z in np.arange(-0.7, 1.85, 0.15)], 0.18)
-
-
-def _perturbed(cam, deg: float, metres: float, seed: int):
-    rng = np.random.default_rng(seed)
-    ax = rng.normal(size=3)
-    ax /= np.linalg.norm(ax)
-    dp = rng.normal(size=3)
-    dp *= metres / np.linalg.norm(dp)
-    R0 = cam.R @ Rotation.from_rotvec(ax * np.deg2rad(deg)).as_matrix().T
-    return cam.with_pose(R0, -R0 @ (cam.position + dp))
 
 
 def _errors(res: CalibrationResult, cam) -> tuple[float, float]:
