@@ -334,16 +334,29 @@ def test_single_camera_is_a_lower_bound_of_its_own_pixel_frusta(seed, mode, inva
 
 
 # ------------------------------------------------------------------ single camera: the true geometry
-def shadow_samples(cam, solids, Pc, rng, k=3):
+def unresolved(cam, solids) -> list[int]:
+    """The primitives that no pixel-centre ray meets (occlusion ignored): smaller than the pixel footprint and
+    between the rays, they are invisible to the camera, and no depth image bounds the distance to them."""
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(float)
+    d = rays(cam, u.ravel() + 0.5, v.ravel() + 0.5)
+    return [k for k, p in enumerate(solids.prims) if not np.isfinite(Solids([p]).entry(cam.position, d)).any()]
+
+
+def shadow_samples(cam, solids, Pc, rng, k=3, skip=()):
     """Camera-frame points of the true conservative region of one camera near Pc: on ``k x k`` jittered rays per
-    pixel, the point nearest to Pc at or behind the first surface along that very ray."""
+    pixel, the point nearest to Pc at or behind the first surface along that very ray (rays whose first
+    surface is one of the primitives ``skip`` left out)."""
     n = cam.width * cam.height * k * k
     v, u = np.divmod(np.arange(n) // (k * k), cam.width)
     sub = np.arange(n) % (k * k)
     pu = u + (sub % k + rng.uniform(0.0, 1.0, n)) / k
     pv = v + (sub // k + rng.uniform(0.0, 1.0, n)) / k
-    t = solids.entry(cam.position, rays(cam, pu, pv))
+    d = rays(cam, pu, pv)
+    t = solids.entry(cam.position, d)
     ok = np.isfinite(t)
+    if len(skip):
+        each = np.stack([Solids([p]).entry(cam.position, d) for p in solids.prims], axis=1)
+        ok &= ~np.isin(np.argmin(np.where(np.isfinite(each), each, np.inf), axis=1), list(skip))
     a = (pu[ok] - cam.cx) / cam.fx
     b = (pv[ok] - cam.cy) / cam.fy
     s = np.maximum((Pc[0] * a + Pc[1] * b + Pc[2]) / (a * a + b * b + 1.0), t[ok])
@@ -363,7 +376,12 @@ def declared_single_tolerance(cam, Xc, quantum=0.0):
     millimetres=st.booleans(),
     rho=st.floats(0.1, 0.8),
 )
+@example(seed=364365, mode="min", millimetres=False, rho=0.5)
 def test_single_camera_is_a_lower_bound_of_the_true_shadowed_scene(seed, mode, millimetres, rho):
+    """Against the true geometry and its shadows, within the declared tolerance, for every obstacle the
+    camera resolves: an object that no pixel-centre ray meets is invisible in the image, and no depth image
+    bounds the distance to it (fresh seeds: a 0.17 m ball at 2.5 m from a 17x39 camera with 0.25 m pixels,
+    its inside reported 0.395 m from the nearest seen surface)."""
     rng = np.random.default_rng(seed)
     solids = random_solids(rng)
     cam = random_camera(rng, solids)
@@ -377,11 +395,13 @@ def test_single_camera_is_a_lower_bound_of_the_true_shadowed_scene(seed, mode, m
     P = random_points(rng, cam, solids, 10)
     radii = rng.uniform(0.0, 0.1, len(P))
     res = query_distances(frame, P, radii, rho=rho, mode=mode)
+    missed = unresolved(cam, solids)  # (invisible to the camera: seed 364365, a 0.17 m ball at 2.5 m, 0.25 m pixels)
     samples = []
     for i in range(len(P)):
         Pc = cam.world_to_camera(P[i])
-        Xw = cam.camera_to_world(shadow_samples(cam, solids, Pc, rng))
-        Xw = np.concatenate([Xw, solids.nearest_points(P[i])])  # every obstacle is in the region
+        Xw = cam.camera_to_world(shadow_samples(cam, solids, Pc, rng, skip=missed))
+        near = solids.nearest_points(P[i])
+        Xw = np.concatenate([Xw, np.delete(near, missed, axis=0)])  # every obstacle the camera resolves
         Xc = cam.world_to_camera(Xw)
         tol = declared_single_tolerance(cam, Xc, quantum)
         U = unseen_samples(cam, Pc)
@@ -409,10 +429,12 @@ def seen_free(cam: Camera, solids: Solids, Xw):
 def fused_samples(cams, solids, grid, Pw, rng):
     """World points of the fused conservative region near Pw: the principal camera's shadow points (as for one
     camera) that no secondary camera sees free or that lie outside the depth grid, random points near Pw
-    classified the same way, and the obstacles' nearest points."""
+    classified the same way, and the obstacles' nearest points; leaving out the primitives that no camera's
+    pixel-centre rays meet (invisible, see the single-camera test)."""
     cam0 = cams[0]
     Pc = cam0.world_to_camera(Pw)
-    X = cam0.camera_to_world(shadow_samples(cam0, solids, Pc, rng, k=2))
+    missed = sorted(set.intersection(*(set(unresolved(c, solids)) for c in cams)))  # (no camera resolves them)
+    X = cam0.camera_to_world(shadow_samples(cam0, solids, Pc, rng, k=2, skip=missed))
     ball = Pw + rng.normal(size=(1500, 3)) * rng.uniform(0.02, 0.6, (1500, 1))
     free0 = seen_free(cam0, solids, ball) & in_view(cam0, cam0.world_to_camera(ball))
     X = np.concatenate([X, ball[~free0 & in_view(cam0, cam0.world_to_camera(ball))]])
@@ -422,7 +444,9 @@ def fused_samples(cams, solids, grid, Pw, rng):
     for cam in cams[1:]:
         free |= seen_free(cam, solids, X)
     X = X[keep | ~free]
-    return np.concatenate([X, solids.nearest_points(Pw)])
+    for k in missed:  # (nor the points inside them)
+        X = X[Solids([solids.prims[k]]).distance(X) > 0]
+    return np.concatenate([X, np.delete(solids.nearest_points(Pw), missed, axis=0)])
 
 
 @PROPERTY(15)
