@@ -220,7 +220,7 @@ def test_every_node_starts_under_access_control(tmp_path):
     need_openssl()
     from depthguard.nodes import run_node
     from depthguard.nodes.runpub import ZenohRunPublisher
-    from depthguard.viz.live import run_view_node
+    from depthguard.viz.live_node import run_view_node
 
     ca = make_ca(tmp_path, "cell")
     cell_path = _cell(tmp_path, _per_node(tmp_path, random.randint(48000, 52000)))

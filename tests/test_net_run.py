@@ -121,7 +121,7 @@ def test_view_node_draws_what_the_nodes_publish(tmp_path):
     from depthguard.io import ros2
     from depthguard.nodes.camera import mask_msg
     from depthguard.nodes.common import StopFlag, Topics, open_node
-    from depthguard.viz.live import run_view_node
+    from depthguard.viz.live_node import run_view_node
 
     base = random.randint(44000, 48000)
     path = _cell(tmp_path, f"base_port = {base}\nconnect = []\n")

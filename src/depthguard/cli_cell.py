@@ -104,7 +104,7 @@ def _cmd_node(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    from depthguard.viz.live import run_view_node
+    from depthguard.viz.live_node import run_view_node
 
     run_view_node(
         args.cell, port=args.port, duration=args.duration, domain=args.zenoh_domain, connect=args.zenoh_connect

@@ -44,79 +44,17 @@ import numpy as np
 
 from depthguard.camera import Camera
 
-__all__ = ["LiveView", "run_view_node", "CAMERA_COLOURS"]
+__all__ = ["LiveView", "CAMERA_COLOURS"]  # (run_view_node: depthguard.viz.live_node)
 
-#: Point-cloud colour of camera k (RGB 0-255).
-CAMERA_COLOURS = [(40, 120, 255), (0, 190, 190), (250, 160, 0), (140, 90, 255)]
-ROBOT_PIXELS = (255, 0, 220)
-#: Colour of the octree's node kinds (depthguard.octree.fusion: 1 occupied, 2 occluded, 3 unseen).
-OCTREE_COLOURS = {"occupied": (1, (230, 30, 30)), "occluded": (2, (255, 150, 40)), "unseen": (3, (120, 120, 130))}
-#: Colour of a control sphere whose distance is unknown (NaN): never the green of "safe".
-UNKNOWN_DISTANCE = (150, 150, 150)
-
-
-def _distance_rgb(d: float, rho: float) -> tuple[int, int, int]:
-    """Colour of a control sphere at distance ``d`` (m): red at contact (``d <= 0``, ``-inf`` included),
-    yellow at ``rho / 2``, green at ``rho`` and beyond (``inf``: nothing within range); grey
-    (:data:`UNKNOWN_DISTANCE`) when ``d`` is NaN (unknown)."""
-    d = float(d)
-    if np.isnan(d):
-        return UNKNOWN_DISTANCE
-    f = 1.0 if d == np.inf else 0.0 if d == -np.inf else float(np.clip(d / max(rho, 1e-9), 0.0, 1.0))
-    return (int(255 * min(1.0, 2.0 * (1.0 - f))), int(255 * min(1.0, 2.0 * f)), 0)
-
-
-def _nearest_text(d: np.ndarray | None) -> str:
-    """The panel's nearest distance: ``-`` without control points, ``inf`` when nothing is within range,
-    ``unknown`` when a distance is NaN (or ``d`` is None: the distances did not match), with the smallest
-    known distance beside it."""
-    if d is None:
-        return "unknown (distances do not match the control points)"
-    d = np.asarray(d, float).ravel()
-    if d.size == 0:
-        return "-"
-    known = d[~np.isnan(d)]
-    m = None if known.size == 0 else float(np.min(known))
-    txt = "-" if m is None else "inf" if m == np.inf else "-inf" if m == -np.inf else f"{m:.3f} m"
-    if known.size < d.size:
-        return f"unknown ({d.size - known.size} of {d.size} NaN; smallest known {txt})"
-    return txt
-
-
-def _stride(width: int, stride: int | None) -> int:
-    """The decimation of a depth image ``width`` pixels wide: ``stride``, or about 160 points per row."""
-    return max(1, int(stride)) if stride else max(1, round(width / 160))
-
-
-def _cloud_points(cam: Camera, depth: Any, mask: Any, stride: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """The world points of every ``s``-th pixel of a depth image (``s``: :func:`_stride`) with a finite
-    positive depth: ``(environment, robot)`` float32 arrays, robot where ``mask`` is set. ``depth`` may be a
-    scaled image of ``cam`` (same field of view). Raises ``ValueError`` when ``depth`` is not 2-D, is not a
-    scaled image of ``cam``, or ``mask`` is not of its shape. The image is decimated before it is converted."""
-    from depthguard.nodes.common import camera_at_size
-
-    depth = np.asarray(depth)
-    if depth.ndim != 2:
-        raise ValueError(f"depth image of shape {depth.shape}, not 2-D")
-    h, w = depth.shape
-    if h == 0 or w == 0:
-        e = np.zeros((0, 3), np.float32)
-        return e, e
-    s = _stride(w, stride)
-    d = np.asarray(depth[::s, ::s], float)
-    c = camera_at_size(cam, w, h)
-    if mask is None:
-        m = np.zeros(d.shape, bool)
-    else:
-        mask = np.asarray(mask)
-        if mask.shape != depth.shape:
-            raise ValueError(f"mask of shape {mask.shape} for a depth image of shape {depth.shape}")
-        m = np.asarray(mask[::s, ::s], bool)
-    v, u = np.mgrid[0:h:s, 0:w:s]
-    ok = np.isfinite(d) & (d > 0)
-    env, rob = ok & ~m, ok & m
-    pts = c.unproject(u[ok] + 0.5, v[ok] + 0.5, d[ok])
-    return pts[env[ok]].astype(np.float32), pts[rob[ok]].astype(np.float32)
+from depthguard.viz.live_draw import (  # noqa: F401  (_distance_rgb: the tests read it here)
+    CAMERA_COLOURS,
+    OCTREE_COLOURS,
+    ROBOT_PIXELS,
+    UNKNOWN_DISTANCE,
+    _cloud_points,
+    _distance_rgb,
+    _nearest_text,
+)
 
 
 def _rate(times: deque) -> float:
@@ -487,83 +425,9 @@ class LiveView:
             self.server.stop()
 
 
-def run_view_node(
-    cell_path: str,
-    *,
-    port: int = 8080,
-    duration: float | None = None,
-    domain: int | None = None,
-    connect: list[str] | None = None,
-    stop: Any = None,
-) -> dict[str, Any]:
-    """The ``view`` node: the live view of a cell's nodes on Zenoh (prepared frames, masks, joint states,
-    distances, status). Returns what it saw: ``draws``, ``frames``, ``distances``, ``status``, and ``skipped``
-    (the updates or parts of one it could not draw, by kind: :attr:`LiveView.skipped`)."""
-    from depthguard.io import ros2
-    from depthguard.io.cellfile import read_cell
-    from depthguard.nodes.common import StopFlag, Topics, open_node
-    from depthguard.runner.chain import cell_control_points, load_cell_robot
+def __getattr__(name: str) -> Any:  # (the view node lives in depthguard.viz.live_node; its old import path works)
+    if name == "run_view_node":
+        from depthguard.viz.live_node import run_view_node
 
-    cell = read_cell(cell_path)
-    model = load_cell_robot(cell)
-    points = cell_control_points(cell, model)
-    view = LiveView(cell, model, points, [c.build() for c in cell.cameras], port=port)
-    top = Topics.of(cell)
-    node = None
-    names = [c.name for c in cell.cameras]
-    frames: dict[str, np.ndarray] = {}
-    masks: dict[str, np.ndarray] = {}
-    lock = threading.Lock()
-
-    def on_js(msg, att, recv_ns):
-        view.set_joints(ros2.joints_in_order(msg, model.joint_names)[0])
-
-    def on_depth(n):
-        def cb(msg, att, recv_ns):
-            with lock:
-                frames[n] = ros2.image_to_depth(msg)
-                if len(frames) == len(names):
-                    view.set_frames([frames[k] for k in names], [masks.get(k) for k in names])
-
-        return cb
-
-    def on_mask(n):
-        def cb(msg, att, recv_ns):
-            with lock:
-                masks[n] = ros2.image_to_mask(msg)
-
-        return cb
-
-    def on_dist(msg, att, recv_ns):
-        P = msg.points
-        view.set_distances(
-            [[p.centre.x, p.centre.y, p.centre.z] for p in P], [p.radius for p in P],
-            [p.distance for p in P], [[p.direction.x, p.direction.y, p.direction.z] for p in P],
-        )  # fmt: skip
-
-    stop = stop if stop is not None else StopFlag()
-    try:  # (whatever fails here, the session and the web server close: neither keeps the process alive)
-        node = open_node(cell, "view", domain=domain, connect=connect)
-        node.subscribe(top.joint_states, "sensor_msgs/msg/JointState", on_js)
-        for n in names:
-            node.subscribe(top.depth[n], "sensor_msgs/msg/Image", on_depth(n))
-            node.subscribe(top.mask[n], "sensor_msgs/msg/Image", on_mask(n))
-        node.subscribe(top.distances, "depthguard_msgs/msg/ControlPointDistances", on_dist)
-        node.subscribe(
-            top.status, "depthguard_msgs/msg/ControllerStatus", lambda m, a, t: view.set_status(str(m.status))
-        )
-        print(f"depthguard view: http://127.0.0.1:{port}", flush=True)
-        t0 = time.time()
-        while not stop and (duration is None or time.time() - t0 < duration):
-            stop.wait(0.2)
-    finally:
-        if node is not None:
-            node.close()
-        view.close()
-    return {
-        "draws": view.draws,
-        "frames": len(view.times["frames"]),
-        "distances": len(view.times["queries"]),
-        "status": view.state["status"],
-        "skipped": dict(view.skipped),
-    }
+        return run_view_node
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
