@@ -44,7 +44,7 @@ from depthguard.kernels.holefill import column_minima_if_dense, window_min_at
 from depthguard.kernels.pixels import query_many, query_many_parallel
 from depthguard.kernels.records import direction_stride as resolve_stride
 from depthguard.kernels.records import intrinsics, query_params
-from depthguard.validation import check_points
+from depthguard.validation import check_float_depth, check_query
 
 __all__ = [
     "TILE",
@@ -218,19 +218,6 @@ class FilledDepth(NamedTuple):
     unknown_pixels: int
 
 
-def check_float_depth(depth: np.ndarray, name: str = "depth") -> np.ndarray:
-    """``depth`` (an array) unless its dtype is not a float one: ``ValueError`` naming ``name``. An integer
-    image is most likely millimetres (a 16-bit driver image), which read as metres would place every obstacle
-    1000 times too far."""
-    if depth.dtype.kind != "f":
-        raise ValueError(
-            f"{name} must be a float image in metres, got dtype {depth.dtype}: convert a 16-bit millimetre image "
-            "with depthguard.kernels.depthimage.metres_or_nan(depth, 1000.0) (read as metres it would place "
-            "every obstacle 1000 times too far)"
-        )
-    return depth
-
-
 def check_depth_policy(
     camera: Camera, depth: np.ndarray, mask: np.ndarray | None, invalid: str, fill_radius: int
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -294,40 +281,6 @@ def prepare_frame(
 
 
 # ---------------------------------------------------------------------------------------------- query stage
-def _real(value: object, name: str, what: str) -> float:
-    """``value`` as a float if it is a real number (not a bool), else ``ValueError`` naming ``name``."""
-    try:
-        if isinstance(value, bool | np.bool_) or np.ndim(value) != 0:
-            raise TypeError
-        return float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"{name} must be {what}, got {value!r}") from None
-
-
-def check_query(
-    centres: object, radii: object, rho: object, alpha: object
-) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """The checks of the query arguments shared by :func:`query_distances` and the fused query: ``ValueError``
-    naming the bad one (``rho`` a finite number > 0; ``alpha`` a finite number, so that the eq. 9 weights are
-    numbers; ``centres`` a finite (N, 3) array or one (3,) point; ``radii`` (N,) or one number, finite and
-    >= 0). Returns ``(centres, radii, rho, alpha)`` as float arrays and floats."""
-    rho_f = _real(rho, "rho", "a positive number of metres")
-    if not (math.isfinite(rho_f) and rho_f > 0):
-        raise ValueError(f"rho must be a positive number of metres, got {rho!r}")
-    alpha_f = _real(alpha, "alpha", "a finite number")
-    if not math.isfinite(alpha_f):
-        raise ValueError(f"alpha must be a finite number, got {alpha!r}")
-    try:
-        c = np.atleast_2d(np.asarray(centres, dtype=float))
-        r = np.asarray(radii, dtype=float)
-    except (TypeError, ValueError, OverflowError):
-        raise ValueError(f"points centres and radii must be numbers, got {centres!r} and {radii!r}") from None
-    if c.ndim == 2 and r.ndim <= 1 and r.size == 1:
-        r = np.broadcast_to(r.reshape(-1), (c.shape[0],))
-    c, r = check_points(c, r)
-    return c, r, rho_f, alpha_f
-
-
 def query_distances(
     frame: DepthFrame,
     centres: np.ndarray,
