@@ -48,12 +48,18 @@ def _cmd_commission(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------------- cell
 def _cmd_cell(args: argparse.Namespace) -> int:
     from depthguard.io.cell_describe import describe_cell
-    from depthguard.io.cellfile import read_cell
+    from depthguard.io.cellfile import CellError, read_cell
     from depthguard.runner.carried import check_camera_parents
-    from depthguard.runner.chain import load_cell_robot
+    from depthguard.runner.chain import cell_control_points, load_cell_robot
 
     cell = read_cell(args.cell)
-    check_camera_parents(cell, load_cell_robot(cell))  # the links named by attachments and cameras exist
+    try:
+        model = load_cell_robot(cell)  # the URDF, its ee_frame, the links named by attachments
+    except ValueError as exc:  # (the URDF reader names the URDF, or a frame only: add the cell file's key)
+        msg = str(exc)
+        raise CellError(msg if msg.startswith(str(cell.path)) else f"{cell.path}: robot: {msg}") from None
+    check_camera_parents(cell, model)  # the links that carry cameras exist
+    cell_control_points(cell, model)  # the links of [[robot.spheres]] exist
     if args.json:
         print(json.dumps({"name": cell.name, "cameras": [c.name for c in cell.cameras], "ok": True}))
     else:

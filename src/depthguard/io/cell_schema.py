@@ -3,22 +3,34 @@
 
 from __future__ import annotations
 
+import math
+import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from depthguard.control.ssm import SSM_RANGE
+from depthguard.errors import InputError
 from depthguard.kernels.records import direction_stride
 from depthguard.validation import is_numeric_nest
 
-__all__ = ["CellError", "apply_calibration", "check_background", "distance_section"]
+__all__ = ["CellError", "NODE_ROLES", "apply_calibration", "check_background", "check_names", "distance_section"]
 
 _SHAPES = ("box", "cylinder", "sphere", "mesh")
 
 
-class CellError(ValueError):
-    """A cell file problem; the message names the file and the key."""
+class CellError(InputError):
+    """A cell file problem (an :class:`~depthguard.errors.InputError`, a ``ValueError``); the message names the
+    file and the key."""
+
+
+#: The nodes of a cell besides its cameras (``depthguard.io.cellfile.node_names``): a camera may not take one of
+#: these names (its node would take that node's port, and with one certificate per node its certificate)
+NODE_ROLES = ("sim", "distance", "controller", "monitor", "run", "view")
+#: A ROS 2 topic name: tokens of letters, digits and underscores, not starting with a digit, joined by "/"
+_TOPIC = re.compile(r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
+_INT_LIMIT = 2**31  # (integer keys: image sizes, pixels, ids; a larger one is a typo, not a setting)
 
 
 # ------------------------------------------------------------------------------------------- the schema
@@ -161,8 +173,10 @@ def _section(src: Path, where: str, kind: str, table: Any) -> dict[str, Any]:
             raise CellError(f"{src}: {where}.{key} must be {_type_name(typ)}, got {val!r}")
         if not isinstance(val, typ):
             raise CellError(f"{src}: {where}.{key} must be {_type_name(typ)}, got {val!r}")
-        if typ is _NUM and not np.isfinite(val):
-            raise CellError(f"{src}: {where}.{key} must be finite, got {val!r}")
+        if typ is _NUM and not _finite(val):  # (an integer past the float range too: 1e400 written out)
+            raise CellError(f"{src}: {where}.{key} must be a finite number, got {val!r}")
+        if isinstance(val, int) and typ is not _NUM and not -_INT_LIMIT < val < _INT_LIMIT:
+            raise CellError(f"{src}: {where}.{key} must be an integer below 2**31 in size, got {val!r}")
         if key in _POSITIVE and val <= 0:
             raise CellError(f"{src}: {where}.{key} must be > 0, got {val!r}")
         if key in _NON_NEGATIVE and val < 0:
@@ -172,6 +186,14 @@ def _section(src: Path, where: str, kind: str, table: Any) -> dict[str, Any]:
             raise CellError(f"{src}: {where}.{key} must be one of {list(choices)}, got {val!r}")
         out[key] = val
     return out
+
+
+def _finite(val: Any) -> bool:
+    """Whether the number ``val`` is finite as a float (a Python int may be too large for one)."""
+    try:
+        return math.isfinite(float(val))
+    except OverflowError:
+        return False
 
 
 def _type_name(typ: Any) -> str:
@@ -185,7 +207,7 @@ def _vector(src: Path, where: str, value: Any, n: int) -> tuple[float, ...]:
         raise CellError(f"{src}: {where} must be {n} numbers, got {value!r}")
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # (OverflowError: an integer past the float range)
         raise CellError(f"{src}: {where} must be {n} numbers, got {value!r}") from None
     if arr.shape != (n,) or not np.all(np.isfinite(arr)):
         raise CellError(f"{src}: {where} must be {n} finite numbers, got {value!r}")
@@ -197,7 +219,7 @@ def _is_matrix(value: Any, rows: int, cols: int) -> bool:
         return False
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return False
     return arr.shape == (rows, cols) and bool(np.all(np.isfinite(arr)))
 
@@ -242,6 +264,7 @@ def apply_calibration(src: Path, ref: Any, cams: tuple) -> tuple:
         raise CellError(f"{path}: a calibration file holds [[cameras]] tables only, got the key(s) {sorted(cal)}")
     if not isinstance(cal["cameras"], list) or not all(isinstance(e, dict) for e in cal["cameras"]):
         raise CellError(f"{path}: cameras must be an array of tables ([[cameras]]), got {cal['cameras']!r}")
+    seen: set[str] = set()
     for i, entry in enumerate(cal["cameras"]):
         unknown = sorted(set(entry) - {"name", "parent", "R", "t", "date", "rmse", "inlier_fraction"})
         if unknown:
@@ -249,6 +272,10 @@ def apply_calibration(src: Path, ref: Any, cams: tuple) -> tuple:
         name = entry.get("name")
         if not isinstance(name, str) or name not in by_name:
             raise CellError(f"{path}: cameras[{i}] names camera {name!r}, which the cell file does not have")
+        if name in seen:  # (which of the two would place it?)
+            raise CellError(f"{path}: cameras[{i}] places camera {name!r} a second time: one entry per camera")
+        seen.add(name)
+        _calibration_quality(path, i, entry)
         if entry.get("parent", by_name[name].parent) != by_name[name].parent:
             raise CellError(
                 f"{path}: cameras[{i}].parent = {entry['parent']!r}, but camera {name!r} of the cell file has parent"
@@ -256,11 +283,51 @@ def apply_calibration(src: Path, ref: Any, cams: tuple) -> tuple:
             )
         try:
             R = check_rotation(entry.get("R"), f"{path.name} cameras[{i}].R")
-        except ValueError as exc:
+        except (ValueError, OverflowError) as exc:
             raise CellError(f"{path}: {exc}") from None
         t = np.asarray(_vector(path, f"cameras[{i}].t", entry.get("t"), 3))
         by_name[name] = dataclasses.replace(by_name[name], R=R, t=t, extrinsics="file")
     return tuple(by_name[c.name] for c in cams)
+
+
+def _calibration_quality(path: Path, i: int, entry: dict[str, Any]) -> None:
+    """A calibration entry's record of its quality (``cell check`` prints it): ``rmse`` a finite number of
+    metres >= 0, ``inlier_fraction`` one in [0, 1], ``date`` a string or a TOML date."""
+    import datetime
+
+    for key, hi in (("rmse", math.inf), ("inlier_fraction", 1.0)):
+        v = entry.get(key, 0.0)
+        if isinstance(v, bool) or not isinstance(v, _NUM) or not _finite(v) or not 0 <= v <= hi:
+            form = "a finite number of metres >= 0" if key == "rmse" else "a number in [0, 1]"
+            raise CellError(f"{path}: cameras[{i}].{key} must be {form}, got {v!r}")
+    if not isinstance(entry.get("date", ""), str | datetime.date | datetime.datetime):
+        raise CellError(f"{path}: cameras[{i}].date must be a string or a TOML date, got {entry['date']!r}")
+
+
+def check_names(src: Path, cams: tuple, topics: dict[str, str]) -> None:
+    """The cameras' names (non-empty, none of :data:`NODE_ROLES`) and the topics: ``[topics]`` holds ROS topic
+    names, and no two topics are the same (the cameras' ``topic`` and ``info_topic`` and the ``[topics]``):
+    two cameras on one topic would each take the other's images with their own pose."""
+    for i, c in enumerate(cams):
+        if not c.name:
+            raise CellError(f"{src}: cameras[{i}].name must be a name (its node's, its topics'), got {c.name!r}")
+        if c.name in NODE_ROLES:
+            raise CellError(
+                f"{src}: cameras[{i}].name {c.name!r} is the name of one of the cell's nodes {list(NODE_ROLES)}:"
+                " the camera's node would take its port and certificate; choose another name"
+            )
+    for key, topic in topics.items():
+        if not _TOPIC.fullmatch(topic):
+            raise CellError(
+                f"{src}: topics.{key} must be a ROS topic name such as \"/ns/name\" (letters, digits and '_'"
+                f" between slashes, no token starting with a digit), got {topic!r}"
+            )
+    keys = [(f"cameras[{i}].{k}", getattr(c, k)) for i, c in enumerate(cams) for k in ("topic", "info_topic")]
+    seen: dict[str, str] = {}
+    for key, topic in keys + [(f"topics.{k}", v) for k, v in topics.items()]:
+        other = seen.setdefault(topic.strip("/"), key)
+        if other != key:
+            raise CellError(f"{src}: {key} and {other} are the same topic {topic!r}: each needs its own")
 
 
 def check_background(src: Path, ctrl: dict[str, Any], cams: tuple) -> None:

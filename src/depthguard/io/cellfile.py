@@ -10,8 +10,8 @@ complete files). Relative paths in a cell file are relative to the file's folder
   ``"ral-9"`` or ``"auto"``), ``ee_radius`` (m), ``[[robot.spheres]]`` (explicit control spheres, added to
   the preset's: ``link``, ``position`` in the link frame, ``radius``) and ``[[robot.attachments]]`` (tools and
   payloads: ``name``, ``link``, ``shape`` = box | cylinder | sphere | mesh, ``size`` (box: full sizes x y z;
-  cylinder: radius, length; sphere: radius), ``mesh`` (path), ``xyz``, ``rpy`` (pose in the link frame)):
-  the self-filter removes them, and control spheres cover each one (``depthguard.runner.chain``);
+  cylinder: radius, length; sphere: radius; metres, at most 10), ``mesh`` (path), ``xyz``, ``rpy`` (pose in
+  the link frame)): the self-filter removes them, and control spheres cover each one (``depthguard.runner.chain``);
 * ``[[cameras]]``: ``name``, ``topic`` and ``info_topic`` (recorded or live sources), ``frame_id``,
   intrinsics (``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy``; or ``intrinsics = "camera_info"`` to
   take them from the CameraInfo topic, ``"device"`` from a live device), ``min_depth``, ``max_depth``,
@@ -46,11 +46,12 @@ complete files). Relative paths in a cell file are relative to the file's folder
   (Float64MultiArray), ``distances``, ``monitor_distances`` (SSM's own distances, published with a
   ``[controller] background``: the same frames without the empty cell), ``status``, ``markers``;
 * ``[network]`` (nodes on Zenoh, see ``docs/nodes.md``): ``domain`` (ROS domain id), ``host`` (the address the
-  nodes listen on: ``127.0.0.1`` by default), ``base_port`` (node *k* listens on ``base_port + k``),
-  ``connect`` (extra endpoints, default the ROS 2 router ``tcp/127.0.0.1:7447``), ``publishers`` (node names
+  nodes listen on: ``127.0.0.1`` by default), ``base_port`` (node *k* listens on ``base_port + k``; the ports
+  stay in [1024, 65535] and off the router's 7447), ``connect`` (extra endpoints ``PROTOCOL/HOST:PORT``,
+  default the ROS 2 router ``tcp/127.0.0.1:7447``), ``publishers`` (node names
   allowed to publish distances and joint commands; default: DepthGuard's own ``distance`` and
-  ``controller``), ``tls_root_ca``, ``tls_certificate``, ``tls_private_key`` (paths: Zenoh TLS for a network
-  endpoint; required when ``host`` is not a loopback address; with ``{node}`` in the certificate and key
+  ``controller``), ``tls_root_ca``, ``tls_certificate``, ``tls_private_key`` (paths, all three or none: Zenoh TLS
+  for a network endpoint; required when ``host`` is not a loopback address; with ``{node}`` in the certificate and key
   paths, each node has its own certificate, whose common name is its node name, and Zenoh's access control
   lets only the ``publishers`` publish distances and joint commands: ``docs/nodes.md``).
 """
@@ -69,12 +70,15 @@ from depthguard.io.cell_network import PER_NODE, network_section, node_tls_files
 from depthguard.io.cell_schema import (
     _NUM,
     _TOP,
+    NODE_ROLES,
     CellError,
+    _finite,
     _is_matrix,
     _section,
     _vector,
     apply_calibration,
     check_background,
+    check_names,
     distance_section,
 )
 
@@ -96,6 +100,10 @@ __all__ = [
 #: to keep reading a cell file free of pinocchio; a test keeps the two equal), "auto" and "ee" (the end effector
 #: alone)
 CONTROL_POINT_CHOICES = ("ral-9", "icra-exp3", "auto", "ee")
+#: ``robot.ee_frame`` of each shipped model (its end effector is fixed; a test keeps this equal to the model's)
+MODEL_EE_FRAMES = {"lwr4": "lwr_ee"}
+#: the largest size (m) of a tool or payload: ``robot.attachments[i].size`` (a larger one is mm, not m)
+MAX_ATTACHMENT_SIZE = 10.0
 
 
 @dataclass(frozen=True)
@@ -183,8 +191,15 @@ def _robot(src: Path, table: Any) -> CellRobot:
     r = _section(src, "robot", "robot", table)
     if (r["model"] is None) == (r["urdf"] is None):
         raise CellError(f"{src}: [robot] needs exactly one of 'model' (a shipped model: lwr4) or 'urdf' (a path)")
-    if r["model"] is not None and r["model"] not in ("lwr4",):
-        raise CellError(f"{src}: robot.model must be one of ['lwr4'], got {r['model']!r} (or give 'urdf')")
+    if r["model"] is not None and r["model"] not in MODEL_EE_FRAMES:
+        raise CellError(
+            f"{src}: robot.model must be one of {list(MODEL_EE_FRAMES)}, got {r['model']!r} (or give 'urdf')"
+        )
+    if r["model"] is not None and r["ee_frame"] not in (None, MODEL_EE_FRAMES[r["model"]]):  # (it would be ignored)
+        raise CellError(
+            f"{src}: robot.ee_frame of the shipped model {r['model']!r} is {MODEL_EE_FRAMES[r['model']]!r}, got"
+            f" {r['ee_frame']!r} (leave it out, or give 'urdf' to choose another end effector)"
+        )
     urdf = None
     if r["urdf"] is not None:
         urdf = (src.parent / r["urdf"]).resolve()
@@ -195,8 +210,10 @@ def _robot(src: Path, table: Any) -> CellRobot:
             f"{src}: robot.control_points must be one of {list(CONTROL_POINT_CHOICES)}, got {r['control_points']!r}"
         )
     names = r["joint_names"]
-    if names is not None and not all(isinstance(x, str) for x in names):
-        raise CellError(f"{src}: robot.joint_names must be an array of strings")
+    if names is not None and (
+        not names or not all(isinstance(x, str) and x for x in names) or len(set(names)) < len(names)
+    ):
+        raise CellError(f"{src}: robot.joint_names must name each joint once (non-empty strings), got {names!r}")
     spheres = []
     for i, s in enumerate(r["spheres"]):
         s = _section(src, f"robot.spheres[{i}]", "sphere", s)
@@ -208,14 +225,17 @@ def _robot(src: Path, table: Any) -> CellRobot:
     for i, a in enumerate(r["attachments"]):
         where = f"robot.attachments[{i}]"
         a = _section(src, where, "attachment", a)
-        numbers = all(isinstance(x, _NUM) and not isinstance(x, bool) for x in a["size"])
+        numbers = all(isinstance(x, _NUM) and not isinstance(x, bool) and _finite(x) for x in a["size"])
         size = tuple(float(x) for x in a["size"]) if numbers else None
         need = {"box": 3, "cylinder": 2, "sphere": 1, "mesh": 0}[a["shape"]]
-        if size is None or len(size) != need or not all(0 < x < float("inf") for x in size):
-            raise CellError(
-                f"{src}: {where}.size must be {need} positive finite numbers for a {a['shape']}, got {a['size']}"
+        if size is None or len(size) != need or not all(0 < x <= MAX_ATTACHMENT_SIZE for x in size):
+            raise CellError(  # (a size in mm taken for m would also make the cover sample a huge surface)
+                f"{src}: {where}.size must be {need} numbers in (0, {MAX_ATTACHMENT_SIZE:g}] m for a {a['shape']},"
+                f" got {a['size']}"
             )
         mesh = None
+        if a["shape"] != "mesh" and a["mesh"] is not None:  # (it would be ignored)
+            raise CellError(f'{src}: {where}.mesh is for shape = "mesh", not a {a["shape"]}: remove one of them')
         if a["shape"] == "mesh":
             if a["mesh"] is None:
                 raise CellError(f"{src}: {where} is a mesh: give 'mesh' (a path to an STL/OBJ/DAE file)")
@@ -240,6 +260,9 @@ def _robot(src: Path, table: Any) -> CellRobot:
 def _camera(src: Path, i: int, table: Any) -> CellCamera:
     where = f"cameras[{i}]"
     c = _section(src, where, "camera", table)
+    empty = [k for k in ("topic", "info_topic", "frame_id") if k in table and not c[k].strip()]
+    if empty:  # (an empty one would be taken for the default)
+        raise CellError(f"{src}: {where}.{empty[0]} must not be empty: leave it out for the default")
     intr = {k: c[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}
     if c["intrinsics"] == "file":
         missing = [k for k, v in intr.items() if v is None]
@@ -249,6 +272,8 @@ def _camera(src: Path, i: int, table: Any) -> CellCamera:
     given = [k for k in ("R", "t", "matrix", "eye", "target") if c[k] is not None]
     if c["extrinsics"] != "file" and given:  # (they would be ignored)
         raise CellError(f'{src}: {where}: extrinsics = "{c["extrinsics"]}" takes no {given}: give one or the other')
+    if "up" in table and c["eye"] is None:  # (it would be ignored)
+        raise CellError(f"{src}: {where}.up goes with 'eye' + 'target' only: remove it or give them")
     if c["extrinsics"] == "file":
         if c["eye"] is not None or c["target"] is not None:
             if c["matrix"] is not None or c["R"] is not None or c["t"] is not None:
@@ -363,7 +388,8 @@ def read_cell(path: str | Path) -> CellFile:
         raise CellError(f"{src}: controller.ssm_range must be a finite number of metres > 0, got {ctrl['ssm_range']}")
     check_background(src, ctrl, cams)
     topics = _section(src, "topics", "topics", data.get("topics", {}))
-    net = network_section(src, data.get("network", {}))
+    check_names(src, cams, topics)
+    net = network_section(src, data.get("network", {}), nodes=len(cams) + len(NODE_ROLES))
     robot = _robot(src, data["robot"])
     return CellFile(src, cell["name"], cell["description"], robot, cams, dist, ctrl, topics, data, net)
 
@@ -371,7 +397,7 @@ def read_cell(path: str | Path) -> CellFile:
 def node_names(cell: CellFile) -> list[str]:
     """The names of a cell's nodes on Zenoh, in port order (node *k* listens on ``network.base_port + k``):
     ``sim``, one per camera (the camera's name), ``distance``, ``controller``, ``monitor``, ``run``, ``view``."""
-    return ["sim", *[c.name for c in cell.cameras], "distance", "controller", "monitor", "run", "view"]
+    return [NODE_ROLES[0], *[c.name for c in cell.cameras], *NODE_ROLES[1:]]
 
 
 def ssm_range(cell: CellFile) -> float | None:
