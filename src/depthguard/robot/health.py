@@ -12,7 +12,11 @@
   surface by ``see_through``) on more than ``moved_fraction`` of those pixels, ``moved_frames`` frames in a row,
   means the camera no longer looks where the cell file says.
 
-A fault stays until ``clear_frames`` healthy frames in a row have passed.
+A fault stays until ``clear_frames`` healthy frames in a row have passed. With stamps (:meth:`CameraHealth.check`),
+only frames whose stamps advance count: a repeated or reordered stamp neither makes a stream frozen nor
+clears a fault (a driver that repeats one frame with one stamp is caught by the distances' timeout: they are
+as old as their frames); a NaN or infinite stamp is the fault ``"stamp"``, an image of another shape or an
+integer one the fault ``"image"``.
 """
 
 from __future__ import annotations
@@ -49,6 +53,9 @@ class CameraHealth:
     Attributes:
         camera: the calibrated camera; name: its name (for messages).
         model: the robot model (for the "moved" check); None disables that check.
+        frozen_frames (>= 2), moved_frames, clear_frames, min_robot_pixels, erode (>= 1, >= 1, >= 0, >= 0):
+        counts; covered_fraction, moved_fraction: fractions in [0, 1); see_through: m, >= 0. Other values
+        (NaN among them, which would disable a check) raise ``ValueError`` naming the field.
     """
 
     camera: Camera
@@ -64,22 +71,73 @@ class CameraHealth:
     clear_frames: int = 3
     fault: str | None = None
     _last: np.ndarray | None = field(default=None, repr=False)
+    _stamp: float | None = field(default=None, repr=False)
     _same: int = 0
     _moved: int = 0
     _healthy: int = 0
 
-    def check(self, depth: np.ndarray, q: np.ndarray | None = None) -> str | None:
-        """Check one frame (H, W) m (NaN/0 = no reading) taken at joint positions ``q``; returns the fault
-        ("frozen", "covered", "moved") or None when the camera is healthy."""
-        d = np.asarray(depth, dtype=np.float32)
-        now = self._frame_fault(d, q)
+    def __post_init__(self) -> None:
+        counts = {"frozen_frames": 2, "moved_frames": 1, "clear_frames": 1, "min_robot_pixels": 0, "erode": 0}
+        for key, low in counts.items():
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < low:
+                raise ValueError(f"camera health {key} must be an integer >= {low}, got {v!r}")
+        for key, hi in (("covered_fraction", 1.0), ("moved_fraction", 1.0), ("see_through", np.inf)):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float | np.number) and 0 <= float(v) < hi):
+                raise ValueError(f"camera health {key} must be a number in [0, {hi}), got {v!r}")
+
+    def check(self, depth: np.ndarray, q: np.ndarray | None = None, stamp: float | None = None) -> str | None:
+        """Check one frame (H, W) float m (NaN/0 = no reading) taken at joint positions ``q`` and time ``stamp``
+        (s; None: unknown, every call is a new frame); returns the fault ("frozen", "covered", "moved",
+        "image", "stamp") or None when the camera is healthy.
+
+        Stamps (docs/real-cell.md §7): a frame whose stamp does not advance past the last one (repeated,
+        reordered, stale) is not a new frame: it counts neither towards "frozen" nor "moved" nor as a healthy
+        frame (the run of healthy frames that clears a fault starts again), and is still checked for
+        "covered". A NaN or infinite stamp is the fault "stamp"; an image that is not a 2-D float image of the
+        camera's size is the fault "image" (neither raises)."""
+        try:
+            d = np.asarray(depth)
+            ok = d.dtype.kind == "f" and d.shape == self.camera.shape
+        except Exception:  # (ragged nested lists and the like)
+            ok = False
+        if not ok:
+            return self._latch("image")
+        d = d.astype(np.float32)
+        if stamp is not None:
+            try:
+                t = float(stamp)
+            except (TypeError, ValueError):
+                t = float("nan")
+            if not np.isfinite(t):
+                return self._latch("stamp")
+            if self._stamp is not None and t <= self._stamp:  # not a new frame
+                if self._covered(d):
+                    return self._latch("covered")
+                self._healthy = 0
+                return self.fault
+            self._stamp = t
+        return self._latch(self._frame_fault(d, q))
+
+    def _latch(self, now: str | None) -> str | None:
+        """A fault ``now`` latches; ``clear_frames`` healthy frames in a row clear it."""
         if now is not None:
             self.fault, self._healthy = now, 0
         elif self.fault is not None:
             self._healthy += 1
             if self._healthy >= self.clear_frames:
-                self.fault = None
+                self.fault, self._healthy = None, 0
         return self.fault
+
+    def _covered(self, d: np.ndarray) -> bool:
+        """More than ``covered_fraction`` of the pixels missing (NaN, ±inf, <= 0) or nearer than the near limit
+        (exact in integers: ``missing * den > num * pixels`` with ``covered_fraction = num / den``)."""
+        with np.errstate(invalid="ignore"):
+            valid = np.isfinite(d) & (d > 0) & (d >= self.camera.min_depth)
+        missing = int(d.size - np.count_nonzero(valid))
+        num, den = float(self.covered_fraction).as_integer_ratio()
+        return missing * den > num * int(d.size)
 
     def _frame_fault(self, d: np.ndarray, q: np.ndarray | None) -> str | None:
         same = self._last is not None and self._last.shape == d.shape and np.array_equal(self._last, d, equal_nan=True)
@@ -87,9 +145,11 @@ class CameraHealth:
         self._last = d.copy()
         if self._same >= self.frozen_frames - 1:
             return "frozen"
-        valid = np.isfinite(d) & (d >= self.camera.min_depth)
-        if 1.0 - valid.mean() > self.covered_fraction:
+        if self._covered(d):
             return "covered"
+        if q is not None:  # (a joint state with NaN or inf cannot be judged: as without one)
+            qa = np.asarray(q)
+            q = qa if qa.ndim == 1 and qa.dtype.kind in "fiu" and np.all(np.isfinite(qa)) else None
         if self.model is not None and q is not None and self._sees_through(d, q):
             self._moved += 1
         else:

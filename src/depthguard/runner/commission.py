@@ -5,10 +5,11 @@ SSM protects people, but a depth camera sees the fixed cell (floor, walls, the t
 any other surface, and the arm's lower control points lie within the protective distance of their own table:
 without a background the monitor never lets the arm move. Commissioning records the *empty* cell once — the
 robot may stand or move, **nobody may be in the cell** — and writes a background file
-(:mod:`depthguard.io.background`): per camera the nearest valid non-robot depth seen over the frames (NaN where
-no frame gave one; each frame self-filtered with its joint state, as ``depthguard run`` does) and the tolerance
-model of the pixel rule (:mod:`depthguard.robot.background`). The cell file references it with
-``[controller] background = "FILE"``; ``depthguard run`` and the distance node apply it when ``ssm = true``.
+(:mod:`depthguard.io.background`): per camera the nearest valid non-robot depth seen over the frames (valid:
+finite and at or beyond the camera's ``min_depth``; NaN where no frame gave one; each frame self-filtered with
+its joint state, as ``depthguard run`` does) and the tolerance model of the pixel rule
+(:mod:`depthguard.robot.background`). The cell file references it with ``[controller] background = "FILE"``;
+``depthguard run`` and the distance node apply it when ``ssm = true``.
 
 Frames: ``frames`` frame sets spread evenly over the source's duration (a bag; the simulated scenario), or the
 first ``frames`` (a live camera). ``sim:SCENARIO`` is the scenario's cell without its people (its
@@ -69,18 +70,25 @@ def default_background_path(cell_path: str | Path) -> Path:
 
 
 class _Accumulator:
-    """Per camera: the nearest valid non-robot depth over the frames, and the per-pixel moments for the noise."""
+    """Per camera: the nearest valid non-robot depth over the frames, and the per-pixel moments for the noise.
+    A valid reading is finite, > 0 and at or beyond the camera's near limit ``min_depth`` (m): a single
+    spurious reading nearer than that (dust, a flying pixel) would otherwise become the pixel's background,
+    and every reading behind it would be hidden from the monitor for good."""
 
-    def __init__(self, shape: tuple[int, int]) -> None:
+    def __init__(self, shape: tuple[int, int], min_depth: float = 0.0) -> None:
         self.near = np.full(shape, np.nan, np.float32)
         self.n = np.zeros(shape, np.int32)
         self.s = np.zeros(shape, np.float64)
         self.s2 = np.zeros(shape, np.float64)
+        self.min_depth = float(min_depth)
 
     def add(self, depth: np.ndarray, robot: np.ndarray) -> None:
+        """One frame: ``depth`` (H, W) m, ``robot`` (H, W) bool (the self-filter's robot pixels, left out)."""
         d = np.asarray(depth, np.float32)
+        if d.shape != self.near.shape or np.shape(robot) != self.near.shape:
+            raise ValueError(f"a frame of shape {d.shape} (robot mask {np.shape(robot)}) for {self.near.shape}")
         with np.errstate(invalid="ignore"):
-            valid = np.isfinite(d) & (d > 0) & ~np.asarray(robot, bool)
+            valid = np.isfinite(d) & (d > 0) & (d >= self.min_depth) & ~np.asarray(robot, bool)
         self.near = np.fmin(self.near, np.where(valid, d, np.float32(np.nan)))
         self.n += valid
         dv = np.where(valid, d, 0.0).astype(np.float64)
@@ -136,7 +144,7 @@ def _record(src, cell, model, source: str, frames: int, progress: bool, follow_t
 
     follow = _sim_follower(src) if follow_task else None
     cams = list(src.cameras)
-    acc = [_Accumulator(c.shape) for c in cams]
+    acc = [_Accumulator(c.shape, c.min_depth) for c in cams]
     spacing = float(getattr(src, "duration", np.inf)) / frames  # inf: a live camera, every frame set
     taken, t_first, n_ok = 0, None, len(model.joint_names)
     try:
