@@ -38,6 +38,7 @@ import numba as nb
 import numpy as np
 
 from depthguard.camera import Camera, look_at
+from depthguard.validation import check_finite_array
 
 __all__ = ["kinect_camera", "KinectSim", "cast_rays", "egl_available", "raycast_depth", "projector_shadow"]
 
@@ -130,19 +131,38 @@ def cast_rays(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``mj_multiRay`` from ``origin`` (3,) along ``rays`` ((N, 3) or (3N,), world): ``(ray parameter (N,),
     NaN where nothing is hit; geom id (N,) int32, -1 there)``. Static geoms included; ``geomgroup``: (6,)
-    1 for the groups to hit (None: all)."""
+    1 for the groups to hit (None: all). The parameter is in units of each ray's length (a ray scaled to
+    ``z_C = 1`` gives the depth ``z_C``). A non-finite origin or ray, a zero ray, or a wrong shape:
+    ``ValueError`` naming the argument (MuJoCo would report "no hit" for them)."""
     import mujoco
 
     r = np.ascontiguousarray(rays, dtype=np.float64).ravel()
+    if r.shape[0] % 3:
+        raise ValueError(f"cast_rays: rays must be (N, 3) or (3N,), got {r.shape[0]} numbers")
+    if not (math.isfinite(r.sum()) or np.isfinite(r).all()):  # (a sum of finite numbers may overflow)
+        raise ValueError("cast_rays: rays must be finite (no NaN or inf)")
     n = r.shape[0] // 3
+    v = r.reshape(n, 3)
+    if n and not ((v[:, 0] != 0.0) | (v[:, 1] != 0.0) | (v[:, 2] != 0.0)).all():
+        raise ValueError("cast_rays: rays must be non-zero directions")
+    o = check_finite_array(origin, (3,), "cast_rays: origin")
+    gg = _geomgroup(geomgroup, "cast_rays: geomgroup")
     geomid = np.empty(n, np.int32)
     dist = np.empty(n, np.float64)
     if n:
-        gg = None if geomgroup is None else np.asarray(geomgroup, np.uint8)
-        o = np.asarray(origin, float)
         mujoco.mj_multiRay(model, data, o, r, gg, True, bodyexclude, geomid, dist, None, n, 1e3)
     dist[geomid < 0] = np.nan
     return dist, geomid
+
+
+def _geomgroup(geomgroup: np.ndarray | None, name: str) -> np.ndarray | None:
+    """``geomgroup`` as a (6,) uint8 array of 0/1 (None stays None), or ``ValueError`` naming ``name``."""
+    if geomgroup is None:
+        return None
+    g = np.asarray(geomgroup)
+    if g.shape != (6,) or g.dtype.kind not in "biuf" or not np.all((g == 0) | (g == 1)):
+        raise ValueError(f"{name} must be None or six 0/1 flags (one per geom group 0-5), got {geomgroup!r}")
+    return g.astype(np.uint8)
 
 
 def raycast_depth(
@@ -235,6 +255,13 @@ class KinectSim:
             raise ValueError(f"shadow must be 'projector', 'band' or 'none', got {shadow!r}")
         if not (math.isfinite(baseline) and baseline >= 0):
             raise ValueError(f"baseline must be a non-negative number of metres, got {baseline!r}")
+        for name, value in (("noise_coeff", noise_coeff), ("quantization", quantization), ("edge_jump", edge_jump)):
+            ok = not isinstance(value, bool) and isinstance(value, int | float | np.number)
+            if not (ok and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if isinstance(edge_band, bool) or not isinstance(edge_band, int | np.integer) or edge_band < 0:
+            raise ValueError(f"edge_band must be an integer number of pixels >= 0, got {edge_band!r}")
+        geomgroup = _geomgroup(geomgroup, "geomgroup")
         self.shadow = shadow
         self.baseline = float(baseline)
         self.model = model
@@ -283,8 +310,11 @@ class KinectSim:
 
     def sensor_effects(self, depth: np.ndarray) -> np.ndarray:
         """Apply the projector shadow (or edge band), noise, quantisation and range to an exact depth image
-        (float32 out)."""
+        (float32 out). ``depth``: a 2-D image (the camera's, or a window of it), metres, NaN where nothing is
+        hit (else ``ValueError``)."""
         z = np.array(depth, dtype=np.float64)
+        if z.ndim != 2:
+            raise ValueError(f"depth must be a 2-D image (H, W) in metres, got shape {z.shape}")
         zf = np.where(np.isfinite(z), z, np.inf)
         edge = np.zeros(z.shape, bool)
         if self.shadow == "projector":

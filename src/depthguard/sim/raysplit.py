@@ -11,7 +11,9 @@ equals the full cast to the bit (``tests/test_sim_depthcam.py``).
 
 The split is by geom group, since ``mj_multiRay`` selects geoms by group: a group is *still* when every
 one of its geoms belongs to the world body (in the simulated cell: group 0, the room and the table). The
-still image is cast again if a still geom's model pose or size is changed.
+still image is cast again if a still geom's model pose, size or colour, or its pose in ``data``, changes
+(a ``data`` not yet through ``mj_forward`` holds zero poses: the image cast from it is replaced once
+the poses are set).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from depthguard.camera import Camera
-from depthguard.sim.depthcam import cast_rays
+from depthguard.sim.depthcam import _geomgroup, cast_rays
 
 __all__ = ["SplitRaycaster"]
 
@@ -41,8 +43,12 @@ class SplitRaycaster:
 
     def __init__(self, model, camera: Camera, rays: np.ndarray, geomgroup: np.ndarray | None = None) -> None:
         self.model, self.camera = model, camera
-        self.rays = np.ascontiguousarray(rays, dtype=np.float64).reshape(-1, 3)
-        seen = np.ones(_NGROUP, bool) if geomgroup is None else np.asarray(geomgroup).astype(bool)
+        self.rays = np.ascontiguousarray(rays, dtype=np.float64).ravel()
+        if self.rays.shape != (camera.height * camera.width * 3,):
+            raise ValueError(f"SplitRaycaster: rays must be (H*W*3,) = ({camera.height * camera.width * 3},)")
+        self.rays = self.rays.reshape(-1, 3)
+        gg = _geomgroup(geomgroup, "SplitRaycaster: geomgroup")
+        seen = np.ones(_NGROUP, bool) if gg is None else gg.astype(bool)
         groups, bodies = np.asarray(model.geom_group), np.asarray(model.geom_bodyid)
         in_range = bool(np.all((groups >= 0) & (groups < _NGROUP)))
         still = np.zeros(_NGROUP, bool)
@@ -66,7 +72,8 @@ class SplitRaycaster:
 
     def _still(self, data) -> np.ndarray:
         m, g = self.model, self._still_geoms
-        key = tuple(np.asarray(a)[g].tobytes() for a in (m.geom_pos, m.geom_quat, m.geom_size, m.geom_rgba))
+        arrays = (m.geom_pos, m.geom_quat, m.geom_size, m.geom_rgba, data.geom_xpos, data.geom_xmat)
+        key = tuple(np.asarray(a)[g].tobytes() for a in arrays)
         if self._still_depth is None or key != self._still_key:
             self._still_depth = self._cast(data, self.rays, self.still_groups)
             self._still_key = key
