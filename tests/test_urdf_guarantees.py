@@ -1,7 +1,8 @@
 """URDF loading attacked with random robots, against a reference written here from the URDF specification.
 
-A hypothesis strategy draws small robots: serial chains and trees of revolute, prismatic and fixed joints
-(axes aligned, negative, non-unit and unaligned; origins with rpy at and near +-pi and at gimbal lock;
+A hypothesis strategy draws small robots: serial chains and trees of revolute, continuous (angles beyond a
+turn; ``<limit>`` with or without meaningless lower/upper), prismatic and fixed joints (axes aligned,
+negative, non-unit and unaligned; origins with rpy at and near +-pi and at gimbal lock;
 random limits), optional mimic joints, and links with 0-3 ``<collision>`` elements (box, cylinder, sphere,
 mesh files written here with trimesh: a convex box STL and a non-convex annulus OBJ, each off-centre, with
 uniform, non-uniform and negative ``scale``, by ``package://`` or relative path). Each robot is written to a
@@ -15,8 +16,9 @@ finite differences of the reference; the self-filter's shapes (vertices placed a
 collision elements, faces wound outwards, inflation offsets pointing out of the solid and at most one margin
 long); the analytic spheres; the coarse capsules holding every primitive; the ``auto`` control spheres
 holding every collision vertex and surface point of every moving link, their Jacobians; and clear
-``ValueError`` naming the element for what the loader cannot represent (continuous, planar and floating
-joints, a zero axis, missing or inverted limits, an unknown geometry, malformed origins and scales).
+``ValueError`` naming the element for what the loader cannot represent (planar and floating joints, a
+continuous joint without a speed, a zero axis, missing or inverted limits, a ``<limit>`` without a finite
+``velocity >= 0`` or ``effort >= 0``, an unknown geometry, malformed origins and scales).
 
 Documented limits not claimed here: a mimic joint is an independent coordinate of ``q`` (its multiplier and
 offset are not applied; docs/robots.md), and the coarse capsules of mesh-only links are a fallback that need
@@ -125,7 +127,7 @@ def robots(draw, mimic: bool = True) -> dict:
     for i in range(1, n + 1):
         chain = i == 1 or draw(st.booleans())
         parent = i - 1 if chain else draw(st.integers(0, i - 1))
-        typ = draw(st.sampled_from(["revolute", "revolute", "prismatic", "fixed"]))
+        typ = draw(st.sampled_from(["revolute", "revolute", "prismatic", "fixed", "continuous"]))
         lower = draw(st.floats(-3.0, 0.5))
         origin = draw(st.one_of(st.none(), st.tuples(_xyz, _rpy), st.tuples(_xyz, st.none())))
         joints.append(
@@ -213,7 +215,11 @@ def urdf_text(robot: dict) -> str:
         if j["type"] != "fixed":
             if j["axis"] is not None:
                 s += f'<axis xyz="{" ".join(map(_f, j["axis"]))}"/>'
-            s += f'<limit lower="{_f(j["lower"])}" upper="{_f(j["upper"])}" velocity="{_f(j["velocity"])}" effort="1"/>'
+            if j["type"] == "continuous" and j["lower"] < -1.5:  # (a continuous joint's lower/upper mean nothing)
+                s += f'<limit velocity="{_f(j["velocity"])}" effort="1"/>'
+            else:
+                lim = f'lower="{_f(j["lower"])}" upper="{_f(j["upper"])}" velocity="{_f(j["velocity"])}"'
+                s += f'<limit {lim} effort="1"/>'
             if j["mimic"] is not None:
                 m, mult, off = j["mimic"]
                 s += f'<mimic joint="{m}" multiplier="{_f(mult)}" offset="{_f(off)}"/>'
@@ -267,8 +273,9 @@ class Reference:
                 "child": j.find("child").get("link"),
                 "T0": _origin_T(j.find("origin")),
                 "axis": axis / np.linalg.norm(axis),
-                "lower": None if lim is None else float(lim.get("lower")),
-                "upper": None if lim is None else float(lim.get("upper")),
+                # continuous: no position limits (URDF spec), q is the angle
+                "lower": -np.inf if j.get("type") == "continuous" else None if lim is None else float(lim.get("lower")),
+                "upper": np.inf if j.get("type") == "continuous" else None if lim is None else float(lim.get("upper")),
                 "velocity": None if lim is None else float(lim.get("velocity")),
             }
             self.child_of[j.find("child").get("link")] = j.get("name")
@@ -292,7 +299,7 @@ class Reference:
                 return T[link]
             j = self.joints[self.child_of[link]]
             M = np.eye(4)
-            if j["type"] == "revolute":
+            if j["type"] in ("revolute", "continuous"):
                 M[:3, :3] = _axis_angle(j["axis"], qmap[self.child_of[link]])
             elif j["type"] == "prismatic":
                 M[:3, 3] = j["axis"] * qmap[self.child_of[link]]
@@ -395,7 +402,8 @@ class Loaded:
         return H[:, :3, :3], H[:, :3, 3]
 
     def random_q(self, rng: np.random.Generator) -> np.ndarray:
-        return rng.uniform(self.model.q_min - 0.5, self.model.q_max + 0.5)
+        lo, hi = self.model.q_min, self.model.q_max  # (continuous joints: ±20 rad, beyond a turn)
+        return rng.uniform(np.where(np.isfinite(lo), lo - 0.5, -20.0), np.where(np.isfinite(hi), hi + 0.5, 20.0))
 
 
 def _load(robot: dict) -> Loaded:
@@ -489,7 +497,7 @@ def test_joints_limits_poses_and_jacobians_match_the_urdf(robot: dict, seed: int
             Jref = np.zeros((6, m.n_dof))
             for i, name in enumerate(m.joint_names):
                 w = Rr[i + 1] @ ref.joints[name]["axis"]
-                if ref.joints[name]["type"] == "revolute":
+                if ref.joints[name]["type"] in ("revolute", "continuous"):
                     Jref[:, i] = np.r_[np.cross(pr[i + 1], w), w]
                 else:
                     Jref[:3, i] = w
@@ -668,7 +676,16 @@ def _coll(geometry: str) -> str:
 @pytest.mark.parametrize(
     ("typ", "axis", "limit", "coll", "match"),
     [
-        ("continuous", '<axis xyz="0 0 1"/>', "", "", "jx"),
+        ("continuous", '<axis xyz="0 0 1"/>', "", "", "'jx' is continuous without <limit>"),
+        ("continuous", '<axis xyz="0 0 1"/>', '<limit effort="1"/>', "", "jx.*no velocity"),
+        ("continuous", '<axis xyz="0 0 0"/>', '<limit effort="1" velocity="1"/>', "", "jx.*zero"),
+        ("revolute", '<axis xyz="0 0 1"/>', '<limit lower="-1" upper="1" effort="1"/>', "", "jx.*no velocity"),
+        ("revolute", '<axis xyz="0 0 1"/>', '<limit lower="-1" upper="1" velocity="1"/>', "", "jx.*no effort"),
+        ("prismatic", '<axis xyz="0 0 1"/>', '<limit upper="1" velocity="-1" effort="1"/>', "", "jx.*velocity"),
+        ("revolute", '<axis xyz="0 0 1"/>', '<limit upper="1" velocity="nan" effort="1"/>', "", "jx.*velocity"),
+        ("revolute", '<axis xyz="0 0 1"/>', '<limit upper="1" velocity="inf" effort="1"/>', "", "jx.*velocity"),
+        ("revolute", '<axis xyz="0 0 1"/>', '<limit upper="1" velocity="1" effort="-2"/>', "", "jx.*effort"),
+        ("revolute", '<axis xyz="0 0 1"/>', '<limit upper="1" velocity="1" effort="x"/>', "", "jx.*effort"),
         ("planar", '<axis xyz="0 0 1"/>', "", "", "jx"),
         ("floating", "", "", "", "jx"),
         ("revolute", '<axis xyz="0 0 0"/>', _LIMIT, "", "jx"),

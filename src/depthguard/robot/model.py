@@ -10,8 +10,8 @@ position limits are +-170 deg (A1, A3, A5, A7) and +-120 deg (A2, A4, A6); veloc
 data sheet's, approximately. Details are in the header of ``data/lwr4/lwr4.urdf``.
 
 Conventions: SI units; the world frame is the robot base frame, whose root link is at the world
-origin (``docs/conventions.md``). Only models whose joints
-all have one coordinate (revolute, prismatic; ``nq == nv``) are supported.
+origin (``docs/conventions.md``). Only joints of one coordinate are supported: revolute, prismatic, and
+continuous (built as revolute with infinite position limits: ``q`` holds its angle, not pinocchio's cos/sin).
 
 Collision geometry is also read back from the URDF as coarse *capsules* (segment ``a``-``b`` swept by a
 sphere of ``radius``, :meth:`RobotModel.link_capsules`; used by the capsule self-filter baseline, the
@@ -44,7 +44,7 @@ import numpy as np
 from depthguard.robot.fk import ChainKinematics
 from depthguard.robot.geometry import RobotGeometry
 from depthguard.robot.shapes import Shape, parse_collision_shapes, rpy_to_matrix
-from depthguard.robot.urdf_check import check_urdf
+from depthguard.robot.urdf_check import check_urdf, continuous_as_revolute
 from depthguard.validation import check_finite_array
 
 __all__ = ["LinkCapsule", "RobotModel", "check_urdf", "load_lwr4", "lwr4_urdf_path"]
@@ -125,13 +125,29 @@ def _parse_capsules(urdf_path: Path, default_radius: float) -> list[LinkCapsule]
     return out
 
 
+def _build_pinocchio_model(pin, root: ET.Element, urdf_path: Path):
+    """The pinocchio model of a checked URDF, and the names of its continuous joints: those are built as
+    revolute joints (one coordinate, the angle) whose position limits are set to ±inf."""
+    if not any(j.get("type") == "continuous" for j in root.findall("joint")):
+        return pin.buildModelFromUrdf(str(urdf_path)), ()
+    text, names = continuous_as_revolute(root)
+    model = pin.buildModelFromXML(text)
+    lo, hi = np.array(model.lowerPositionLimit), np.array(model.upperPositionLimit)
+    for name in names:
+        k = model.idx_qs[model.getJointId(name)]
+        lo[k], hi[k] = -np.inf, np.inf
+    model.lowerPositionLimit, model.upperPositionLimit = lo, hi
+    return model, tuple(names)
+
+
 class RobotModel:
     """A fixed-base robot loaded from URDF with pinocchio.
 
     Attributes:
         n_dof: number of joint coordinates n.
         joint_names: the n joint names, in the order of ``q``.
-        q_min, q_max: (n,) joint position limits, rad (or m).
+        q_min, q_max: (n,) joint position limits, rad (or m); ∓inf for continuous joints.
+        continuous_joints: names of the URDF's continuous joints (revolute, unbounded angle).
         v_max: (n,) joint velocity limits, rad/s (or m/s).
         ee_frame: name of the end-effector frame.
         capsules: tuple of :class:`LinkCapsule`, the collision geometry.
@@ -157,7 +173,7 @@ class RobotModel:
         except (ET.ParseError, UnicodeDecodeError) as exc:
             raise ValueError(f"{self.urdf_path}: not a valid URDF (XML): {exc}") from None
         check_urdf(root, self.urdf_path)  # what cannot be represented: a ValueError naming the element
-        self.model = pin.buildModelFromUrdf(str(self.urdf_path))
+        self.model, self.continuous_joints = _build_pinocchio_model(pin, root, self.urdf_path)
         self.data = self.model.createData()
         odd = [self.model.names[j] for j in range(1, self.model.njoints) if self.model.joints[j].nq != 1]
         if self.model.nq != self.model.nv or odd:

@@ -17,6 +17,8 @@ ROBOTS: dict[str, tuple[str, str]] = {
     "panda": ("panda_description/urdf/panda.urdf", "panda_hand"),
     "ur5": ("ur_description/urdf/ur5_robot.urdf", "tool0"),
     "xarm7": ("xarm_description/urdf/xarm7.urdf", "link7"),
+    # Kinova Jaco2 6-DOF (j2s6s200): joints 1, 4 and 6 are continuous (unbounded angles)
+    "kinova": ("kinova_description/robots/kinova.urdf", "j2s6s200_end_effector"),
 }
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["check_urdf"]
+__all__ = ["check_urdf", "continuous_as_revolute"]
 
 _GEOMETRIES = ("box", "cylinder", "sphere", "mesh", "capsule")
 
@@ -26,25 +26,72 @@ def _numbers(text: str | None, n: int, what: str) -> list[float] | None:
     return vals
 
 
+def _check_limit(lim: ET.Element | None, typ: str, jw: str) -> None:
+    """``ValueError`` naming the joint ``jw`` unless its ``<limit>`` bounds it (rules in :func:`check_urdf`)."""
+    if lim is None:
+        why = "its speed is unknown" if typ == "continuous" else "URDF requires one"
+        raise ValueError(f"{jw} is {typ} without <limit> ({why}; give <limit velocity=... effort=...>)")
+    for attr in ("velocity", "effort"):
+        if lim.get(attr) is None:
+            raise ValueError(f"{jw}: <limit> has no {attr} (URDF requires it; velocity in rad/s or m/s)")
+    vel = _numbers(lim.get("velocity"), 1, f"{jw} <limit velocity>")[0]
+    eff = _numbers(lim.get("effort"), 1, f"{jw} <limit effort>")[0]
+    if vel < 0:
+        raise ValueError(f"{jw}: <limit velocity> must be >= 0 (the joint's top speed), got {lim.get('velocity')!r}")
+    if eff < 0:
+        raise ValueError(f"{jw}: <limit effort> must be >= 0, got {lim.get('effort')!r}")
+    if typ == "continuous":
+        return  # (lower / upper, if given, mean nothing for a continuous joint: URDF spec)
+    lo = _numbers(lim.get("lower", "0"), 1, f"{jw} <limit lower>")[0]
+    hi = _numbers(lim.get("upper", "0"), 1, f"{jw} <limit upper>")[0]
+    if lo > hi:
+        raise ValueError(f"{jw}: <limit> lower {lo} > upper {hi}")
+
+
+def continuous_as_revolute(root: ET.Element) -> tuple[str, list[str]]:
+    """The URDF text with every ``continuous`` joint made ``revolute`` (limits ±1 rad as placeholders: the
+    caller sets them to ±inf on the built model), and the names of those joints.
+
+    pinocchio builds a continuous joint with two coordinates (cos, sin); DepthGuard's ``q`` has one per
+    joint, the angle in rad, unbounded (docs/robots.md). ``root`` is not modified."""
+    import copy
+
+    root = copy.deepcopy(root)
+    names = []
+    for joint in root.findall("joint"):
+        if joint.get("type") == "continuous":
+            joint.set("type", "revolute")
+            lim = joint.find("limit")  # check_urdf made sure it exists
+            lim.set("lower", "-1")
+            lim.set("upper", "1")
+            names.append(joint.get("name", ""))
+    return ET.tostring(root, encoding="unicode"), names
+
+
 def check_urdf(root: ET.Element, urdf_path: Path) -> None:
     """``ValueError`` naming the element for what :class:`RobotModel` cannot represent faithfully.
 
-    Joints must be ``revolute`` or ``prismatic`` with a ``<limit>`` (``lower <= upper``) and a non-zero
-    axis, or ``fixed``: a ``continuous``, ``planar`` or ``floating`` joint has no one-coordinate limited
-    form here (pinocchio would give it 2-7 coordinates). Origins need 3 finite numbers per ``xyz`` / ``rpy``;
+    Joints must be ``revolute`` or ``prismatic`` with a ``<limit>`` (``lower <= upper``, finite
+    ``effort >= 0``, finite ``velocity >= 0``: the speed bounds every motion the controller plans; 0 holds the
+    joint) and a non-zero axis, ``continuous`` with a ``<limit>`` giving ``velocity`` and ``effort`` (loaded as
+    a revolute joint without position limits: :func:`continuous_as_revolute`), or ``fixed``: a ``planar`` or
+    ``floating`` joint has no one-coordinate form here (pinocchio would give it 3-7 coordinates). The root must
+    be ``<robot name="...">``. Origins need 3 finite numbers per ``xyz`` / ``rpy``;
     ``<collision>`` elements one geometry of box, cylinder, sphere, mesh or capsule, with positive finite
     sizes (a mesh: a filename). Mimic joints are loaded as coordinates of their own (docs/robots.md).
     """
     where = f"URDF {urdf_path}"
+    if root.tag != "robot" or not root.get("name"):
+        raise ValueError(f'{where}: the root element must be <robot name="..."> (URDF requires the name)')
     for joint in root.findall("joint"):
         name, typ = joint.get("name", ""), joint.get("type", "")
         jw = f"{where}: joint '{name}'"
-        if typ in ("continuous", "planar", "floating"):
+        if typ in ("planar", "floating"):
             raise ValueError(
-                f"{jw} is {typ}: not supported (only revolute and prismatic joints with <limit>, and fixed "
-                "joints; a continuous joint can be given type revolute with its real travel as <limit>)"
+                f"{jw} is {typ}: not supported (only revolute, continuous and prismatic joints with <limit>, "
+                "and fixed joints)"
             )
-        if typ not in ("revolute", "prismatic", "fixed"):
+        if typ not in ("revolute", "continuous", "prismatic", "fixed"):
             raise ValueError(f"{jw}: unknown joint type {typ!r}")
         org = joint.find("origin")
         if org is not None:
@@ -56,13 +103,7 @@ def check_urdf(root: ET.Element, urdf_path: Path) -> None:
         axis = _numbers(ax.get("xyz") if ax is not None else None, 3, f"{jw} <axis xyz>")
         if axis is not None and np.linalg.norm(axis) < 1e-12:
             raise ValueError(f"{jw}: <axis xyz> is zero, {ax.get('xyz')!r}")
-        lim = joint.find("limit")
-        if lim is None:
-            raise ValueError(f"{jw} is {typ} without <limit> (URDF requires one)")
-        lo = _numbers(lim.get("lower", "0"), 1, f"{jw} <limit lower>")[0]
-        hi = _numbers(lim.get("upper", "0"), 1, f"{jw} <limit upper>")[0]
-        if lo > hi:
-            raise ValueError(f"{jw}: <limit> lower {lo} > upper {hi}")
+        _check_limit(joint.find("limit"), typ, jw)
     for link in root.findall("link"):
         lname = link.get("name", "")
         for i, col in enumerate(link.findall("collision")):
