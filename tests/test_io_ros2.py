@@ -65,7 +65,7 @@ def test_independent_decoder_reads_every_message(tmp_path):
     f32 = np.frombuffer(bytes(got["/cam/depth32"].data), dtype="<f4").reshape(6, 8)
     np.testing.assert_array_equal(f32[1:], depth[1:])
     info = got["/cam/info"]
-    assert list(info.k) == [5.0, 0.0, 4.0, 0.0, 5.0, 3.0, 0.0, 0.0, 1.0]
+    assert list(info.k) == [5.0, 0.0, 3.5, 0.0, 5.0, 2.5, 0.0, 0.0, 1.0]  # ROS's principal point: cx - 0.5, cy - 0.5
     assert list(got["/joint_states"].position) == [0.1, -0.2]
     d = got["/depthguard/distances"]
     assert d.rho == 0.4 and [p.name for p in d.points] == ["ee", "l1"]

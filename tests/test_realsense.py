@@ -80,7 +80,8 @@ def test_software_device_frames_intrinsics_and_dropout(tmp_path):
     sd, sensor, syncer, profile = _device()
     src = RealSenseSource(cell, ("a",), device=(sensor, syncer, profile), duration=0.8, frame_timeout=0.15)
     cam = src.cameras[0]
-    assert (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy) == (W, H, 50.0, 51.0, 31.5, 23.5)
+    # librealsense's ppx, ppy put pixel centres at integers, DepthGuard's at u + 0.5 (tests/test_pixel_convention.py)
+    assert (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy) == (W, H, 50.0, 51.0, 32.0, 24.0)
     assert src.depth_scale == pytest.approx(0.00025)
     keep: list = []
     feeder = threading.Thread(target=_push, args=(sensor, profile, 6, 1 / 30, keep))  # 0.2 s, then silence
@@ -161,6 +162,13 @@ BOX_X, BOX_Y = (-0.25, 0.15), (-0.1, 0.2)
 def _rot(ax, ay):
     cx, sx, cy, sy = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay)
     return np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]]) @ np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+
+
+def _depthguard(intr):
+    """(w, h, cx, cy, fx, fy) of DepthGuard's camera for librealsense's (w, h, ppx, ppy, fx, fy): pixel centres at
+    u + 0.5, not at u (tests/test_pixel_convention.py)."""
+    w, h, ppx, ppy, fx, fy = intr
+    return (w, h, ppx + 0.5, ppy + 0.5, fx, fy)
 
 
 def _rs_intr(w, h, ppx, ppy, fx, fy):
@@ -289,7 +297,7 @@ def test_aligned_depth_is_the_colour_cameras_depth(tmp_path, which):
     R, t = EXTRINSICS[which]
     src, ticks = _aligned_frames(tmp_path, R, t)
     cam = src.cameras[0]
-    assert (cam.width, cam.height, cam.cx, cam.cy, cam.fx, cam.fy) == pytest.approx(C_INTR)
+    assert (cam.width, cam.height, cam.cx, cam.cy, cam.fx, cam.fy) == pytest.approx(_depthguard(C_INTR))
     assert src.stream == "color" and src.align == "color"
     np.testing.assert_allclose(src.depth_to_color[0], R, atol=1e-6)
     np.testing.assert_allclose(src.depth_to_color[1], t, atol=1e-6)
@@ -421,7 +429,7 @@ def test_live_pipeline_enables_the_colour_stream_when_aligned(tmp_path, monkeypa
     assert fake.enabled == want
     cam = src.cameras[0]
     got = (cam.width, cam.height, cam.cx, cam.cy, cam.fx, cam.fy)
-    assert got == pytest.approx(C_INTR if aligned else D_INTR)
+    assert got == pytest.approx(_depthguard(C_INTR if aligned else D_INTR))
     depth, _ = _render_depth()
     keep: list = []
     feeder = threading.Thread(target=_push_pair, args=(dsensor, csensor, dp, cp, depth, 8, 1 / 30, keep))

@@ -8,6 +8,10 @@ Conventions (``docs/conventions.md``, ICRA'12 eqs. 1-3, RA-L'16 eqs. 1-3):
 * pixel ``(u, v)`` covers ``[u, u+1) x [v, v+1)``; a point projects to
   ``p_x = fx x_C / z_C + cx``, ``p_y = fy y_C / z_C + cy`` and lands in pixel
   ``(floor(p_x), floor(p_y))``. The ray through the centre of pixel u has ``p_x = u + 0.5``.
+
+ROS ``CameraInfo`` (OpenCV, ``image_geometry``) and librealsense put the centre of pixel u at ``p_x = u``:
+their principal point is half a pixel less than DepthGuard's (:func:`principal_point_from_opencv`,
+:func:`principal_point_to_opencv` convert at every boundary).
 """
 
 from __future__ import annotations
@@ -20,7 +24,10 @@ import numpy as np
 from depthguard.errors import check_known_keys
 from depthguard.validation import check_finite_array, check_positive, check_rotation, is_numeric_nest
 
-__all__ = ["Camera", "look_at"]
+__all__ = ["Camera", "look_at", "principal_point_from_opencv", "principal_point_to_opencv"]
+
+#: DepthGuard's principal point minus OpenCV's (ROS CameraInfo, librealsense) for the same camera, pixels
+OPENCV_PIXEL_OFFSET = 0.5
 
 
 @dataclass(frozen=True)
@@ -246,3 +253,18 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
     y = np.cross(z, x)
     R = np.stack([x, y, z])  # rows: camera axes expressed in world
     return R, -R @ eye
+
+
+def principal_point_from_opencv(cx: float, cy: float) -> tuple[float, float]:
+    """DepthGuard's principal point (pixels; pixel centres at ``u + 0.5``) of a camera whose ROS ``CameraInfo``
+    ``K`` or librealsense ``ppx, ppy`` say ``cx, cy`` (pixel centres at integers): ``(cx + 0.5, cy + 0.5)``.
+
+    Taking them as they are shifts every ray by half a pixel (at 160x120 with a Kinect's field of view, about
+    1 cm at 3 m sideways)."""
+    return float(cx) + OPENCV_PIXEL_OFFSET, float(cy) + OPENCV_PIXEL_OFFSET
+
+
+def principal_point_to_opencv(cx: float, cy: float) -> tuple[float, float]:
+    """The ROS ``CameraInfo`` / OpenCV principal point (pixels) of DepthGuard's ``cx, cy``: ``(cx - 0.5, cy - 0.5)``
+    (inverse of :func:`principal_point_from_opencv`)."""
+    return float(cx) - OPENCV_PIXEL_OFFSET, float(cy) - OPENCV_PIXEL_OFFSET

@@ -98,9 +98,15 @@ def image_to_depth(msg) -> np.ndarray:
 
 
 def camera_info_msg(t: float, frame_id: str, camera) -> Any:
-    """``sensor_msgs/msg/CameraInfo`` of a :class:`depthguard.camera.Camera` (no distortion)."""
-    K = [camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0]
-    P = [camera.fx, 0.0, camera.cx, 0.0, 0.0, camera.fy, camera.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    """``sensor_msgs/msg/CameraInfo`` of a :class:`depthguard.camera.Camera` (no distortion). ``K`` and ``P`` hold
+    the principal point in ROS's convention (pixel centres at integers: DepthGuard's ``cx - 0.5``,
+    :func:`depthguard.camera.principal_point_to_opencv`), so that ROS tools and DepthGuard's own readers
+    (which add the half pixel back) cast the same rays."""
+    from depthguard.camera import principal_point_to_opencv
+
+    cx, cy = principal_point_to_opencv(camera.cx, camera.cy)
+    K = [camera.fx, 0.0, cx, 0.0, camera.fy, cy, 0.0, 0.0, 1.0]
+    P = [camera.fx, 0.0, cx, 0.0, 0.0, camera.fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
     roi = _t("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return _t("sensor_msgs/msg/CameraInfo")(
         header=header(t, frame_id),

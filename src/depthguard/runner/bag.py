@@ -16,7 +16,8 @@ that joint state is more than :data:`MAX_JOINT_SKEW` from a frame of the set, th
 (as the camera and distance nodes do), never paired with a joint state of another time. A CameraInfo whose size or
 calibration changes mid-bag is refused (a ValueError naming the bag, the topic and the message's index).
 Cameras with lens distortion (``plumb_bob``, ``rational_polynomial``) are undistorted through a remap
-computed once (nearest neighbour: depth is never interpolated across edges).
+computed once (nearest neighbour: depth is never interpolated across edges). A CameraInfo's principal point
+has ROS's pixel centres (at integers): half a pixel is added (:func:`depthguard.camera.principal_point_from_opencv`).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from depthguard.camera import Camera
+from depthguard.camera import Camera, principal_point_from_opencv
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellCamera, CellFile, refuse_align
 from depthguard.io.mcap_ros2 import read_messages
@@ -329,7 +330,8 @@ def _camera_params(name: str, c: CellCamera, w: int, h: int, info) -> dict:
                 f" '{c.topic}' are {w}x{h}"
             )
         K = np.asarray(info.k, float)
-        return dict(width=w, height=h, fx=K[0], fy=K[4], cx=K[2], cy=K[5])
+        cx, cy = principal_point_from_opencv(K[2], K[5])  # (ROS puts pixel centres at integers)
+        return dict(width=w, height=h, fx=K[0], fy=K[4], cx=cx, cy=cy)
     if c.params.get("width") not in (None, w) or c.params.get("height") not in (None, h):
         sx, sy = w / c.params["width"], h / c.params["height"]
         if abs(sx - sy) > 1e-9:

@@ -23,7 +23,8 @@ reprojection, an exact change of the value; the identity when the two axes are p
 along them, as nearly on a D4xx). A frame set without its depth or its colour frame gives no frame (the
 syncer drops one of them): a stream that stays away becomes the same named fault and stale distances as a
 silent depth stream. Lens distortion of the colour stream is ignored, as the depth stream's is (the
-model is a pinhole camera; D435 streams report none).
+model is a pinhole camera; D435 streams report none). librealsense's ``ppx, ppy`` put pixel centres at
+integers: the camera gets half a pixel added (:func:`depthguard.camera.principal_point_from_opencv`).
 
 Joint states are not in the camera's stream: pass ``joints``, an object whose ``latest()`` returns
 ``(t, q, qdot)`` (time on ``time.monotonic()``'s clock) or None, fed by your robot driver. Without it every tick
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from depthguard.camera import Camera
+from depthguard.camera import Camera, principal_point_from_opencv
 from depthguard.io.cellfile import CellFile
 from depthguard.runner.sources import Tick
 
@@ -142,7 +143,8 @@ class RealSenseSource:
         self.stream = self.align if aligned else "depth"  # the stream whose camera model and pixels the frames have
         self.distortion = (str(intr.model), tuple(float(c) for c in intr.coeffs))
         self._size = (int(intr.width), int(intr.height))
-        intrinsics = dict(width=intr.width, height=intr.height, fx=intr.fx, fy=intr.fy, cx=intr.ppx, cy=intr.ppy)
+        cx, cy = principal_point_from_opencv(intr.ppx, intr.ppy)  # (librealsense: pixel centres at integers)
+        intrinsics = dict(width=intr.width, height=intr.height, fx=intr.fx, fy=intr.fy, cx=cx, cy=cy)
         self.cameras: list[Camera] = [self.cc.build(**intrinsics)]
 
     def _extrinsics(self, vsp: Any, color_vsp: Any) -> Any:
