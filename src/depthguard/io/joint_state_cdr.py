@@ -82,13 +82,21 @@ class JointStateEncoder:
 
     def encode(self, t: float, q: np.ndarray, qdot: np.ndarray | None = None) -> bytes:
         """The message stamped ``t`` (s since the epoch) with positions ``q`` (n,) and velocities ``qdot`` (n,)
-        (None for an encoder without velocities). Raises ``ValueError`` for another number of values."""
+        (None for an encoder without velocities). Raises ``ValueError`` for another number of values, and for a
+        ``t`` that is not finite or whose seconds do not fit the stamp's ``int32`` (2**31 s and later); a
+        negative ``t`` clamps to 0, as :func:`~depthguard.io.ros2_types.stamp_parts` says."""
         n = len(self.names)
         q = np.asarray(q, dtype="<f8").reshape(-1)
         if q.shape[0] != n:
             raise ValueError(f"JointState positions: expected {n} values for {n} joints, got {q.shape[0]}")
+        try:
+            sec, nanosec = stamp_parts(t)
+        except (TypeError, ValueError, OverflowError):
+            sec = -1
+        if not 0 <= sec < 2**31:
+            raise ValueError(f"JointState stamp: t must be a finite time below 2**31 s, got {t!r}")
         out = bytearray(self._template)
-        struct.pack_into("<iI", out, 4, *stamp_parts(t))
+        struct.pack_into("<iI", out, 4, sec, nanosec)
         o = self._offsets[0]
         out[o : o + 8 * n] = q.tobytes()
         if self.velocities:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from depthguard.io import ros2
+from depthguard.io.ros2_types import stamp_parts
 
 __all__ = ["Ros2McapWriter", "read_messages"]
 
@@ -19,7 +20,15 @@ __all__ = ["Ros2McapWriter", "read_messages"]
 class Ros2McapWriter:
     """Write ROS 2 messages into an MCAP file.
 
-    Use as a context manager, or call :meth:`close`. Channels are registered on first use of a topic.
+    Use as a context manager, or call :meth:`close`. Channels are registered on first use of a topic. Each
+    message's log and publish time is its ``t`` in nanoseconds, ``round(t * 1e9)`` like the header stamps of
+    :func:`depthguard.io.ros2.stamp` (negative ``t`` clamps to 0); messages may come in any order of time
+    (readers sort them by log time).
+
+    The summary and the chunk indexes are written by :meth:`close`. A file cut short (the process killed
+    while writing) has neither: :func:`read_messages` and ``rosbags`` refuse it, while MCAP's stream reader
+    (``mcap.stream_reader.StreamReader``, ``mcap recover``) still reads the messages of its complete chunks
+    (up to 1 MiB each).
 
     Args:
         path: the ``.mcap`` file to create (its folder must exist).
@@ -34,8 +43,12 @@ class Ros2McapWriter:
             raise ValueError(f"compression must be one of {sorted(comp)}, got {compression!r}")
         self.path = Path(path)
         self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        self._w = Writer(self._fh, compression=comp[compression])
-        self._w.start(profile="ros2", library="depthguard")
+        try:
+            self._w = Writer(self._fh, compression=comp[compression])
+            self._w.start(profile="ros2", library="depthguard")
+        except BaseException:
+            self._fh.close()
+            raise
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, tuple[int, str]] = {}
         self.count = 0
@@ -55,18 +68,42 @@ class Ros2McapWriter:
         return cid
 
     def write(self, topic: str, typename: str, msg: Any, t: float) -> None:
-        """Add ``msg`` (a ``rosbags`` message of ``typename``) on ``topic`` at log time ``t`` seconds."""
+        """Add ``msg`` (a ``rosbags`` message of ``typename``) on ``topic`` at log time ``t`` seconds.
+
+        Raises:
+            ValueError: the writer is closed; ``t`` is not a finite time below 2**64 ns (about 584 years);
+                ``topic`` already carries another type; ``msg`` does not serialize as ``typename`` (such as
+                a header stamp beyond the ``int32`` seconds of ``builtin_interfaces/Time``). The file stays
+                as it was before the call.
+        """
+        if self._fh is None:
+            raise ValueError(f"{self.path}: the MCAP writer is closed (message on {topic!r} not written)")
+        try:
+            sec, nanosec = stamp_parts(t)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{self.path}: log time of a message on {topic!r} must be finite, got {t!r}") from None
+        ns = sec * 1_000_000_000 + nanosec
+        if ns >= 2**64:
+            raise ValueError(f"{self.path}: log time {t!r} s of a message on {topic!r} is beyond MCAP's 2**64 ns")
+        try:
+            data = ros2.serialize(msg, typename)
+        except Exception as exc:  # (rosbags raises struct.error, KeyError, AttributeError, ...)
+            raise ValueError(
+                f"{self.path}: a message on {topic!r} does not serialize as {typename}:"
+                f" {type(exc).__name__}: {_one_line(exc)}"
+            ) from None
         cid = self._channel(topic, typename)
-        ns = int(round(max(t, 0.0) * 1e9))
-        self._w.add_message(cid, log_time=ns, publish_time=ns, data=ros2.serialize(msg, typename), sequence=self.count)
+        self._w.add_message(cid, log_time=ns, publish_time=ns, data=data, sequence=self.count)
         self.count += 1
 
     def close(self) -> None:
         """Finish the file (summary, index). Safe to call twice."""
         if self._fh is not None:
-            self._w.finish()
-            self._fh.close()
-            self._fh = None
+            fh, self._fh = self._fh, None
+            try:
+                self._w.finish()
+            finally:
+                fh.close()
 
     def __enter__(self) -> Ros2McapWriter:
         return self
@@ -111,7 +148,10 @@ def _same_definition(path: Path, topic: str, msgtype: str, bag_store, ours) -> N
 
 
 def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator[tuple[str, str, float, Any]]:
-    """``(topic, typename, log time s, message)`` of a ROS 2 bag in log-time order.
+    """``(topic, typename, log time s, message)`` of a ROS 2 bag in log-time order. The log time is the float
+    nearest to its nanoseconds / 1e9, so that a message that :class:`Ros2McapWriter` wrote at ``t`` seconds
+    of whole nanoseconds reads back at ``t`` exactly (up to 2**51 ns, 26 days; beyond, float64 holds ``t``
+    only to its spacing, 0.24 µs at 1.7e9 s since the epoch).
 
     Args:
         path: a ``.mcap`` file or a rosbag2 folder (``metadata.yaml`` with MCAP or sqlite3 storage).
@@ -160,6 +200,6 @@ def read_messages(path: str | Path, topics: list[str] | None = None) -> Iterator
                 ) from None
             per_topic[conn.topic] = k + 1
             n, last = n + 1, conn.topic
-            yield conn.topic, conn.msgtype, t_ns * 1e-9, msg
+            yield conn.topic, conn.msgtype, t_ns / 1e9, msg  # (correctly rounded: ns / 1e9 written reads back)
     finally:
         reader.close()
