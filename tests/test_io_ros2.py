@@ -6,7 +6,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 pytest.importorskip("rosbags")
@@ -164,3 +164,29 @@ def test_image_to_depth_reads_every_layout_as_metres_with_nan_for_no_reading(h, 
     got = ros2.image_to_depth(msg)
     assert got.dtype == np.float32 and got.shape == (h, w) and got.flags.writeable
     np.testing.assert_array_equal(got, np.array(want, np.float32))
+
+
+@settings(max_examples=200, deadline=None)
+@given(t=st.one_of(st.floats(0.0, 2.0**31, exclude_max=True), st.floats(1.6e9, 1.8e9), st.floats(-1e12, 0.0)))
+@example(t=1.9999999995)  # (a near-tie that the float product decided the wrong way)
+def test_stamps_are_the_nanosecond_nearest_to_the_float(t: float) -> None:
+    """Every stamp DepthGuard writes (headers, MCAP log times, the joint-state fast path) comes from
+    ``stamp_parts``: the exact value of the float, rounded to the nanosecond (ties either way), negative -> 0.
+    Before, ``round(t * 1e9)`` rounded twice: epoch-scale stamps up to 128 ns off."""
+    from fractions import Fraction
+
+    from depthguard.io.ros2_types import stamp_parts
+
+    sec, ns = stamp_parts(t)
+    assert 0 <= ns < 1_000_000_000 and sec >= 0
+    exact = Fraction(max(t, 0.0)) * 10**9
+    assert abs(Fraction(sec * 1_000_000_000 + ns) - exact) <= Fraction(1, 2)
+
+
+@pytest.mark.parametrize("t", [float("nan"), float("inf"), 2.0**31, 1e300])
+def test_stamps_beyond_int32_seconds_or_nan_are_refused(t: float) -> None:
+    from depthguard.io.ros2_types import stamp_parts
+
+    with pytest.raises(ValueError, match="2\\*\\*31"):
+        stamp_parts(t)
+    assert stamp_parts(float("-inf")) == (0, 0)

@@ -171,3 +171,17 @@ def test_a_realsense_camera_casts_librealsense_s_rays(tmp_path) -> None:
             np.testing.assert_allclose(rays[v, u] * z, ref, rtol=0, atol=1e-5, err_msg=f"pixel {(u, v)}")
     finally:
         src.close()
+
+
+@SOME
+@given(intr=intrinsics, step=st.integers(1, 5))
+def test_a_strided_camera_casts_the_rays_of_the_pixels_it_keeps(intr, step) -> None:
+    """The recordings keep every ``step``-th pixel (``image[::step, ::step]``); the CameraInfo they carry is
+    ``Camera.strided``'s. Before, ``cx / step`` described a binned image: half an original pixel off."""
+    w, h, fx, fy, fcx, fcy = intr
+    cam = Camera(width=w, height=h, fx=fx, fy=fy, cx=fcx * w, cy=fcy * h)
+    small = cam.strided(step)
+    assert small.shape == cam.pixel_ray_directions()[::step, ::step].shape[:2]
+    np.testing.assert_allclose(
+        small.pixel_ray_directions(), cam.pixel_ray_directions()[::step, ::step], rtol=0, atol=1e-12
+    )

@@ -227,6 +227,20 @@ class Camera:
         d.update(R=np.asarray(R), t=np.asarray(t))
         return Camera(**d)
 
+    def strided(self, step: int) -> Camera:
+        """The camera of ``image[::step, ::step]`` (every ``step``-th pixel kept, not averaged): size
+        ``ceil(W / step) x ceil(H / step)``, focal lengths ``/ step``, and the principal point placed so that
+        kept pixel j's centre casts the ray of the original pixel ``step * j``'s centre:
+        ``cx' = (cx - 0.5) / step + 0.5`` (``cx / step`` would be a binned image's, half an original pixel off)."""
+        if isinstance(step, bool) or not isinstance(step, int | np.integer) or step < 1:
+            raise ValueError(f"step must be an integer >= 1, got {step!r}")
+        d = self.to_dict()
+        d.update(
+            width=-(-self.width // step), height=-(-self.height // step), fx=self.fx / step, fy=self.fy / step,
+            cx=(self.cx - 0.5) / step + 0.5, cy=(self.cy - 0.5) / step + 0.5, R=self.R, t=self.t,
+        )  # fmt: skip
+        return Camera(**d)
+
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """Extrinsics ``(R, t)`` (eq. 2) of a camera at ``eye`` looking at ``target``.

@@ -71,7 +71,7 @@ class Ros2McapWriter:
         """Add ``msg`` (a ``rosbags`` message of ``typename``) on ``topic`` at log time ``t`` seconds.
 
         Raises:
-            ValueError: the writer is closed; ``t`` is not a finite time below 2**64 ns (about 584 years);
+            ValueError: the writer is closed; ``t`` is not a finite time below 2**31 s (ROS's Time, 2038);
                 ``topic`` already carries another type; ``msg`` does not serialize as ``typename`` (such as
                 a header stamp beyond the ``int32`` seconds of ``builtin_interfaces/Time``). The file stays
                 as it was before the call.
@@ -81,10 +81,11 @@ class Ros2McapWriter:
         try:
             sec, nanosec = stamp_parts(t)
         except (TypeError, ValueError, OverflowError):
-            raise ValueError(f"{self.path}: log time of a message on {topic!r} must be finite, got {t!r}") from None
+            raise ValueError(
+                f"{self.path}: log time of a message on {topic!r} must be a finite time below 2**31 s (ROS's"
+                f" int32 Time.sec), got {t!r}"
+            ) from None
         ns = sec * 1_000_000_000 + nanosec
-        if ns >= 2**64:
-            raise ValueError(f"{self.path}: log time {t!r} s of a message on {topic!r} is beyond MCAP's 2**64 ns")
         try:
             data = ros2.serialize(msg, typename)
         except Exception as exc:  # (rosbags raises struct.error, KeyError, AttributeError, ...)

@@ -38,6 +38,7 @@ from depthguard.io.ros2_types import (
     msgdef,
     serialize,
     stamp,
+    stamp_parts,
     to_seconds,
     typestore,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "DEPTHGUARD_MSGS",
     "typestore",
     "stamp",
+    "stamp_parts",
     "to_seconds",
     "header",
     "image_msg",

@@ -4,6 +4,8 @@ headers and CDR (de)serialisation: what every message builder of :mod:`depthguar
 
 from __future__ import annotations
 
+import math
+from fractions import Fraction
 from functools import cache
 from typing import Any
 
@@ -66,10 +68,26 @@ def _t(name: str):
     return typestore().types[name]
 
 
+#: ``builtin_interfaces/msg/Time.sec`` is an int32: stamps end at 2**31 s (2038-01-19)
+MAX_STAMP_SECONDS = 2**31
+
+
 def stamp_parts(t: float) -> tuple[int, int]:
-    """``(sec, nanosec)`` of ``t`` seconds (negative times clamp to 0), as every stamp DepthGuard writes."""
-    ns = int(round(max(float(t), 0.0) * 1e9))
-    return ns // 1_000_000_000, ns % 1_000_000_000
+    """``(sec, nanosec)`` of ``t`` seconds (negative times, -inf included, clamp to 0), as every stamp
+    DepthGuard writes: the nanosecond nearest to the float's exact value (its whole seconds split off first,
+    so that epoch-scale times are not rounded twice). NaN, +inf or ``t >= 2**31`` (beyond ``Time.sec``'s
+    int32): ``ValueError``."""
+    x = float(t)
+    if x != x or x >= MAX_STAMP_SECONDS:
+        raise ValueError(f"stamp: t must be a number of seconds below 2**31 (int32 Time.sec), got {t!r}")
+    x = max(x, 0.0)
+    sec = int(x)  # (x - sec is exact in floating point)
+    f = (x - sec) * 1e9
+    if abs(f - math.floor(f) - 0.5) < 1e-6:  # near a tie: the product's rounding could decide it, so exactly
+        ns = round(Fraction(x - sec) * 1_000_000_000)
+    else:
+        ns = int(round(f))
+    return (sec + 1, 0) if ns >= 1_000_000_000 else (sec, ns)
 
 
 def stamp(t: float):

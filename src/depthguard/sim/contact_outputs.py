@@ -134,10 +134,7 @@ def _record(path: Path, setup: ExperimentSetup, log: ContactLog, camera) -> None
 
     cam = camera.cam
     st = max(1, cam.width // 320)
-    small = type(cam)(
-        width=cam.width // st, height=cam.height // st, fx=cam.fx / st, fy=cam.fy / st, cx=cam.cx / st,
-        cy=cam.cy / st, R=cam.R, t=cam.t, min_depth=cam.min_depth, max_depth=cam.max_depth,
-    )  # fmt: skip
+    small = cam.strided(st)  # the camera of depth[::st, ::st]
     names = [f"lwr_joint_{i + 1}" for i in range(np.asarray(log.q[0]).size)] if log.q else []
     with Ros2McapWriter(path) as w:
         for n, (t, depth, _) in enumerate(log.frames):

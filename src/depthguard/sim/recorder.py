@@ -3,7 +3,8 @@
 Open it in Foxglove, replay it with ``ros2 bag play recording.mcap`` or read it with ``rosbags``. Topics:
 
 * ``/camera<k>/depth/image_raw`` (``sensor_msgs/msg/Image``, ``16UC1`` mm, 0 = no reading): every third
-  frame (10 Hz); images wider than 320 pixels are subsampled to 320 and recorded every sixth frame (5 Hz);
+  frame (10 Hz); images 640 pixels wide or more are subsampled (every ``W // 320``-th pixel) and recorded
+  every sixth frame (5 Hz);
 * ``/camera<k>/depth/camera_info`` (``sensor_msgs/msg/CameraInfo``, of the recorded image size), with each image;
 * ``/tf_static`` (``tf2_msgs/msg/TFMessage``): ``world`` -> ``camera<k>_optical`` once;
 * ``/joint_states`` (``sensor_msgs/msg/JointState``): measured joint positions, 100 Hz;
@@ -51,18 +52,7 @@ def record_run(path: str | Path, cell, log, rho: float = 0.4, extra=None) -> Pat
         for k, cam in enumerate(cell.cameras):
             tfs.append(("world", f"camera{k}_optical", *camera_tf(cam.R, cam.t)))
             st = max(1, cam.width // 320)  # the recorded images are subsampled by this step (loop._to_mm)
-            small = type(cam)(
-                width=-(-cam.width // st),
-                height=-(-cam.height // st),
-                fx=cam.fx / st,
-                fy=cam.fy / st,
-                cx=cam.cx / st,
-                cy=cam.cy / st,
-                R=cam.R,
-                t=cam.t,
-                min_depth=cam.min_depth,
-                max_depth=cam.max_depth,
-            )
+            small = cam.strided(st)  # (every st-th pixel: loop._to_mm)
             infos.append(small)
         w.write("/tf_static", "tf2_msgs/msg/TFMessage", ros2.tf_msg(0.0, tfs), 0.0)
         for t, depths in log.frames:
