@@ -13,7 +13,10 @@ from typing import NoReturn
 
 from depthguard.cli_cell import add_cell_commands
 from depthguard.cli_common import CliExit as _Exit
+from depthguard.cli_common import octree_res as _octree_res
+from depthguard.cli_common import path_text as _path_text
 from depthguard.cli_common import positive_float as _positive_float
+from depthguard.cli_common import tcp_port as _tcp_port
 from depthguard.cli_distance import add_distance_command
 
 
@@ -225,7 +228,7 @@ def _add_scenario(sub) -> None:
     p.add_argument(
         "--backend", choices=["depthspace", "octree"], default=None, help="distance backend (default depthspace)"
     )
-    p.add_argument("--octree-res", type=_positive_float, default=None, help="octree node size in m (octree backend)")
+    p.add_argument("--octree-res", type=_octree_res, default=None, help="octree node size in m (0.02-0.1; octree)")
     p.add_argument("--case", type=int, choices=[1, 2, 3, 4], default=None, help="case study (saphari-nsb)")
     p.add_argument(
         "--lambda",
@@ -241,9 +244,13 @@ def _add_scenario(sub) -> None:
     p.add_argument("--ssm", action="store_true", help="speed and separation monitoring on top of the repulsion")
     p.add_argument("--view", action="store_true", help="live 3-D view in the browser while the run goes on")
     p.add_argument(
-        "--view-port", type=int, default=8080, metavar="PORT", help="port of the live view (127.0.0.1; default 8080)"
+        "--view-port",
+        type=_tcp_port,
+        default=8080,
+        metavar="PORT",
+        help="port of the live view (127.0.0.1; default 8080)",
     )
-    p.add_argument("--out", default=None, metavar="DIR", help="run folder (metrics, plots, recording)")
+    p.add_argument("--out", type=_path_text, default=None, metavar="DIR", help="run folder (metrics, plots, recording)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_scenario)
 
@@ -264,7 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="the main demo (the simulated cell; --static for the one-camera picture)")
     p.add_argument("--static", action="store_true", help="the static one-camera demo")
-    p.add_argument("--out", default=None, metavar="DIR", help="output folder")
+    p.add_argument("--out", type=_path_text, default=None, metavar="DIR", help="output folder")
     p.set_defaults(func=_cmd_demo)
     return parser
 
@@ -293,6 +300,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except (_Exit, ValueError) as exc:  # InputError is a ValueError
         print(f"depthguard {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    except ImportError as exc:  # a missing extra (Zenoh, viser, the simulator) imported once the command runs
+        msg = " ".join(str(exc).split())
+        print(f"depthguard {args.command}: error: {msg} (pip install 'depthguard[all]')", file=sys.stderr)
         return 2
 
 

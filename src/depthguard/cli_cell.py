@@ -6,7 +6,24 @@ from __future__ import annotations
 import argparse
 import json
 
-from depthguard.cli_common import check_out_dir, positive_int
+from depthguard.cli_common import (
+    CliExit,
+    background_margin,
+    cert_days,
+    check_out_dir,
+    check_out_file,
+    check_source,
+    duration_s,
+    frame_count,
+    host_name,
+    noise_coeff,
+    path_text,
+    ros_domain,
+    rt_priority,
+    tcp_port,
+    watchdog_s,
+    zenoh_endpoint,
+)
 
 __all__ = ["add_cell_commands"]
 
@@ -15,6 +32,9 @@ __all__ = ["add_cell_commands"]
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from depthguard.runner.calibrate import calibrate_cell
 
+    check_source(args.source, ("bag", "sim"))  # before any work: a bad --source or --write must not cost the frames
+    if args.write is not None:
+        check_out_file(args.write, "--write")
     out = calibrate_cell(args.cell, args.source, write=args.write, quick=args.quick)
     print(json.dumps(out, indent=None if args.json else 2, default=float))
     return 0
@@ -22,15 +42,11 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------- commission
 def _cmd_commission(args: argparse.Namespace) -> int:
-    from depthguard.cli_common import CliExit
-    from depthguard.errors import InputError
-    from depthguard.runner.commission import check_out_file, commission_cell
+    from depthguard.runner.commission import commission_cell
 
+    check_source(args.source, ("bag", "sim", "realsense"))
     if args.out is not None:  # before any work: a bad --out must not cost the recording
-        try:
-            check_out_file(args.out)
-        except InputError as exc:
-            raise CliExit(str(exc)) from None
+        check_out_file(args.out, "--out")
     out = commission_cell(
         args.cell,
         args.source,
@@ -71,6 +87,7 @@ def _cmd_cell(args: argparse.Namespace) -> int:
 def _cmd_run(args: argparse.Namespace) -> int:
     from depthguard.runner import run_cell
 
+    check_source(args.source, ("bag", "sim", "realsense"))
     if args.out:
         check_out_dir(args.out)
     out = run_cell(
@@ -93,6 +110,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_node(args: argparse.Namespace) -> int:
     from depthguard.nodes import run_node
 
+    if args.source is not None:
+        check_source(args.source, ("sim",))
+    if args.log is not None:  # (opened once the node runs: a folder there was a traceback)
+        check_out_file(args.log, "--log")
     out = run_node(
         args.name,
         args.cell,
@@ -119,11 +140,18 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
 
 def _cmd_certs(args: argparse.Namespace) -> int:
+    import shutil
+
     from depthguard.nodes.certs import make_cell_certificates
 
-    out = make_cell_certificates(
-        args.cell, args.out, days=args.days, hosts=args.host, nodes=args.node, overwrite=args.overwrite
-    )
+    if shutil.which("openssl") is None:
+        raise CliExit("depthguard certs needs the openssl command (Debian: apt install openssl)")
+    try:
+        out = make_cell_certificates(
+            args.cell, args.out, days=args.days, hosts=args.host, nodes=args.node, overwrite=args.overwrite
+        )
+    except RuntimeError as exc:  # (openssl refused: its message, on one line)
+        raise CliExit(str(exc)) from None
     if args.json:
         print(json.dumps(out))
         return 0
@@ -147,9 +175,11 @@ def _cmd_ros2_msgs(args: argparse.Namespace) -> int:
 
 
 def _zenoh_flags(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--zenoh-domain", type=int, default=None, metavar="N", help="ROS domain id (default: cell file)")
     p.add_argument(
-        "--zenoh-connect", action="append", default=None, metavar="ENDPOINT",
+        "--zenoh-domain", type=ros_domain, default=None, metavar="N", help="ROS domain id (default: cell file)"
+    )
+    p.add_argument(
+        "--zenoh-connect", action="append", type=zenoh_endpoint, default=None, metavar="ENDPOINT",
         help="Zenoh endpoint to connect to (repeatable; default: the cell file's, tcp/127.0.0.1:7447)",
     )  # fmt: skip
 
@@ -165,7 +195,9 @@ def add_cell_commands(sub) -> None:
     pace.add_argument("--realtime", action="store_true", help="pace the run to the source's clock")
     pace.add_argument("--fast", action="store_true", help="as fast as possible on the source's clock (default)")
     p.add_argument("--quick", action="store_true", help="the scenario's short form (sim sources)")
-    p.add_argument("--out", default=None, metavar="DIR", help="write DIR/recording.mcap (ROS 2 messages)")
+    p.add_argument(
+        "--out", type=path_text, default=None, metavar="DIR", help="write DIR/recording.mcap (ROS 2 messages)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON summary")
     p.add_argument("--transport", choices=["none", "zenoh"], default="none", help="also publish the topics on Zenoh")
     _zenoh_flags(p)
@@ -176,7 +208,11 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file (its extrinsics: the guess)")
     p.add_argument("--source", required=True, metavar="bag:PATH|sim:SCENARIO", help="frames at several arm poses")
     p.add_argument(
-        "--write", default=None, metavar="FILE.toml", help="calibration file (default CELL.calibration.toml)"
+        "--write",
+        type=path_text,
+        default=None,
+        metavar="FILE.toml",
+        help="calibration file (default CELL.calibration.toml)",
     )
     p.add_argument("--quick", action="store_true", help="the scenario's low-resolution form (sim sources)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -189,11 +225,15 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
     p.add_argument("--source", default=None, metavar="sim:SCENARIO", help="the sim node's scenario")
     p.add_argument("--quick", action="store_true", help="the scenario's short form (sim node: 160x120 images)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
-    p.add_argument("--log", default=None, metavar="FILE", help="JSON-lines event log (timings)")
-    p.add_argument("--watchdog", type=float, default=0.05, metavar="S", help="sim node: driver watchdog timeout")
     p.add_argument(
-        "--rt-priority", type=int, default=None, metavar="N",
+        "--duration", type=duration_s, default=None, metavar="S", help="stop after S seconds (default: never)"
+    )
+    p.add_argument("--log", type=path_text, default=None, metavar="FILE", help="JSON-lines event log (timings)")
+    p.add_argument(
+        "--watchdog", type=watchdog_s, default=0.05, metavar="S", help="sim node: driver watchdog timeout (0-1 s)"
+    )
+    p.add_argument(
+        "--rt-priority", type=rt_priority, default=None, metavar="N",
         help="run the node's threads with SCHED_FIFO priority N (1-99) where allowed (the controller: docs/nodes.md)",
     )  # fmt: skip
     _zenoh_flags(p)
@@ -201,8 +241,10 @@ def add_cell_commands(sub) -> None:
 
     p = sub.add_parser("view", help="live 3-D view of a cell's nodes in the browser (viser)")
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
-    p.add_argument("--port", type=int, default=8080, help="HTTP port of the page (127.0.0.1)")
-    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds (default: never)")
+    p.add_argument("--port", type=tcp_port, default=8080, help="HTTP port of the page (127.0.0.1)")
+    p.add_argument(
+        "--duration", type=duration_s, default=None, metavar="S", help="stop after S seconds (default: never)"
+    )
     _zenoh_flags(p)
     p.set_defaults(func=_cmd_view)
 
@@ -210,10 +252,12 @@ def add_cell_commands(sub) -> None:
         "certs", help="a CA and one TLS certificate per node of a cell (Zenoh mutual TLS and access control)"
     )
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file (its nodes and host)")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder of the certificates (a CA there is reused)")
-    p.add_argument("--days", type=positive_int, default=365, metavar="N", help="validity of new certificates")
     p.add_argument(
-        "--host", action="append", default=None, metavar="ADDR",
+        "--out", type=path_text, required=True, metavar="DIR", help="folder of the certificates (a CA there is reused)"
+    )
+    p.add_argument("--days", type=cert_days, default=365, metavar="N", help="validity of new certificates")
+    p.add_argument(
+        "--host", action="append", type=host_name, default=None, metavar="ADDR",
         help="an address the nodes listen on (repeatable; default 127.0.0.1, localhost and network.host)",
     )  # fmt: skip
     p.add_argument("--node", action="append", default=None, metavar="NAME", help="one more node (repeatable)")
@@ -224,7 +268,9 @@ def add_cell_commands(sub) -> None:
     p = sub.add_parser(
         "ros2-msgs", help="write the depthguard_msgs ROS 2 interface package (to echo the nodes' own topics in ROS 2)"
     )
-    p.add_argument("--out", required=True, metavar="DIR", help="where the package folder goes (a workspace's src)")
+    p.add_argument(
+        "--out", type=path_text, required=True, metavar="DIR", help="where the package folder goes (a workspace's src)"
+    )
     p.add_argument("--overwrite", action="store_true", help="replace the files of an existing package folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_ros2_msgs)
@@ -253,17 +299,19 @@ def _add_commission_command(sub) -> None:
         help="the empty cell: a bag or live camera recorded with nobody in it, or a scenario (its people left out)",
     )  # fmt: skip
     p.add_argument(
-        "--frames", type=positive_int, default=30, metavar="N",
+        "--frames", type=frame_count, default=30, metavar="N",
         help="frame sets to read, spread over a bag or scenario (default 30)",
     )  # fmt: skip
     p.add_argument(
-        "--out", default=None, metavar="FILE", help="the background file (default CELL.background.npz)"
+        "--out", type=path_text, default=None, metavar="FILE", help="the background file (default CELL.background.npz)"
     )  # fmt: skip
     p.add_argument("--quick", action="store_true", help="the scenario's low-resolution form (sim sources)")
     p.add_argument(
-        "--noise-coeff", type=float, default=None, metavar="C",
+        "--noise-coeff", type=noise_coeff, default=None, metavar="C",
         help="depth noise sigma = C z^2 of the tolerance (default: the simulated camera's, or measured)",
     )  # fmt: skip
-    p.add_argument("--margin", type=float, default=0.01, metavar="M", help="extra tolerance, m (default 0.01)")
+    p.add_argument(
+        "--margin", type=background_margin, default=0.01, metavar="M", help="extra tolerance, m (0-1; default 0.01)"
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object (no progress line)")
     p.set_defaults(func=_cmd_commission)

@@ -9,16 +9,22 @@ import json
 import numpy as np
 
 from depthguard.cli_common import CliExit as _Exit
+from depthguard.cli_common import octree_res as _octree_res
 from depthguard.cli_common import parse_workspace as _parse_workspace
+from depthguard.cli_common import pixel_radius as _pixel_radius
+from depthguard.cli_common import pixel_stride as _pixel_stride
 from depthguard.cli_common import positive_float as _positive_float
-from depthguard.cli_common import positive_int as _positive_int
+from depthguard.cli_common import repeat_count as _repeat_count
 
 __all__ = ["add_distance_command"]
+
+#: the most nodes an octree box of ``distance --backend octree`` may hold
+_MAX_NODES = 50_000_000
 
 
 def _direction_stride(text: str) -> int | str:
     """``--direction-stride``: ``auto`` or an integer >= 1."""
-    return text if text == "auto" else _positive_int(text)
+    return text if text == "auto" else _pixel_stride(text)
 
 
 def _cmd_distance(args: argparse.Namespace) -> int:
@@ -108,9 +114,17 @@ def _octree_query(args, cameras, depths, masks, centres, radii):
     if args.workspace:
         w = args.workspace
         box = VoxelBox.around([w[0], w[2], w[4]], [w[1], w[3], w[5]], res)
-        if box.size > 50_000_000:
+        if box.size > _MAX_NODES:
             raise _Exit(f"--workspace holds {box.size} nodes at --octree-res {res}: use a smaller box")
-    else:
+    else:  # (checked before it is built: a large --rho overflowed the box, or asked for terabytes)
+        reach = args.rho + float(radii.max(initial=0.0)) + 2 * res
+        with np.errstate(all="ignore"):
+            nodes = float(np.prod((np.ptp(centres, axis=0) + 2 * reach) / res + 2))
+        if not nodes <= _MAX_NODES:
+            raise _Exit(
+                f"--rho {args.rho} m: the octree box within rho of the points would hold {nodes:.3g} nodes at"
+                f" --octree-res {res} (at most {_MAX_NODES}): use a smaller --rho or give --workspace"
+            )
         box = box_around_points(centres, radii, args.rho, res)
     backend = OctreeBackend(box, mode="conservative", invalid=args.invalid, fill_radius=args.fill_radius)
     backend.update([CameraObservation(c, d, m) for c, d, m in zip(cameras, depths, masks, strict=True)])
@@ -168,7 +182,7 @@ def add_distance_command(sub) -> None:
         help="robot mask (nonzero = robot), once per camera in the same order",
     )
     p.add_argument(
-        "--repeat", type=_positive_int, default=0, metavar="N", help="also time N repeated queries (I/O excluded)"
+        "--repeat", type=_repeat_count, default=0, metavar="N", help="also time N repeated queries (I/O excluded)"
     )
     p.add_argument(
         "--model",
@@ -177,7 +191,10 @@ def add_distance_command(sub) -> None:
         help="point-to-pixel distance: frustum lower bound (default), ICRA'12 eq. 4 or literal RA-L'16 eqs. 5-7",
     )
     p.add_argument(
-        "--fill-radius", type=int, default=4, help="hole-filling radius in pixels (default 4; 0: every hole is unknown)"
+        "--fill-radius",
+        type=_pixel_radius,
+        default=4,
+        help="hole-filling radius in pixels (default 4; 0: every hole is unknown)",
     )
     _add_backend_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -209,4 +226,4 @@ def _add_backend_options(p) -> None:
         help="depthspace (default: depth space for one camera, depth grid for several) or octree (SAPHARI §3, "
         "conservative: unseen space in the workspace is an obstacle)",
     )
-    p.add_argument("--octree-res", type=_positive_float, default=0.05, help="octree node size in m (0.02-0.1)")
+    p.add_argument("--octree-res", type=_octree_res, default=0.05, help="octree node size in m (0.02-0.1)")
