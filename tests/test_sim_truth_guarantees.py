@@ -569,3 +569,20 @@ def test_bad_arguments_raise_value_error_naming_them(case):
     call, name = _CASES[case]
     with pytest.raises(ValueError, match=name):
         call()
+
+
+def test_links_fixed_to_the_root_are_bolted_to_the_table_too() -> None:
+    """A robot whose root link is a dummy with the real base fixed to it (Kinova's ``base`` ->
+    ``j2s6s200_link_base``): the base resting on the table is not a collision (it was, for the whole run)."""
+    from depthguard.sim.robotdesc import JointDesc, RobotDesc
+    from depthguard.sim.truth import _welded_to_root
+
+    def j(name, parent, child, typ):
+        return JointDesc(name, parent, child, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), typ)
+
+    joints = (
+        j("mount", "base", "plate", "fixed"), j("plate_base", "plate", "link_base", "fixed"),
+        j("j1", "link_base", "link_1", "revolute"), j("tool", "link_1", "flange", "fixed"),
+    )  # fmt: skip
+    desc = RobotDesc("r", "base", joints, (), "flange", "test")
+    assert _welded_to_root(desc) == {"base", "plate", "link_base"}  # (the flange moves with link_1)

@@ -2,7 +2,7 @@
 
 Used only for metrics and tests, never by the pipeline. Pairs whose bounding spheres are farther apart
 than ``distmax`` are skipped (their clearance is reported as ``distmax``; a plane obstacle, unbounded, is
-never skipped so, whatever its ``geom_rbound`` of 0 says); the robot base link is left out
+never skipped so, whatever its ``geom_rbound`` of 0 says); the robot base link and the links fixed to it are left out
 (it is bolted to the table), and so is the pair (first moving link, table).
 
 MuJoCo's capsule-box distance is wrong where the capsule's axis passes through the box with both ends
@@ -52,6 +52,16 @@ def _capsule_box_crossing(m, d, gc: int, gb: int) -> float | None:
     return min(sd(0.5 * (lo + hi)), sd(0.0), sd(1.0)) - float(m.geom_size[gc][0])
 
 
+def _welded_to_root(desc) -> set[str]:
+    """The root link and every link fixed to it (a mounting plate, a Kinova's ``link_base``): bolted to the
+    table with it, so their contact with the table is not a collision."""
+    welded = {desc.root}
+    for j in getattr(desc, "joints", ()):  # (from the base outwards)
+        if j.type == "fixed" and j.parent in welded:
+            welded.add(j.child)
+    return welded
+
+
 class TrueClearance:
     """Clearance per robot link (body) to the nearest obstacle geom.
 
@@ -64,7 +74,7 @@ class TrueClearance:
         m = cell.model
         self.cell = cell
         self.distmax = float(distmax)
-        keep = [i for i, b in enumerate(cell.robot_geom_body) if b != cell.desc.root]
+        keep = [i for i, b in enumerate(cell.robot_geom_body) if b not in _welded_to_root(cell.desc)]
         self.robot = np.asarray(cell.robot_geoms, dtype=int)[keep]
         self.links = sorted({cell.robot_geom_body[i] for i in keep}, key=lambda s: s)
         self.link_of = np.array([self.links.index(cell.robot_geom_body[i]) for i in keep])
