@@ -164,8 +164,9 @@ def nearest_vertex(vertices: np.ndarray, p_h: np.ndarray) -> tuple[int, float]:
     ):  # one compiled pass, the same numbers
         i, d2 = _nearest_vertex_kernel(vertices, p_h.astype(_F64, copy=False))
         return int(i), math.sqrt(d2)
-    diff = vertices - p_h
-    d2 = np.einsum("ij,ij->i", diff, diff)
+    diff = np.asarray(vertices - p_h)
+    # (the kernel's order of operations, so that near ties go the same way; einsum's order differed)
+    d2 = (diff[..., 0] * diff[..., 0] + diff[..., 1] * diff[..., 1]) + diff[..., 2] * diff[..., 2]
     i = int(np.argmin(d2))
     return i, float(np.sqrt(d2[i]))
 
