@@ -256,7 +256,10 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0
     """
     eye = np.asarray(eye, dtype=float)
     z = np.asarray(target, dtype=float) - eye
-    norm = np.linalg.norm(z)
+    with np.errstate(over="ignore", invalid="ignore"):  # (named below instead of a numpy warning)
+        norm = np.linalg.norm(z)
+    if not (np.all(np.isfinite(eye)) and np.isfinite(norm)):
+        raise ValueError(f"look_at: 'eye' and 'target' must be finite points in metres, got {eye} and {target}")
     if norm == 0:
         raise ValueError("look_at: 'eye' and 'target' coincide")
     z /= norm
