@@ -203,7 +203,19 @@ def add_cell_commands(sub) -> None:
     _zenoh_flags(p)
     p.add_argument("--view", action="store_true", help="live 3-D view in the browser (viser)")
     p.set_defaults(func=_cmd_run)
+    _add_calibrate_command(sub)
+    _add_commission_command(sub)
+    _add_node_and_view_commands(sub)
+    _add_certs_and_msgs_commands(sub)
+    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
+    p.add_argument("action", choices=["check"])
+    p.add_argument("cell", metavar="CELL.toml")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=_cmd_cell)
 
+
+def _add_calibrate_command(sub) -> None:
+    """``depthguard calibrate``: camera extrinsics from the arm itself."""
     p = sub.add_parser("calibrate", help="camera extrinsics from the arm itself (SAPHARI §3.3)")
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file (its extrinsics: the guess)")
     p.add_argument("--source", required=True, metavar="bag:PATH|sim:SCENARIO", help="frames at several arm poses")
@@ -218,8 +230,9 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_calibrate)
 
-    _add_commission_command(sub)
 
+def _add_node_and_view_commands(sub) -> None:
+    """``depthguard node`` (one node of a cell on Zenoh) and ``depthguard view`` (the live view)."""
     p = sub.add_parser("node", help="run one node of a cell on Zenoh: sim, a camera, distance, controller, monitor")
     p.add_argument("name", help="node name: sim, a camera name of the cell, distance, controller or monitor")
     p.add_argument("--cell", required=True, metavar="CELL.toml", help="the cell file")
@@ -248,6 +261,9 @@ def add_cell_commands(sub) -> None:
     _zenoh_flags(p)
     p.set_defaults(func=_cmd_view)
 
+
+def _add_certs_and_msgs_commands(sub) -> None:
+    """``depthguard certs`` (TLS certificates per node) and ``depthguard ros2-msgs`` (the interface package)."""
     p = sub.add_parser(
         "certs", help="a CA and one TLS certificate per node of a cell (Zenoh mutual TLS and access control)"
     )
@@ -274,12 +290,6 @@ def add_cell_commands(sub) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace the files of an existing package folder")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=_cmd_ros2_msgs)
-
-    p = sub.add_parser("cell", help="cell files: 'cell check CELL.toml' prints what the file says")
-    p.add_argument("action", choices=["check"])
-    p.add_argument("cell", metavar="CELL.toml")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
-    p.set_defaults(func=_cmd_cell)
 
 
 def _add_commission_command(sub) -> None:

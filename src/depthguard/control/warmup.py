@@ -33,8 +33,9 @@ def warm_up(points, config, model, cycles: int = 300) -> list[str]:
         return []
     ctrl = AvoidanceController(points, config)
     lo, hi = np.asarray(model.q_min, float), np.asarray(model.q_max, float)
-    bounded = np.isfinite(lo) & np.isfinite(hi)  # (a continuous joint has none: its angle 0)
-    q = np.where(bounded, 0.5 * (np.where(bounded, lo, 0.0) + np.where(bounded, hi, 0.0)), np.clip(0.0, lo, hi))
+    with np.errstate(invalid="ignore"):  # (a continuous joint's midpoint is NaN or ±inf: its angle 0 instead)
+        mid = 0.5 * (lo + hi)
+    q = np.where(np.isfinite(mid), mid, np.clip(0.0, lo, hi))
     qd, task = np.zeros_like(q), np.array([0.02, 0.0, 0.0])
     N = points.n_points
     near, none, touch = np.full(N, 0.3), np.full(N, np.inf), np.linspace(0.0, 0.05, N)
