@@ -130,7 +130,8 @@ def apply_background(depth, mask, threshold, far: float) -> np.ndarray:
     if not (np.isfinite(f) and f > 0):
         raise ValueError(f"background: far must be a finite depth > 0 m, got {far!r}")
     with np.errstate(invalid="ignore"):
-        bg = np.isfinite(d) & (d > 0) & (d >= thr) & (m == 0)
+        bg = (d >= thr) & (d > 0) & (d < np.inf)  # (a reading: finite and > 0)
+        bg &= ~m if m.dtype == np.bool_ else m == 0
     return np.where(bg, np.asarray(f, d.dtype), d)
 
 
