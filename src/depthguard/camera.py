@@ -127,14 +127,16 @@ class Camera:
 
         Returns:
             (..., 3) array ``[p_x, p_y, d_p]``: continuous pixel coordinates and depth ``z_C`` in metres.
-            Points with ``z_C <= 0`` get ``p_x = p_y = nan``.
+            Points with ``z_C <= 0`` (or NaN) get ``p_x = p_y = nan``; a point at ``z_C > 0`` gets a number or
+            ``±inf`` (far outside the image), never NaN: ``x_C / z_C``, not ``x_C * (1 / z_C)``, which is
+            ``0 * inf = nan`` on the axis at ``z_C`` below 1/DBL_MAX (5.6e-309 m).
         """
         pc = self.world_to_camera(points_w)
         z = pc[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = np.where(z > 0, 1.0 / np.where(z > 0, z, 1.0), np.nan)
-        px = self.fx * pc[..., 0] * inv + self.cx
-        py = self.fy * pc[..., 1] * inv + self.cy
+        zpos = np.where(z > 0, z, np.nan)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            px = self.fx * (pc[..., 0] / zpos) + self.cx
+            py = self.fy * (pc[..., 1] / zpos) + self.cy
         return np.stack([px, py, z], axis=-1)
 
     def unproject(self, px: np.ndarray, py: np.ndarray, depth: np.ndarray) -> np.ndarray:
@@ -232,8 +234,8 @@ class Camera:
         ``ceil(W / step) x ceil(H / step)``, focal lengths ``/ step``, and the principal point placed so that
         kept pixel j's centre casts the ray of the original pixel ``step * j``'s centre:
         ``cx' = (cx - 0.5) / step + 0.5`` (``cx / step`` would be a binned image's, half an original pixel off)."""
-        if isinstance(step, bool) or not isinstance(step, int | np.integer) or step < 1:
-            raise ValueError(f"step must be an integer >= 1, got {step!r}")
+        if isinstance(step, bool) or not isinstance(step, int | np.integer) or not 1 <= step < 2**31:
+            raise ValueError(f"step must be an integer >= 1 and below 2**31, got {step!r}")
         d = self.to_dict()
         d.update(
             width=-(-self.width // step), height=-(-self.height // step), fx=self.fx / step, fy=self.fy / step,
@@ -242,31 +244,56 @@ class Camera:
         return Camera(**d)
 
 
+def _vector3(value: object, name: str, what: str) -> np.ndarray:
+    """``value`` as a finite (3,) float array, else ``ValueError`` naming ``look_at``'s argument ``name``."""
+    try:
+        a = np.array(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):
+        a = None
+    if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"look_at: '{name}' must be a finite (3,) {what}, got {value!r}")
+    return a
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """(3,) ``v / |v|`` for finite non-zero ``v``, scaled by its largest component first: the norm of 1e-160 or
+    1e200 components would underflow or overflow (a row of ``R`` 1e-5 off unit length, or a zero row)."""
+    v = v / np.abs(v).max()
+    return v / np.linalg.norm(v)
+
+
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
     """Extrinsics ``(R, t)`` (eq. 2) of a camera at ``eye`` looking at ``target``.
 
     The camera's z axis points at the target and its y axis points "down", i.e. away from ``up``.
 
     Args:
-        eye: (3,) camera centre in the world frame, metres.
-        target: (3,) point the optical axis goes through.
-        up: (3,) world direction that appears upwards in the image.
+        eye: (3,) camera centre in the world frame, metres, finite.
+        target: (3,) point the optical axis goes through, metres, finite and not ``eye``.
+        up: (3,) world direction that appears upwards in the image: finite, non-zero, any length, not parallel
+            to ``target - eye`` (the angle between them must exceed about 1e-9 rad).
     Returns:
-        ``R`` (3, 3) and ``t`` (3,) with ``P_C = R P_W + t``.
+        ``R`` (3, 3) orthonormal with det +1 (to rounding) and ``t`` (3,) in metres, with ``P_C = R P_W + t``.
+    Raises:
+        ValueError: naming the argument, for a wrong shape, a non-finite value, ``eye == target``, a zero ``up``
+            or an ``up`` parallel to the viewing direction.
     """
-    eye = np.asarray(eye, dtype=float)
-    z = np.asarray(target, dtype=float) - eye
-    with np.errstate(over="ignore", invalid="ignore"):  # (named below instead of a numpy warning)
-        norm = np.linalg.norm(z)
-    if not (np.all(np.isfinite(eye)) and np.isfinite(norm)):
+    eye = _vector3(eye, "eye", "point in metres")
+    target = _vector3(target, "target", "point in metres")
+    up = _vector3(up, "up", "direction")
+    with np.errstate(over="ignore"):  # (named below instead of a numpy warning)
+        z = target - eye
+    if not np.all(np.isfinite(z)):
         raise ValueError(f"look_at: 'eye' and 'target' must be finite points in metres, got {eye} and {target}")
-    if norm == 0:
+    if not z.any():
         raise ValueError("look_at: 'eye' and 'target' coincide")
-    z /= norm
-    x = np.cross(z, np.asarray(up, dtype=float))
+    if not up.any():
+        raise ValueError("look_at: 'up' must be a non-zero direction, got (0, 0, 0)")
+    z = _unit(z)
+    x = np.cross(z, _unit(up))
     if np.linalg.norm(x) < 1e-9:
         raise ValueError("look_at: 'up' is parallel to the viewing direction")
-    x /= np.linalg.norm(x)
+    x = _unit(x - (x @ z) * z)  # (Gram-Schmidt: for an up near the axis, x is off-orthogonal by 1e-16 / |x|)
     y = np.cross(z, x)
     R = np.stack([x, y, z])  # rows: camera axes expressed in world
     return R, -R @ eye

@@ -12,17 +12,35 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from depthguard.camera import Camera
+from depthguard.validation import check_finite_array, check_rotation
 
 __all__ = ["Sphere", "Capsule", "Box", "HalfSpace", "Scene", "render_depth"]
 
 _INF = np.inf
 
 
-def _as3(v: object) -> np.ndarray:
-    a = np.asarray(v, dtype=float)
-    if a.shape != (3,):
-        raise ValueError(f"expected a 3-vector, got shape {a.shape}")
+def _set_vector(obj: object, name: str) -> np.ndarray:
+    """Field ``name`` of primitive ``obj`` as a finite (3,) float array (stored back), else ``ValueError`` naming
+    it. A NaN centre or normal would make every ray's hit NaN, and ``np.minimum`` in :class:`Scene` passes NaN
+    on: one bad primitive would blank the whole ground-truth image."""
+    a = check_finite_array(getattr(obj, name), (3,), f"{type(obj).__name__} field '{name}' (metres)")
+    a.setflags(write=False)
+    object.__setattr__(obj, name, a)
     return a
+
+
+def _set_radius(obj: object, name: str = "radius") -> float:
+    """Field ``name`` of ``obj`` as a finite float >= 0 in metres (stored back), else ``ValueError`` naming it
+    (a negative radius rendered as its absolute value while its distance grew by it)."""
+    raw = getattr(obj, name)
+    try:
+        r = float(raw) if not isinstance(raw, bool) else float("nan")
+    except (TypeError, ValueError, OverflowError):
+        r = float("nan")
+    if not (np.isfinite(r) and r >= 0.0):
+        raise ValueError(f"{type(obj).__name__} field '{name}' must be a finite number >= 0 (metres), got {raw!r}")
+    object.__setattr__(obj, name, r)
+    return r
 
 
 @dataclass(frozen=True)
@@ -31,6 +49,10 @@ class Sphere:
 
     center: np.ndarray
     radius: float
+
+    def __post_init__(self) -> None:
+        _set_vector(self, "center")
+        _set_radius(self)
 
     def ray_hit(self, o: np.ndarray, d: np.ndarray) -> np.ndarray:
         """Ray parameter of the first hit for rays ``o + s d`` (d: (N, 3)), inf if none (s >= 0)."""
@@ -58,6 +80,11 @@ class Capsule:
     a: np.ndarray
     b: np.ndarray
     radius: float
+
+    def __post_init__(self) -> None:
+        _set_vector(self, "a")
+        _set_vector(self, "b")
+        _set_radius(self)
 
     def _closest_on_segment(self, p: np.ndarray) -> np.ndarray:
         ab = self.b - self.a
@@ -105,6 +132,15 @@ class Box:
     half_extents: np.ndarray
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
 
+    def __post_init__(self) -> None:
+        _set_vector(self, "center")
+        h = _set_vector(self, "half_extents")
+        if np.any(h < 0):
+            raise ValueError(f"Box field 'half_extents' must be >= 0 (metres), got {h.tolist()}")
+        R = check_rotation(self.R, "Box field 'R' (box -> world)")
+        R.setflags(write=False)
+        object.__setattr__(self, "R", R)
+
     def _local(self, p: np.ndarray) -> np.ndarray:
         return (np.asarray(p, dtype=float) - self.center) @ self.R
 
@@ -141,8 +177,16 @@ class HalfSpace:
     point: np.ndarray
     normal: np.ndarray
 
+    def __post_init__(self) -> None:
+        _set_vector(self, "point")
+        n = _set_vector(self, "normal")
+        if not n.any():
+            raise ValueError("HalfSpace field 'normal' must be a non-zero (3,) vector, got (0, 0, 0)")
+        n = n / np.abs(n).max()  # (scaled first: the norm of a 1e-200 normal underflows to 0)
+        object.__setattr__(self, "_unit_normal", n / np.linalg.norm(n))
+
     def _n(self) -> np.ndarray:
-        return self.normal / np.linalg.norm(self.normal)
+        return self._unit_normal
 
     def distance(self, p: np.ndarray) -> np.ndarray:
         """Distance from (N, 3) points to the solid, 0 inside."""
@@ -189,13 +233,20 @@ def render_depth(camera: Camera, scene: Scene, max_range: float | None = None) -
     Args:
         camera: the camera (its pose gives the ray origin and directions).
         scene: solid primitives in the world frame.
-        max_range: depths beyond this (default ``camera.max_depth``) become NaN (no reading).
+        max_range: depths beyond this (default ``camera.max_depth``) become NaN (no reading); metres, > 0
+            (``inf``: no limit).
     Returns:
-        (H, W) float64 depth ``z_C`` in metres, NaN where nothing is hit within range.
+        (H, W) float64 depth ``z_C`` in metres, NaN where nothing is hit within range (0 where the camera is inside
+        a solid).
     """
+    if max_range is not None:
+        number = isinstance(max_range, int | float | np.integer | np.floating) and not isinstance(max_range, bool)
+        if not (number and max_range > 0):  # (False for NaN)
+            raise ValueError(f"max_range must be a number of metres > 0 (inf: no limit) or None, got {max_range!r}")
     dirs_c = camera.pixel_ray_directions().reshape(-1, 3)  # z = 1, so the ray parameter is the depth
     dirs_w = camera.vector_to_world(dirs_c)
     s = scene.ray_hit(camera.position, dirs_w)
     limit = camera.max_depth if max_range is None else max_range
     s = np.where(s <= limit, s, np.nan)
+    s[np.isinf(s)] = np.nan  # (no hit: inf, which max_range = inf let through)
     return s.reshape(camera.shape)

@@ -7,6 +7,11 @@ computed for the whole image in three passes of whole rows (van Herk / Gil-Werma
 over blocks of ``2 r + 1`` rows, then one comparison per pixel), whatever ``r``, in vector instructions;
 each hole then reads the ``2 r + 1`` column minima of its row. Sparse holes read their windows directly.
 
+Every kernel here clips ``r`` to ``0 .. max(H, W)`` first (:func:`_clip_radius`; the window is clipped at the
+border, so this changes no result): ``2 r + 1`` of an int64 ``r`` near 2**62 wraps negative, which left the
+column minima uninitialised memory (a hole took -3e33 m or any other value) and, near 2**63, divided the most
+negative integer by -1 (SIGFPE: the process died).
+
 At 640x480 with 5 % holes and r = 4 (the ``ral-hexagon`` principal frame) the direct reads took 1.7 ms and
 the whole preparation of the frame went from 2.0 to 0.6 ms (BENCHMARKS.md, stop 43, "Frame stage: separable
 hole filling, ...").
@@ -29,6 +34,12 @@ def _lesser(dst, x, y):
         dst[u] = a if a < b else b
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _clip_radius(r, H, W):
+    """``r`` clipped to ``0 .. max(H, W)``: the same clipped windows, and no int64 overflow in ``2 r + 1``."""
+    return max(0, min(r, max(H, W)))
+
+
 @nb.njit(cache=True, nogil=True)
 def column_window_min(val, r, out, g, h):
     """``out[v, u] = min(val[max(0, v - r) : v + r + 1, u])`` for (H, W) float32 ``val``, without NaN (van
@@ -36,6 +47,7 @@ def column_window_min(val, r, out, g, h):
     block, then ``min(h[first row], g[last row])`` of the window; whole rows at a time). ``g``, ``h``: (H, W)
     float32 scratch; ``out`` may be ``val`` itself."""
     H, W = val.shape
+    r = _clip_radius(r, H, W)
     w = 2 * r + 1
     for b0 in range(0, H, w):
         b1 = min(H, b0 + w)
@@ -59,8 +71,9 @@ def column_window_min(val, r, out, g, h):
 @nb.njit(cache=True, nogil=True, inline="always")
 def window_min_at(val, colmin, dense, v, u, r):
     """The window minimum of pixel (v, u): from the column minima ``colmin`` (:func:`column_window_min`)
-    when ``dense``, else from ``val`` directly."""
+    when ``dense``, else from ``val`` directly (``r``: any int, clipped as :func:`_clip_radius`)."""
     H, W = val.shape
+    r = _clip_radius(r, H, W)
     best = np.float32(np.inf)
     if dense:
         for uu in range(max(0, u - r), min(W, u + r + 1)):
@@ -76,6 +89,7 @@ def window_min_at(val, colmin, dense, v, u, r):
 def use_column_minima(holes, H, W, r):
     """Whether the column minima (three vectorised passes over the image) cost less than reading each hole's
     window (measured: a pass costs about a tenth of a read per pixel)."""
+    r = _clip_radius(r, H, W)
     return holes * (2 * r + 1) * (2 * r + 1) > H * W // 3
 
 
