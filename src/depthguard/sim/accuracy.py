@@ -9,14 +9,17 @@ room, floor and table, which their background model removes from the images on p
 the call used was captured, the sphere where the call put it; the camera's frame latency (up to 33 ms of
 a moving person) is a different error, handled by the controller's margins, and is left out here.
 
-Over the samples with ``c < ρ`` (``e`` taken as ``min(e, ρ)``, "nothing within ρ" claims at least ρ):
+Over the samples with ``c < ρ`` (``e`` taken as ``min(e, ρ)``, "nothing within ρ" claims at least ρ; a NaN
+truth counts as such a sample, and a NaN ``e`` or ``c`` makes ``max_over_report`` and ``median_under_report``
+NaN: an evaluation that cannot be checked is never hidden):
 
 * ``max_over_report`` = max(e - c) (m): how much the evaluation claims beyond the truth; the safety
   contract is ``e - c <= tol`` for every sample (``over_report_within_tolerance``);
 * ``median_under_report`` = median(c - e) (m): how conservative the evaluation is, typically;
 * ``time_at_zero_s``: simulated seconds during which some control point is evaluated at
-  ``e <= 0.005`` m while its true clearance is ``c > 0.05`` m (a phantom contact: a speed-and-
-  separation monitor would stop the robot for nothing).
+  ``e <= 0.005`` m, or NaN (which the controllers read as contact), while its true clearance is ``c > 0.05`` m
+  (a phantom contact: a speed-and-separation monitor would stop the robot for nothing); to 12 significant
+  digits, so that one such call never reads 0.
 """
 
 from __future__ import annotations
@@ -32,12 +35,19 @@ ZERO_TRUE = 0.05  # m: ... while the true clearance exceeds this
 
 
 def _arrays(log) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    t = np.asarray(log.acc_t, float)
+    """``(t (T,), e (T, N), c (T, N), tol (T, N))`` from the log's flattened ``acc_*`` rows (N control points)."""
+    t = np.asarray(log.acc_t, float).reshape(-1)
     n = len(log.point_names)
-    e = np.asarray(log.acc_eval, float).reshape(len(t), n)
-    c = np.asarray(log.acc_true, float).reshape(len(t), n)
-    tol = np.asarray(log.acc_tol, float).reshape(len(t), n)
-    return t, e, c, tol
+    out = [t]
+    for field in ("acc_eval", "acc_true", "acc_tol"):
+        v = np.asarray(getattr(log, field), float).reshape(-1)
+        if v.size != len(t) * n:
+            raise ValueError(
+                f"{field} must hold len(acc_t) x len(point_names) = {len(t)} x {n} values (one per call and control"
+                f" point), got {v.size}"
+            )
+        out.append(v.reshape(len(t), n))
+    return out[0], out[1], out[2], out[3]
 
 
 def under_report_series(log, rho: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -45,9 +55,22 @@ def under_report_series(log, rho: float) -> tuple[np.ndarray, np.ndarray, np.nda
     ``c >= ρ``), and whether some point is at zero while its truth exceeds 5 cm."""
     t, e, c, _ = _arrays(log)
     em = np.minimum(e, rho)
-    under = np.where(c < rho, c - em, np.nan)
-    at_zero = np.any((e <= ZERO_EVAL) & (c > ZERO_TRUE), axis=1) if len(t) else np.zeros(0, bool)
+    with np.errstate(invalid="ignore"):  # (inf - inf: NaN, reported as such)
+        under = np.where(c < rho, c - em, np.nan)
+    at_zero = np.any(_at_zero(e, c), axis=1) if len(t) else np.zeros(0, bool)
     return t, under, at_zero
+
+
+def _at_zero(e: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Phantom contact per sample: evaluated at zero (``e <= ZERO_EVAL`` or NaN, read as contact by the
+    controllers) while the truth exceeds ``ZERO_TRUE``."""
+    return ~(e > ZERO_EVAL) & (c > ZERO_TRUE)
+
+
+def _seconds(x: float) -> float:
+    """A time (s) to 12 significant digits: no float noise such as 0.009000000000000001 in the JSON, and one
+    call of any period never reads 0 (as it did rounded to 0.1 ms)."""
+    return float(f"{float(x):.12g}")
 
 
 def _excluded(log) -> str:
@@ -70,28 +93,30 @@ def accuracy_metrics(log, rho: float, period: float) -> dict[str, Any]:
     """
     t, e, c, tol = _arrays(log)
     names = list(log.point_names)
-    near = c < rho
+    near = ~(c >= rho)  # (a NaN truth too: its sample is compared, and reads NaN)
     em = np.minimum(e, rho)
-    over = em - c
-    zero = (e <= ZERO_EVAL) & (c > ZERO_TRUE)
-    out: dict[str, Any] = {
-        "max_over_report": float(np.max(over[near])) if near.any() else None,
-        "median_under_report": float(np.median(-over[near])) if near.any() else None,
-        "time_at_zero_s": round(float(np.sum(np.any(zero, axis=1)) * period), 4),
-        "declared_tolerance": float(np.max(tol[near])) if near.any() else None,
-        "over_report_within_tolerance": bool(np.all(over[near] <= tol[near])),
-        "accuracy_samples": int(near.sum()),
-        "accuracy_truth": "synchronous: obstacles at the frame's capture, spheres at the call (coal)" + _excluded(log),
-    }
-    per = {}
-    for k, name in enumerate(names):
-        m = near[:, k]
-        per[name] = {
-            "max_over_report": float(np.max(over[m, k])) if m.any() else None,
-            "median_under_report": float(np.median(-over[m, k])) if m.any() else None,
-            "time_at_zero_s": round(float(np.sum(zero[:, k]) * period), 4),
+    with np.errstate(invalid="ignore"):  # (inf - inf, and medians of +-inf: NaN, reported as such)
+        over = em - c
+        zero = _at_zero(e, c)
+        out: dict[str, Any] = {
+            "max_over_report": float(np.max(over[near])) if near.any() else None,
+            "median_under_report": float(np.median(-over[near])) if near.any() else None,
+            "time_at_zero_s": _seconds(np.sum(np.any(zero, axis=1)) * period),
+            "declared_tolerance": float(np.max(tol[near])) if near.any() else None,
+            "over_report_within_tolerance": bool(np.all(over[near] <= tol[near])),
+            "accuracy_samples": int(near.sum()),
+            "accuracy_truth": "synchronous: obstacles at the frame's capture, spheres at the call (coal)"
+            + _excluded(log),
         }
-    out["accuracy_per_point"] = per
+        per = {}
+        for k, name in enumerate(names):
+            m = near[:, k]
+            per[name] = {
+                "max_over_report": float(np.max(over[m, k])) if m.any() else None,
+                "median_under_report": float(np.median(-over[m, k])) if m.any() else None,
+                "time_at_zero_s": _seconds(np.sum(zero[:, k]) * period),
+            }
+        out["accuracy_per_point"] = per
     out["measured_bound"] = measured_bound_metrics(log, rho)
     return out
 

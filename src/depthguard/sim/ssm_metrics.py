@@ -13,7 +13,8 @@ background model holds: SSM protects people).
 * ``min_separation_margin``: min of ``S_true - S_p`` over the points and over the cycles in which the
   monitor allowed motion (``MONITOR_OK`` or ``REDUCED``), m; ``>= 0`` is the monitor's claim; null when the
   monitor never allowed motion or when nobody it protects is in the scene (``S_true`` = inf, e.g.
-  ``icra-exp3``, whose only obstacle is a fixture of the background);
+  ``icra-exp3``, whose only obstacle is a fixture of the background); NaN when a compared ``S_true`` or
+  ``S_p`` is NaN (never hidden: likewise the true separations below);
 * ``time_reduced_s`` / ``time_stopped_s``: time in ``REDUCED`` / ``PROTECTIVE_STOP``;
 * ``protective_stops``, ``resumed`` (a stop ended and the robot moved again), the binding point, the
   largest ``S_p`` seen, the true separation while the robot moved (``..._while_moving``: any motion, the
@@ -50,47 +51,78 @@ PARAMETER_SOURCES = {
     "repulsion keeps rho); +inf counts as this",
 }
 
-_SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX = 2, 3, 4, 5, 6  # mjtGeom
+_PLANE, _HFIELD, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = range(8)  # mjtGeom
 
 
 def sphere_clearance(model, data, geoms: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
     """True clearance (N,) m from each sphere (``centres`` (N, 3), ``radii`` (N,)) to the nearest of ``geoms``.
 
-    Exact for sphere, capsule and box geoms (negative = penetration depth, exact for spheres and capsules,
-    a lower bound inside boxes); cylinders count as the capsule around them and ellipsoids as their
-    bounding sphere, which under-reports (the safe side for a margin). Reads ``data.geom_xpos`` and
-    ``geom_xmat`` as they are (call ``mj_kinematics`` first when the state changed). ``inf`` if no geom.
+    Exact for sphere, capsule, box and plane geoms (negative = penetration depth, exact for spheres, capsules
+    and planes, a lower bound inside boxes); cylinders count as the capsule around them, ellipsoids as their
+    bounding sphere, and meshes and height fields as their bounding box (``geom_aabb``), which under-reports
+    (the safe side for a margin). Reads ``data.geom_xpos`` and ``geom_xmat`` as they are (call
+    ``mj_kinematics`` first when the state changed). ``inf`` if no geom.
+
+    Raises:
+        ValueError: ``geoms`` not integer geom ids in ``[0, ngeom)``, a geom of another type (SDF), ``centres``
+            not (N, 3) or ``radii`` not (N,) with no negative radius.
     """
-    g = np.asarray(geoms, int)
+    g = np.asarray(geoms)
+    if g.size == 0:
+        g = np.zeros(0, int)
+    elif g.ndim != 1 or g.dtype.kind not in "iu" or g.min() < 0 or g.max() >= model.ngeom:
+        raise ValueError(f"geoms must be a (G,) array of integer geom ids in [0, {model.ngeom}), got {geoms!r}")
     return _clearance(model, g, data.geom_xpos[g], data.geom_xmat[g].reshape(-1, 3, 3), centres, radii)
+
+
+def _spheres(centres, radii) -> tuple[np.ndarray, np.ndarray]:
+    """``centres`` as (N, 3) and ``radii`` as (N,) floats; ValueError naming the one of another form."""
+    c, r = np.asarray(centres, float), np.asarray(radii, float)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise ValueError(f"centres must be an (N, 3) array of sphere centres in m, got shape {c.shape}")
+    if r.shape != (len(c),) or (r < 0).any():  # (a NaN radius passes: its clearance reads NaN)
+        raise ValueError(f"radii must be an ({len(c)},) array of radii >= 0 m (one per centre), got {radii!r}")
+    return c, r
 
 
 def _clearance(model, g, pos, mat, centres, radii) -> np.ndarray:
     """:func:`sphere_clearance` with the geoms' world positions (G, 3) and rotations (G, 3, 3) given."""
-    c = np.asarray(centres, float)
+    c, r = _spheres(centres, radii)
     best = np.full(len(c), np.inf)
     if len(g) == 0:
-        return best - np.asarray(radii, float)
+        return best - r
     kind = model.geom_type[g]
-    size = model.geom_size[g]
-    for sel, fn in (
-        (kind == _SPHERE, _to_spheres),
-        ((kind == _CAPSULE) | (kind == _CYLINDER), _to_capsules),
-        (kind == _BOX, _to_boxes),
-        (kind == _ELLIPSOID, _to_bounding),
-    ):
-        if sel.any():
-            d = fn(c, pos[sel], mat[sel], size[sel] if fn is not _to_bounding else model.geom_rbound[g[sel]])
-            best = np.minimum(best, d.min(axis=1))
-    return best - np.asarray(radii, float)
+    count = np.bincount(kind, minlength=_MESH + 1)  # geoms per mjtGeom type
+    if len(count) > _MESH + 1:  # (mjtGeom 0..7 are these; 8 is an SDF)
+        k = int(np.argmax(kind > _MESH))
+        raise ValueError(
+            "geoms must be plane, hfield, sphere, capsule, ellipsoid, cylinder, box or mesh geoms, got geom "
+            f"{int(g[k])} of mjtGeom type {int(kind[k])}"
+        )
+    for types, fn, field in _SHAPES:
+        if count[types[0]] or count[types[-1]]:
+            sel = (kind == types[0]) | (kind == types[-1])
+            best = np.minimum(best, fn(c, pos[sel], mat[sel], getattr(model, field)[g[sel]]).min(axis=1))
+    return best - r
 
 
 def _to_spheres(c, pos, mat, size):
+    """Distance (N, G) to sphere geoms (``size[:, 0]`` their radii)."""
     return np.linalg.norm(c[:, None, :] - pos[None], axis=2) - size[None, :, 0]
 
 
 def _to_bounding(c, pos, mat, rbound):
     return np.linalg.norm(c[:, None, :] - pos[None], axis=2) - rbound[None, :]
+
+
+def _to_planes(c, pos, mat, size):
+    """Signed distance (N, G) to MuJoCo planes: infinite, solid below, normal along the local z axis."""
+    return np.einsum("ngi,gi->ng", c[:, None, :] - pos[None], mat[:, :, 2])
+
+
+def _to_aabbs(c, pos, mat, aabb):
+    """Distance (N, G) to the geoms' bounding boxes (``geom_aabb`` (G, 6): centre and half sizes, geom frame)."""
+    return _to_boxes(c, pos + np.einsum("gij,gj->gi", mat, aabb[:, :3]), mat, aabb[:, 3:])
 
 
 def _to_capsules(c, pos, mat, size):
@@ -107,6 +139,18 @@ def _to_boxes(c, pos, mat, size):
     q = local - size[None, :, :3]
     outside = np.linalg.norm(np.maximum(q, 0.0), axis=2)
     return outside + np.minimum(q.max(axis=2), 0.0)
+
+
+# (geom types, distance (N, G) from points to those geoms, never above the truth, and the model's field that
+# it reads per geom)
+_SHAPES = (
+    ((_SPHERE,), _to_spheres, "geom_size"),
+    ((_CAPSULE, _CYLINDER), _to_capsules, "geom_size"),
+    ((_BOX,), _to_boxes, "geom_size"),
+    ((_ELLIPSOID,), _to_bounding, "geom_rbound"),
+    ((_PLANE,), _to_planes, "geom_size"),
+    ((_MESH, _HFIELD), _to_aabbs, "geom_aabb"),
+)
 
 
 class SsmRecorder:
@@ -192,22 +236,23 @@ def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmCon
     a = rec.arrays()
     state, s_true, s_p = a["state"], a["s_true"], a["s_p"]
     allowed = (state == MonitorState.MONITOR_OK) | (state == MonitorState.REDUCED)
-    margin = s_true - s_p
+    with np.errstate(invalid="ignore"):  # (inf - inf: NaN, never hidden)
+        margin = s_true - s_p
+        cap = np.where(allowed[:, None], a["s_capture"] - s_p, np.inf)
     per_point = np.where(allowed[:, None], margin, np.inf).min(axis=0) if len(state) else np.array([])
-    k = int(np.argmin(per_point)) if per_point.size and np.isfinite(per_point).any() else -1
+    k = int(np.argmin(per_point)) if _seen(per_point) else -1  # (argmin: the first NaN, if any)
     stopped = state == MonitorState.PROTECTIVE_STOP
     starts = np.flatnonzero(stopped[1:] & ~stopped[:-1]) + 1
     ends = np.flatnonzero(~stopped[1:] & stopped[:-1]) + 1
     moving = a["qd"] > 1e-3
     resumed = any(np.any(moving[e:] & allowed[e:]) for e in ends)
     sep = s_true.min(axis=1) if len(state) else np.array([])
-    cap = np.where(allowed[:, None], a["s_capture"] - s_p, np.inf)
     cap = np.where(np.isnan(cap), np.inf, cap)
     return {
         "ssm": True,
         "min_separation_margin": float(per_point[k]) if k >= 0 else None,
         "binding_point": names[k] if k >= 0 else None,
-        "min_separation_margin_at_capture": float(cap.min()) if np.isfinite(cap).any() else None,
+        "min_separation_margin_at_capture": float(cap.min()) if _seen(cap) else None,
         "time_reduced_s": float(np.sum(state == MonitorState.REDUCED) * dt),
         "time_stopped_s": float(np.sum(stopped) * dt),
         "protective_stops": int(len(starts) + (1 if len(state) and stopped[0] else 0)),
@@ -222,12 +267,16 @@ def ssm_metrics(rec: SsmRecorder, dt: float, names: tuple[str, ...], cfg: SsmCon
     }
 
 
+def _seen(x: np.ndarray) -> bool:
+    """Whether ``x`` holds anything but ``+inf`` (nobody in the scene): a value, ``-inf`` or NaN."""
+    return bool(np.any(~(np.asarray(x) == np.inf)))
+
+
 def _finite_min(x: np.ndarray) -> float | None:
-    """The minimum of ``x`` as a float, None when empty or not finite (nobody in the scene: inf; JSON has no inf)."""
-    if not len(x):
-        return None
-    v = float(np.min(x))
-    return v if np.isfinite(v) else None
+    """The minimum of ``x`` (m) as a float; None when ``x`` is empty or all ``+inf`` (nobody in the scene; JSON
+    has no inf). NaN when ``x`` holds a NaN and ``-inf`` when it holds ``-inf``: an unknown or impossible
+    separation is never hidden behind None or behind the smaller of the others."""
+    return float(np.min(x)) if _seen(x) else None
 
 
 def plot_ssm(out_dir: str | Path, rec: SsmRecorder, names: tuple[str, ...], point: str | None, title: str) -> str:
