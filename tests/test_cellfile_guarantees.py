@@ -599,6 +599,51 @@ def test_nodes_listen_on_loopback_unless_tls_is_given(host):
         _refused(p, "network.host")
 
 
+def _host_reference(text: str) -> bool:
+    """An IP address, or dot-separated labels of letters, digits, '_' and '-', none empty, none led by '-'."""
+    import ipaddress
+    import string
+
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        pass
+    allowed = set(string.ascii_letters + string.digits + "_-")
+    labels = text.split(".")
+    return all(lab and set(lab) <= allowed and not lab.startswith("-") for lab in labels)
+
+
+@settings(max_examples=150, deadline=None)
+@given(host=st.text(alphabet="ab1-_.:%[] /é", max_size=8) | st.sampled_from(["a..b", "a.", ".a", "fe80::1%lo"]))
+@example(host="a..b")  # a cell file's host took it, `certs --host` refused it
+@example(host="a.")  # likewise
+def test_a_host_is_the_same_host_for_the_cell_file_and_certs(host):
+    """``network.host``, the hosts of ``network.connect`` endpoints and ``depthguard certs --host`` take the same
+    hosts (one check, :func:`depthguard.validation.is_host`), the ones of an independent rule."""
+    import argparse
+
+    from depthguard.cli_common import host_name
+    from depthguard.io.cell_network import check_endpoint
+    from depthguard.validation import is_host
+
+    want = _host_reference(host)
+    assert is_host(host) == want
+    try:
+        host_name(host)
+        cli = True
+    except argparse.ArgumentTypeError:
+        cli = False
+    assert cli == want
+    bracketed = f"[{host}]" if ":" in host else host
+    try:
+        check_endpoint(Path("c.toml"), "network.connect[0]", f"tcp/{bracketed}:7447")
+        endpoint = True
+    except InputError:
+        endpoint = False
+    assert endpoint == (want and not any(c in host for c in "?#"))
+
+
 @pytest.mark.parametrize("bad", [{"publishers": ["distance", ""]}, {"publishers": "distance"}, {"connect": [7447]}])
 def test_publishers_and_peers_must_be_lists_of_names(bad):
     _refused(_network(bad), f"network.{next(iter(bad))}")

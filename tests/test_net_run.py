@@ -166,11 +166,14 @@ def test_view_node_draws_what_the_nodes_publish(tmp_path):
 
 
 @pytest.mark.slow
-def _drive_camera_node(cell, mm: np.ndarray, q: np.ndarray, out_topic: str, base: int) -> list:
+def _drive_camera_node(
+    cell, mm: np.ndarray, q: np.ndarray, out_topic: str, base: int, frames: int = 0, result: dict | None = None
+) -> list:
     """A ROS 2 camera driver on rmw_zenoh, written by hand (key expression by string formatting, CDR from a
     fresh rosbags Jazzy store, attachment by ``struct``) publishing the 16UC1 frame ``mm`` and the joint
     state ``q`` to camera node ``camera0`` (its joints in reverse order, plus a gripper joint the model does
-    not have: the node matches them by name); returns the node's messages on ``out_topic`` (an Image topic)."""
+    not have: the node matches them by name); returns the node's messages on ``out_topic`` (an Image topic),
+    once one has come and ``frames`` more frames were sent after it. ``result``: gets the node's counters."""
     zenoh = pytest.importorskip("zenoh")
     from rosbags.typesys import Stores, get_typestore
 
@@ -190,14 +193,16 @@ def _drive_camera_node(cell, mm: np.ndarray, q: np.ndarray, out_topic: str, base
         lambda s: got.append(ts.deserialize_cdr(s.payload.to_bytes(), "sensor_msgs/msg/Image")),
     )
     stop = StopFlag()
-    result: dict = {}
+    result = {} if result is None else result
     th = threading.Thread(target=lambda: result.update(run_camera_node(cell, "camera0", duration=40, stop=stop)))
     th.start()
     gid = bytes(range(16))
     h, w = mm.shape
     try:
         end, seq = time.time() + 30, 0
-        while time.time() < end and not got:
+        after = 0  # (frames sent after the node's first message)
+        while time.time() < end and (not got or after < frames):
+            after += bool(got)
             now = time.time()
             sec, nsec = int(now), int((now % 1) * 1e9)
             hdr = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="c0")
@@ -242,6 +247,18 @@ def test_camera_node_takes_a_ros2_drivers_16uc1_image(tmp_path):
     assert out.encoding == "32FC1" and (out.width, out.height) == (160, 120)
     d = np.frombuffer(bytes(out.data), "<f4").reshape(120, 160)
     assert np.all(np.isnan(d[:10])) and np.allclose(d[10:][np.isfinite(d[10:])], 2.5)
+
+
+def test_camera_node_withholds_the_frames_of_a_frozen_camera(tmp_path):
+    """A driver that repeats one frame with fresh stamps (a hung driver): the node publishes the first frames,
+    then withholds the rest as "frozen" (the distances go stale and the controller stops) and says so."""
+    base = random.randint(48000, 52000)
+    cell = read_cell(_cell(tmp_path, f"base_port = {base}\nconnect = []\n"))
+    mm = np.full((120, 160), 2500, np.uint16)
+    result: dict = {}
+    got = _drive_camera_node(cell, mm, np.zeros(7), "depthguard/camera0/depth", base, frames=8, result=result)
+    assert result["withheld"].get("frozen", 0) >= 3, result
+    assert result["frames"] == len(got) <= 3 and result["frames"] + sum(result["withheld"].values()) >= 6, result
 
 
 def test_camera_node_moves_a_carried_camera_with_its_link(tmp_path):

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import math
 import os
-import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -132,12 +130,9 @@ def zenoh_endpoint(text: str) -> str:
 
 def host_name(text: str) -> str:
     """``--host`` of ``depthguard certs``: an IP address or a host name (a certificate's alternative name)."""
-    try:
-        ipaddress.ip_address(text)
-        return text
-    except ValueError:
-        pass
-    if not re.fullmatch(r"[A-Za-z0-9_\-]+(\.[A-Za-z0-9_\-]+)*", text) or text.startswith("-"):
+    from depthguard.validation import is_host
+
+    if not is_host(text):
         raise argparse.ArgumentTypeError(f"expected an IP address or a host name, got {text!r}")
     return text
 

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import ipaddress
 import math
+import re
 
 import numpy as np
 
 __all__ = [
+    "is_host",
     "check_positive",
     "check_finite_array",
     "check_rotation",
@@ -15,6 +18,22 @@ __all__ = [
     "check_float_depth",
     "check_query",
 ]
+
+
+_HOST_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_\-]*(\.[A-Za-z0-9_][A-Za-z0-9_\-]*)*")
+
+
+def is_host(text: object) -> bool:
+    """Whether ``text`` is an IPv4 or IPv6 address (IPv6 with an optional ``%zone``) or a host name: labels of
+    letters, digits, ``_`` and ``-`` joined by single dots, none empty and none starting with ``-`` (so not
+    ``-a``, ``.a``, ``a.``, ``a..b``). What a Zenoh endpoint and a certificate's alternative name can hold."""
+    if not isinstance(text, str):
+        return False
+    try:
+        ipaddress.ip_address(text)
+        return True
+    except ValueError:
+        return bool(_HOST_NAME.fullmatch(text))
 
 
 def is_numeric_nest(value: object) -> bool:

@@ -3,12 +3,12 @@
 
 from __future__ import annotations
 
-import ipaddress
 import re
 from pathlib import Path
 from typing import Any
 
 from depthguard.io.cell_schema import CellError, _section
+from depthguard.validation import is_host
 
 __all__ = ["PER_NODE", "ROUTER_PORT", "check_endpoint", "network_section", "per_node_certificates", "node_tls_files"]
 
@@ -20,7 +20,6 @@ _TLS = ("tls_root_ca", "tls_certificate", "tls_private_key")
 #: Zenoh's locators ``PROTOCOL/ADDRESS`` (then ``?metadata`` and ``#config``); these take ``HOST:PORT``
 _IP_PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws")
 _OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
-_HOST = re.compile(r"[A-Za-z0-9_.\-]+")
 
 
 def per_node_certificates(net: dict[str, Any]) -> bool:
@@ -32,16 +31,6 @@ def node_tls_files(net: dict[str, Any], name: str) -> tuple[str, str]:
     """Node ``name``'s certificate and private key paths from a (read) ``[network]`` table: the shared pair,
     or with ``{node}`` in the paths the node's own."""
     return net["tls_certificate"].replace(PER_NODE, name), net["tls_private_key"].replace(PER_NODE, name)
-
-
-def _host_ok(host: str) -> bool:
-    """Whether ``host`` is an IPv4 or IPv6 address or a host name (what a Zenoh endpoint can hold)."""
-    if ":" in host:
-        try:
-            return isinstance(ipaddress.ip_address(host.split("%")[0]), ipaddress.IPv6Address)
-        except ValueError:
-            return False
-    return bool(_HOST.fullmatch(host)) and not host.startswith(("-", "."))
 
 
 def check_endpoint(src: Path, key: str, endpoint: str) -> None:
@@ -60,7 +49,7 @@ def check_endpoint(src: Path, key: str, endpoint: str) -> None:
         host = host[1:-1] if ":" in host else ""
     elif ":" in host:
         host = ""  # (an IPv6 address needs its brackets)
-    if not sep or not _host_ok(host) or not port.isdecimal() or not 1 <= int(port) <= 65535:
+    if not sep or not is_host(host) or not port.isdecimal() or not 1 <= int(port) <= 65535:
         raise CellError(f"{form} {endpoint!r}")
 
 
@@ -81,7 +70,7 @@ def network_section(src: Path, table: Any, nodes: int = 8) -> dict[str, Any]:
             raise CellError(f"{src}: network.{key} must be an array of non-empty strings, got {net[key]!r}")
     for i, endpoint in enumerate(net["connect"]):
         check_endpoint(src, f"network.connect[{i}]", endpoint)
-    if not _host_ok(net["host"]):
+    if not is_host(net["host"]):
         raise CellError(
             f"{src}: network.host must be an IP address or a host name (the nodes listen on it), got {net['host']!r}"
         )

@@ -5,17 +5,21 @@ any ROS 2 camera driver on rmw_zenoh) and the joint states; removes the robot's 
 positions nearest the frame's stamp and publishes the prepared frame: the depth (32FC1, the raw frame's
 stamp) on ``/depthguard/<camera>/depth`` and the robot mask (mono8, 255 = robot) on
 ``/depthguard/<camera>/robot_mask``. Only the newest frame is processed (a slow node skips frames, it never
-queues them); a frame without joint states within 50 ms of its stamp is not published.
+queues them); a frame without joint states within 50 ms of its stamp is not published. Every frame's sensor
+health is checked (:class:`FrameGate`): while the camera is frozen, covered or moved, its frames are withheld,
+so the distances go stale and the controller stops.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections import deque
 
 import numpy as np
 
+from depthguard.camera import Camera
 from depthguard.io import ros2
 from depthguard.io.cellfile import CellFile
 from depthguard.io.rmw_zenoh import QOS_SENSOR_DATA
@@ -31,13 +35,21 @@ from depthguard.nodes.common import (
     wait_reading,
 )
 from depthguard.nodes.memory import keep_freed_memory
+from depthguard.robot.health import CameraHealth
 
-__all__ = ["run_camera_node", "mask_msg", "prepare_frame"]
+__all__ = ["run_camera_node", "mask_msg", "prepare_frame", "prepare_frame_at", "FrameGate"]
 
 
 def prepare_frame(msg, cam0, cc, model, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One raw ``sensor_msgs/Image`` prepared as the node publishes it: ``(depth, mask)``, the depth (H, W) in
-    metres (NaN = no reading) and the robot mask (H, W) bool, self-filtered at joint positions ``q``.
+    """One raw ``sensor_msgs/Image`` prepared as the node publishes it: ``(depth, mask)``
+    (:func:`prepare_frame_at`, without the camera)."""
+    return prepare_frame_at(msg, cam0, cc, model, q)[1:]
+
+
+def prepare_frame_at(msg, cam0, cc, model, q: np.ndarray) -> tuple[Camera, np.ndarray, np.ndarray]:
+    """One raw ``sensor_msgs/Image`` prepared as the node publishes it: ``(camera, depth, mask)``, the camera at
+    the image's size and where it was at this frame, the depth (H, W) in metres (NaN = no reading) and the
+    robot mask (H, W) bool, self-filtered at joint positions ``q``.
 
     ``cam0``: the camera (in its parent link's frame when the robot carries it); ``cc``: its cell-file entry;
     ``model``: the robot. Raises ``ValueError`` for an image that cannot be used: not a depth encoding, fewer
@@ -55,7 +67,43 @@ def prepare_frame(msg, cam0, cc, model, q: np.ndarray) -> tuple[np.ndarray, np.n
         from depthguard.sim.pipeline import model_filter_margin
 
         kw["margin"] = model_filter_margin(cam, q, model, cc.noise_coeff)
-    return depth, np.asarray(self_filter(cam, depth, q, model, with_depth=False, **kw)[0])
+    return cam, depth, np.asarray(self_filter(cam, depth, q, model, with_depth=False, **kw)[0])
+
+
+class FrameGate:
+    """Sensor health of one camera node (:class:`~depthguard.robot.health.CameraHealth`, docs/real-cell.md §7):
+    a frame is published only while the camera is healthy, so a frozen, covered or moved camera stops sending
+    and the distances go stale: the controller stops within ``distance_timeout`` (``STOP_STALE_DISTANCES``).
+
+    Each frame is checked after it is published (or withheld), off the frame's latency path: a fault that
+    the frame itself shows withholds the frames after it until ``clear_frames`` healthy frames in a row
+    have passed. :attr:`withheld` counts the frames withheld per fault; :meth:`after` returns the change
+    (``"frozen"``, ..., or ``"healthy"``) when the state changes, else None.
+    """
+
+    def __init__(self, name: str, model) -> None:
+        self.name, self.model = name, model
+        self.health: CameraHealth | None = None
+        self.withheld: dict[str, int] = {}
+
+    @property
+    def open(self) -> bool:
+        """Whether the next frame may be published."""
+        return self.health is None or self.health.fault is None
+
+    def withhold(self) -> None:
+        """Count a frame not published because of the current fault."""
+        f = self.health.fault if self.health is not None else "unknown"
+        self.withheld[f] = self.withheld.get(f, 0) + 1
+
+    def after(self, cam: Camera, depth: np.ndarray, q: np.ndarray, stamp: float) -> str | None:
+        """Check the frame ``depth`` (H, W) m seen by ``cam`` at joint positions ``q`` and time ``stamp`` (s)."""
+        if self.health is None or self.health.camera.shape != cam.shape:
+            self.health = CameraHealth(cam, self.name, self.model)
+        self.health.camera = cam  # (a carried camera moves with its link)
+        before = self.health.fault
+        now = self.health.check(depth, q, stamp)
+        return None if now == before else (now or "healthy")
 
 
 def run_camera_node(
@@ -103,6 +151,7 @@ def run_camera_node(
     pub_d = node.publisher(top.depth[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
     pub_m = node.publisher(top.mask[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
     done = skipped = 0
+    gate = FrameGate(name, model)
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
@@ -121,18 +170,27 @@ def run_camera_node(
                 skipped += 1
                 continue
             try:
-                depth, mask = prepare_frame(msg, cam0, cc, model, q)
+                cam, depth, mask = prepare_frame_at(msg, cam0, cc, model, q)
             except ValueError as exc:
                 jl.write(ev="bad_frame", error=str(exc))
                 skipped += 1
                 continue
-            fid = msg.header.frame_id
-            p1 = pub_d.publish(ros2.image_msg(t, fid, depth, "32FC1"))
-            pub_m.publish(mask_msg(t, fid, mask))
-            done += 1
-            jl.write(ev="prepared", stamp=t, pub_raw=pub_in * 1e-9, pub=p1 * 1e-9)
+            if gate.open:
+                fid = msg.header.frame_id
+                p1 = pub_d.publish(ros2.image_msg(t, fid, depth, "32FC1"))
+                pub_m.publish(mask_msg(t, fid, mask))
+                done += 1
+                jl.write(ev="prepared", stamp=t, pub_raw=pub_in * 1e-9, pub=p1 * 1e-9)
+            else:
+                gate.withhold()
+            change = gate.after(cam, depth, q, t)
+            if change is not None:
+                jl.write(ev="sensor_health", camera=name, state=change, stamp=t)
+                print(f"depthguard {name}: camera {change}" + ("" if change == "healthy" else ": frames withheld"),
+                      file=sys.stderr)  # fmt: skip
     finally:
         out = {"frames": done, "skipped": skipped, "dropped": dict(sub.dropped), "freed_memory": heap}
+        out["withheld"] = dict(gate.withheld)  # (frames not published: the camera's sensor fault)
         out["missed"] = {s.topic: s.missed for s in (sub, sub_js) if s.missed}  # (lost, or out of a full ring)
         node.close()
         jl.close()

@@ -140,9 +140,12 @@ class CameraHealth:
         return missing * den > num * int(d.size)
 
     def _frame_fault(self, d: np.ndarray, q: np.ndarray | None) -> str | None:
-        same = self._last is not None and self._last.shape == d.shape and np.array_equal(self._last, d, equal_nan=True)
+        # (bit for bit, as the docstring says: one memcmp-like pass over uint32 views; ``d`` is this call's own
+        # float32 copy, so it is kept as it is)
+        last = self._last
+        same = last is not None and last.shape == d.shape and np.array_equal(last.view(np.uint32), d.view(np.uint32))
         self._same = self._same + 1 if same else 0
-        self._last = d.copy()
+        self._last = d
         if self._same >= self.frozen_frames - 1:
             return "frozen"
         if self._covered(d):
@@ -160,9 +163,28 @@ class CameraHealth:
         from scipy.ndimage import binary_erosion
 
         pred = predicted_robot_depth(self.camera, self.model, q)
-        robot = binary_erosion(np.isfinite(pred), iterations=self.erode)
+        robot = _eroded(np.isfinite(pred), self.erode, binary_erosion)
         seen = robot & np.isfinite(d)
         if seen.sum() < self.min_robot_pixels:
             return False  # too little of the arm in view to judge
         through = seen & (d > pred + self.see_through)
         return bool(through.sum() > self.moved_fraction * seen.sum())
+
+
+def _eroded(mask: np.ndarray, iterations: int, binary_erosion) -> np.ndarray:
+    """``binary_erosion(mask, iterations=iterations)`` (H, W) bool, computed on the box around the True pixels
+    only, padded by ``iterations + 1`` pixels (inside the image): outside that box every pixel is False before
+    and after, so the result is the same as on the whole image (the image's border counts as False in both).
+    ``iterations = 0`` is no erosion (scipy's own ``iterations < 1`` would erode until nothing changes, which
+    leaves no pixel to judge and so silently disabled the "moved" check)."""
+    if iterations == 0:
+        return mask.copy()
+    out = np.zeros(mask.shape, dtype=bool)
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return out
+    p = iterations + 1
+    v0, v1 = max(rows[0] - p, 0), min(rows[-1] + p + 1, mask.shape[0])
+    u0, u1 = max(cols[0] - p, 0), min(cols[-1] + p + 1, mask.shape[1])
+    out[v0:v1, u0:u1] = binary_erosion(mask[v0:v1, u0:u1], iterations=iterations)
+    return out

@@ -289,7 +289,7 @@ class Chain:
         if self._carried:
             self._place_carried_cameras(q)
         for h, d in zip(self.health, depths, strict=True):
-            fault = h.check(d, q)
+            fault = h.check(d, q, t_frames)  # (a frame set whose stamp does not advance is not a new frame)
             if fault is not None:
                 self.faults[h.name] = fault
         self.controller.set_sensor_fault(
