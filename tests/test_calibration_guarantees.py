@@ -248,6 +248,8 @@ def test_noise_dropouts_outliers_and_a_walking_person(az, q_seed, noise, dropout
     metres=st.floats(0, 0.05),
 )
 @example(az=0.0, side=1.25, up=1.125, q_seed=90, deg=0.0, metres=0.0)  # accepted 7.4 mm / 0.58 deg off
+# accepted 18.3 mm / 0.53 deg off, rmse 4 mm, observability 0.042: now refused, 0.0004 about the camera
+@example(az=0.0, side=1.328125, up=0.0, q_seed=693, deg=0.0, metres=0.0)
 def test_robot_barely_in_view(az, side, up, q_seed, deg, metres):
     """The camera aimed beside the arm (the robot at the image's edge or out of it in most poses)."""
     model, _ = _cell("lwr4")
