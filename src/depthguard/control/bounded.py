@@ -19,6 +19,11 @@ planned velocity above the new bound. :func:`enforce_velocity_bounds` is the las
 So ``lo <= qdot_cmd <= hi`` holds in every cycle (exactly), and the acceleration and jerk limits hold in
 every cycle that does not report ``limited``.
 
+Bad input never gives a non-finite command and is always reported (``limited``): a NaN bound reads as 0 (no
+motion that way) and bounds with ``lo > hi`` as the single value between them nearest 0; a non-finite state
+velocity or acceleration reads as 0 (as in :func:`braking_step`); a joint whose planned state is not finite
+takes the braking step instead. The command then lies within the bounds as read.
+
 :func:`braking_step` is a jerk-limited stop that needs no Ruckig: the fallback when Ruckig fails.
 """
 
@@ -42,42 +47,81 @@ def _constant_jerk(state: OtgState, a_new: np.ndarray, dt: float) -> OtgState:
     return OtgState(p_new, v_new, a_new)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _brake_one(v: float, a: float, a_max: float, j_max: float, dt: float) -> tuple[float, float, float]:
+    """:func:`braking_step` for one joint with a finite state: the position change (rad), velocity (rad/s)
+    and acceleration (rad/s^2) after one period ``dt`` (s)."""
+    a = min(max(a, -a_max), a_max)
+    a_des = -min(a_max, np.sqrt(2.0 * j_max * abs(v)))
+    if v < 0.0:
+        a_des = -a_des
+    elif v == 0.0:
+        a_des = 0.0
+    a_new = min(max(min(max(a_des, a - j_max * dt), a + j_max * dt), -a_max), a_max)
+    v_new = v + 0.5 * (a + a_new) * dt
+    if v == 0.0 or v_new * v < 0.0:  # it would reverse: it stops at 0
+        return 0.5 * v * dt, 0.0, min(max(0.0, a - j_max * dt), a + j_max * dt)
+    return v * dt + a * (dt * dt / 2.0) + (a_new - a) * (dt * dt / 6.0), v_new, a_new
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sane_bounds(lo: float, hi: float) -> tuple[float, float, bool]:
+    """The bounds of one joint as used (rad/s) and whether they were unusable: a NaN bound reads as 0 (no
+    motion that way); where then ``lo > hi``, both become the value between them nearest 0."""
+    if lo <= hi:
+        return lo, hi, False
+    lo = lo if lo == lo else 0.0
+    hi = hi if hi == hi else 0.0
+    if lo > hi:
+        lo = hi = min(max(0.0, hi), lo)
+    return lo, hi, True
+
+
 @njit(cache=True, nogil=True)
 def enforce_bounds_kernel(
     p0: np.ndarray, v0: np.ndarray, a0_in: np.ndarray, pp: np.ndarray, vp: np.ndarray, ap: np.ndarray,
     lo: np.ndarray, hi: np.ndarray, a_max: np.ndarray, j_max: np.ndarray, dt: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:  # fmt: skip
     """:func:`enforce_velocity_bounds` on float64 C-contiguous (n,) arrays (state p0, v0, a0; planned
-    pp, vp, ap): steps 1-3 of the module docstring per joint. Returns position, velocity, acceleration,
-    limited."""
+    pp, vp, ap): steps 1-3 of the module docstring per joint, and its rules for bad input. Returns position,
+    velocity, acceleration, limited."""
     n = p0.shape[0]
-    p, v, a = pp.copy(), vp.copy(), ap.copy()
+    p, v, a = np.empty(n), np.empty(n), np.empty(n)
     limited = False
     for i in range(n):
-        over = vp[i] > hi[i] + _ROUNDING
-        under = vp[i] < lo[i] - _ROUNDING
+        lo_i, hi_i, bad = _sane_bounds(lo[i], hi[i])
+        vs = v0[i] if np.isfinite(v0[i]) else 0.0  # (a non-finite state entry reads as 0, as in braking_step)
+        a0 = a0_in[i] if np.isfinite(a0_in[i]) else 0.0
+        bad = bad or vs != v0[i] or a0 != a0_in[i] or not np.isfinite(p0[i])
+        pi, vi, ai = pp[i], vp[i], ap[i]
+        if not (np.isfinite(pi) and np.isfinite(vi) and np.isfinite(ai)):  # no plan: the braking step
+            dp, vi, ai = _brake_one(vs, a0, a_max[i], j_max[i], dt)
+            pi, bad = p0[i] + dp, True
+        over = vi > hi_i + _ROUNDING
+        under = vi < lo_i - _ROUNDING
         if over or under:
-            a0 = min(max(a0_in[i], -a_max[i]), a_max[i])
+            a0 = min(max(a0, -a_max[i]), a_max[i])
             a_lo = max(a0 - j_max[i] * dt, -a_max[i])  # accelerations reachable within the jerk limit
             a_hi = min(a0 + j_max[i] * dt, a_max[i])
             if over:  # land on hi with a_new <= 0 (the constant-jerk step: v0 + (a0 + a_new) dt / 2)
-                a_new = min(2.0 * (hi[i] - v0[i]) / dt - a0, 0.0, a_hi)
+                a_new = min(2.0 * (hi_i - vs) / dt - a0, 0.0, a_hi)
                 ok = a_new >= a_lo
             else:  # land on lo with a_new >= 0
-                a_new = max(2.0 * (lo[i] - v0[i]) / dt - a0, 0.0, a_lo)
+                a_new = max(2.0 * (lo_i - vs) / dt - a0, 0.0, a_lo)
                 ok = a_new <= a_hi
-            v_new = v0[i] + 0.5 * (a0 + a_new) * dt
-            if ok and lo[i] - _ROUNDING <= v_new <= hi[i] + _ROUNDING:
-                p[i] = p0[i] + v0[i] * dt + a0 * (dt * dt / 2.0) + (a_new - a0) * (dt * dt / 6.0)
-                v[i], a[i] = v_new, a_new
+            v_new = vs + 0.5 * (a0 + a_new) * dt
+            if ok and lo_i - _ROUNDING <= v_new <= hi_i + _ROUNDING:
+                pi = p0[i] + vs * dt + a0 * (dt * dt / 2.0) + (a_new - a0) * (dt * dt / 6.0)
+                vi, ai = v_new, a_new
             else:  # no jerk-limited step stays within the bound: the bound wins
-                vb = hi[i] if over else lo[i]
-                p[i] = p0[i] + 0.5 * (v0[i] + vb) * dt
-                v[i] = vb
+                vb = hi_i if over else lo_i
+                pi = p0[i] + 0.5 * (vs + vb) * dt
+                vi = vb
                 # the acceleration keeps to its jerk limit, braking as hard as it may (not pushing on)
-                a[i] = min(a_lo, 0.0) if over else max(a_hi, 0.0)
+                ai = min(a_lo, 0.0) if over else max(a_hi, 0.0)
                 limited = True
-        v[i] = min(max(v[i], lo[i]), hi[i])
+        p[i], v[i], a[i] = pi, min(max(vi, lo_i), hi_i), ai
+        limited = limited or bad
     return p, v, a, limited
 
 
@@ -95,11 +139,11 @@ def enforce_velocity_bounds(
     Args:
         state: the state at the start of the cycle (position rad, velocity rad/s, acceleration rad/s^2).
         planned: the state that Ruckig (or :func:`braking_step`) planned for the end of the cycle.
-        lo, hi: (n,) the cycle's velocity bounds, rad/s, ``lo <= hi``.
+        lo, hi: (n,) the cycle's velocity bounds, rad/s, ``lo <= hi`` (otherwise: the module docstring).
         a_max, j_max: (n,) acceleration (rad/s^2) and jerk (rad/s^3) limits; dt: period, s.
     Returns:
         the new state with ``lo <= velocity <= hi`` exactly, and ``limited``: True when a bound had to
-        win over the acceleration or jerk limit in this cycle.
+        win over the acceleration or jerk limit in this cycle, or the input was bad (module docstring).
     """
     f = np.ascontiguousarray
     p, v, a, limited = enforce_bounds_kernel(

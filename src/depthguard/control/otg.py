@@ -19,6 +19,7 @@ the velocity sits on this bound (:mod:`depthguard.control.bounded`) and plans a 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -41,23 +42,49 @@ def position_limited_velocity_bounds(
     """Velocity bounds (n,), (n,) from which every joint can stop before its position limits.
 
     Args:
-        q: (n,) joint positions, rad; q_min, q_max: (n,) limits, rad.
+        q: (n,) joint positions, rad; q_min, q_max: (n,) limits, rad (-inf / +inf: unbounded).
         a_max, j_max: (n,) acceleration (rad/s^2) and jerk (rad/s^3) limits.
         latency: seconds before braking starts (e.g. two control cycles).
         margin: stop this far (rad) inside the limits.
         brake_fraction: share of ``a_max`` assumed for braking, in (0, 1].
     Returns:
         ``(lo, hi)`` with ``lo <= 0 <= hi``: ``hi = v_b(q_max - margin - q)``,
-        ``lo = -v_b(q - q_min - margin)``, 0 where the joint is at or beyond the (margin-reduced) limit.
+        ``lo = -v_b(q - q_min - margin)``, 0 where the joint is at or beyond the (margin-reduced) limit,
+        +-inf towards an infinite limit; never NaN. Where the bound is unknown (``q`` NaN or infinite; a NaN
+        limit, ``a_max``, ``j_max``, ``latency`` or ``margin``; an infinite ``latency`` or ``a_max``) it is 0.
+    Raises:
+        ValueError: ``brake_fraction`` not in (0, 1].
     """
+    if not 0.0 < brake_fraction <= 1.0:
+        raise ValueError(f"brake_fraction must be a number in (0, 1], got {brake_fraction!r}")
+    q = np.asarray(q, dtype=float)
     a = np.asarray(a_max, dtype=float) * brake_fraction
-    c = a / (2.0 * np.asarray(j_max, dtype=float)) + latency
+    with np.errstate(all="ignore"):
+        c = a / (2.0 * np.asarray(j_max, dtype=float)) + latency
+        known = np.isfinite(q) & (a > 0.0) & (c >= 0.0)
 
-    def vb(d: np.ndarray) -> np.ndarray:
-        d = np.maximum(d, 0.0)
-        return a * (-c + np.sqrt(c * c + 2.0 * d / a))
+        def vb(d: np.ndarray) -> np.ndarray:
+            # 2 d / (c + sqrt(c^2 + 2 d / a)) is v_b(d) without the cancellation of -c + sqrt(...); an
+            # overflowing c^2 gives 0, not inf; d = inf (an unbounded joint) gives inf unless c is inf
+            v = 2.0 * d / (c + np.sqrt(c * c + 2.0 * d / a))
+            v = np.where(d == np.inf, np.where(c < np.inf, np.inf, 0.0), v)
+            return np.where(known & (d > 0.0) & (v > 0.0), v, 0.0)
 
-    return -vb(q - q_min - margin), vb(q_max - margin - q)
+        return -vb(q - q_min - margin), vb(q_max - margin - q)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _braking_speed(d: float, a: float, c: float) -> float:
+    """``v_b(d)`` of the module docstring for one joint (rad/s, >= 0): distance ``d`` (rad), braking
+    acceleration ``a`` (rad/s^2), ``c = a / (2 j) + latency`` (s). Computed as ``2 d / (c + sqrt(c^2 + 2 d / a))``
+    (no cancellation, an overflowing ``c^2`` gives 0); 0 for ``d <= 0`` and wherever an argument is NaN or
+    out of range; inf for ``d = inf`` (an unbounded joint) with a finite ``c``."""
+    if not (d > 0.0 and a > 0.0 and c >= 0.0):
+        return 0.0
+    if d == np.inf:
+        return np.inf if c < np.inf else 0.0
+    v = 2.0 * d / (c + np.sqrt(c * c + 2.0 * d / a))
+    return v if v > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -71,25 +98,26 @@ def joint_velocity_bounds(
     ``lo, hi``: ``|qdot| <= v_max`` and :func:`position_limited_velocity_bounds` at ``q``;
     ``lo_s, hi_s``: the same with the position-limit bounds evaluated ``ahead`` (s) later along the
     velocity ``v`` (for planning: braking towards a limit then starts while the jerk limit can still
-    follow the shrinking bound), so ``lo <= lo_s <= 0 <= hi_s <= hi``. tests/test_otg.py checks the
-    result against :func:`position_limited_velocity_bounds`.
+    follow the shrinking bound), so ``lo <= lo_s <= 0 <= hi_s <= hi``, never NaN. A joint whose ``q`` or
+    ``v`` is not finite gets 0 for all four (no motion), as does the side of a NaN limit or of NaN
+    parameters (``q_min``/``q_max`` may be -inf/+inf: an unbounded joint). tests/test_otg.py and
+    tests/test_motion_guarantees.py check the result against :func:`position_limited_velocity_bounds`.
     """
     n = q.shape[0]
-    lo, hi = np.empty(n), np.empty(n)
-    lo_s, hi_s = np.empty(n), np.empty(n)
+    lo, hi = np.zeros(n), np.zeros(n)
+    lo_s, hi_s = np.zeros(n), np.zeros(n)
     for i in range(n):
+        if not (np.isfinite(q[i]) and np.isfinite(v[i])):  # an unknown state: no motion (bounds 0)
+            continue
         a = a_max[i] * brake_fraction
         c = a / (2.0 * j_max[i]) + latency
+        vm = v_max[i] if v_max[i] > 0.0 else 0.0  # (NaN: 0)
         up = max(v[i], 0.0) * ahead
         dn = min(v[i], 0.0) * ahead
-        d_hi = max(q_max[i] - margin - q[i], 0.0)
-        d_lo = max(q[i] - q_min[i] - margin, 0.0)
-        d_hi_s = max(q_max[i] - margin - q[i] - up, 0.0)
-        d_lo_s = max(q[i] + dn - q_min[i] - margin, 0.0)
-        hi[i] = max(min(v_max[i], a * (-c + np.sqrt(c * c + 2.0 * d_hi / a))), 0.0)
-        lo[i] = min(max(-v_max[i], -a * (-c + np.sqrt(c * c + 2.0 * d_lo / a))), 0.0)
-        hi_s[i] = min(hi[i], max(a * (-c + np.sqrt(c * c + 2.0 * d_hi_s / a)), 0.0))
-        lo_s[i] = max(lo[i], min(-a * (-c + np.sqrt(c * c + 2.0 * d_lo_s / a)), 0.0))
+        hi[i] = min(vm, _braking_speed(q_max[i] - margin - q[i], a, c))
+        lo[i] = -min(vm, _braking_speed(q[i] - q_min[i] - margin, a, c))
+        hi_s[i] = min(hi[i], _braking_speed(q_max[i] - margin - q[i] - up, a, c))
+        lo_s[i] = max(lo[i], -_braking_speed(q[i] + dn - q_min[i] - margin, a, c))
     return lo, hi, lo_s, hi_s
 
 
@@ -116,6 +144,8 @@ class JointOtg:
     bounds afterwards (:mod:`depthguard.control.bounded`).
 
     ``step`` is a function of its arguments (the Ruckig object only caches the last trajectory).
+    ``n`` must be an integer >= 1, ``dt`` and every ``a_max``, ``j_max``, ``v_max`` finite and > 0 (a number
+    or an (n,) array): anything else is refused at construction with a ValueError naming the field.
     """
 
     n: int
@@ -129,12 +159,18 @@ class JointOtg:
         import ruckig
 
         self._ruckig = ruckig
-        self.a_max = np.broadcast_to(np.asarray(self.a_max, dtype=float), (self.n,)).copy()
-        self.j_max = np.broadcast_to(np.asarray(self.j_max, dtype=float), (self.n,)).copy()
-        if not (np.all(self.a_max > 0) and np.all(self.j_max > 0)):
-            raise ValueError("a_max and j_max must be > 0")
-        if not self.dt > 0:
-            raise ValueError(f"dt must be > 0, got {self.dt}")
+        if isinstance(self.n, bool) or not isinstance(self.n, int | np.integer) or self.n < 1:
+            raise ValueError(f"n must be an integer >= 1 (the number of joints), got {self.n!r}")
+        self.n = int(self.n)
+        self.a_max = _per_joint("a_max", self.a_max, self.n, "rad/s^2")
+        self.j_max = _per_joint("j_max", self.j_max, self.n, "rad/s^3")
+        try:
+            dt = float(self.dt)
+        except (TypeError, ValueError):
+            dt = math.nan
+        if not 0.0 < dt < math.inf:
+            raise ValueError(f"dt must be a finite number of seconds > 0, got {self.dt!r}")
+        self.dt = dt
         sync = {
             "time": ruckig.Synchronization.Time,
             "phase": ruckig.Synchronization.Phase,
@@ -151,9 +187,7 @@ class JointOtg:
         if self.v_max is None:
             self._inp.max_velocity = [1e9] * self.n  # not used in velocity mode
         else:
-            self.v_max = np.broadcast_to(np.asarray(self.v_max, dtype=float), (self.n,)).copy()
-            if not np.all(self.v_max > 0):
-                raise ValueError("v_max must be > 0")
+            self.v_max = _per_joint("v_max", self.v_max, self.n, "rad/s")
             self._inp.max_velocity = self.v_max.tolist()
         self._neg_a_max = -self.a_max
         self._inp.max_acceleration = self.a_max.tolist()
@@ -165,8 +199,9 @@ class JointOtg:
 
         Returns:
             the new state, the jerk (n,) applied, and Ruckig's result code (``ruckig.Result``:
-            0 Working, 1 Finished, negative = error). On error the state is returned unchanged; an
-            exception inside Ruckig (``RuckigError`` for non-finite input) is reported as -1 (Error).
+            0 Working, 1 Finished, negative = error). On error the state is returned unchanged: a state or
+            target that is not finite or not of length n, and any exception inside Ruckig, is reported as
+            -1 (Error); this never raises.
         """
         new, code = self.advance(state, target_velocity)
         if code < 0:
@@ -182,10 +217,17 @@ class JointOtg:
         if synchronized:
             inp.synchronization = self._ruckig.Synchronization.Phase
         try:
-            inp.current_position = state.position.tolist()
-            inp.current_velocity = state.velocity.tolist()
+            p, v = state.position.tolist(), state.velocity.tolist()
+            a, t = state.acceleration.tolist(), np.asarray(target_velocity, dtype=float).tolist()
+            # Ruckig's velocity mode checks neither the position nor the length of the target, and the
+            # acceleration is clipped below: one finite sum per input refuses NaN/inf (and sums beyond float
+            # range), 4 sums of n floats, about 0.2 us
+            n = self.n
+            if not (len(p) == len(v) == len(a) == len(t) == n and _finite(sum(p) + sum(v) + sum(a) + sum(t))):
+                raise ValueError("state and target must be finite (n,) arrays")
+            inp.current_position, inp.current_velocity = p, v
             inp.current_acceleration = np.minimum(np.maximum(state.acceleration, self._neg_a_max), self.a_max).tolist()
-            inp.target_velocity = np.asarray(target_velocity, dtype=float).tolist()
+            inp.target_velocity = t
             res = self._otg.update(inp, out)
             code = int(res)
         except Exception:  # noqa: BLE001 - the real-time path reports, it does not raise
@@ -196,3 +238,21 @@ class JointOtg:
         if code < 0:
             return state, code
         return OtgState(np.array(out.new_position), np.array(out.new_velocity), np.array(out.new_acceleration)), code
+
+
+_finite = math.isfinite
+
+
+def _per_joint(name: str, value, n: int, unit: str) -> np.ndarray:
+    """``value`` (a number or an (n,) array) as a float (n,) array of finite numbers > 0; ValueError naming
+    ``name`` otherwise."""
+    expected = f"{name} must be a finite number > 0 ({unit}) or an ({n},) array of them"
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{expected}, got {value!r}") from None
+    if arr.shape not in ((), (n,)):
+        raise ValueError(f"{expected}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr) & (arr > 0.0)):
+        raise ValueError(f"{expected}, got {arr.tolist()}")
+    return np.broadcast_to(arr, (n,)).copy()
