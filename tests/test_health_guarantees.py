@@ -18,7 +18,7 @@ from scipy.ndimage import binary_erosion
 pytest.importorskip("pinocchio")
 
 from depthguard.io.cellfile import read_cell  # noqa: E402
-from depthguard.nodes.camera import FrameGate  # noqa: E402
+from depthguard.nodes.camera import FrameGate, HealthWorker  # noqa: E402
 from depthguard.nodes.common import camera_at_size  # noqa: E402
 from depthguard.robot.health import CameraHealth, _eroded, predicted_robot_depth  # noqa: E402
 from depthguard.runner.chain import Chain, load_cell_robot  # noqa: E402
@@ -182,3 +182,51 @@ def test_the_chain_counts_a_frame_set_only_when_its_stamp_advances(hexagon):
     for k in range(4):
         chain.on_frames(frames, q, 2.0 + k)
     assert set(chain.faults.values()) == {"frozen"}
+
+
+def _wait(cond, timeout: float = 10.0) -> None:
+    import time
+
+    end = time.time() + timeout
+    while not cond() and time.time() < end:
+        time.sleep(0.002)
+    assert cond()
+
+
+def test_the_camera_nodes_health_worker_runs_at_the_lowest_priority_and_closes_the_gate():
+    """The node's checks run on a thread at nice 19 (off the distance node's CPUs when they are busy), with
+    the same verdicts as the gate itself; a check that raises shuts the gate for good, naming why."""
+    import sys
+
+    from depthguard.camera import Camera
+
+    cam = Camera(fx=20.0, fy=20.0, cx=8.0, cy=6.0, width=16, height=12)
+    frame = np.full(cam.shape, 2.0, np.float32)
+    gate, changes = FrameGate("c", None), []
+    w = HealthWorker(gate, lambda c, t: changes.append((c, t)))
+    try:
+        for k in range(3):
+            w.submit(cam, frame, np.zeros(0), float(k))
+            _wait(lambda k=k: w.checked == k + 1)
+        assert changes == [("frozen", 2.0)] and not gate.open
+        if sys.platform.startswith("linux"):
+            stat = Path(f"/proc/self/task/{w.native_id}/stat").read_text()
+            assert int(stat.rsplit(")", 1)[1].split()[16]) == 19  # (field 19 of stat: nice)
+    finally:
+        w.close()
+    gate, changes = FrameGate("c", None), []
+
+    def broken(*args):
+        raise RuntimeError("boom")
+
+    gate.after = broken
+    w = HealthWorker(gate, lambda c, t: changes.append((c, t)))
+    try:
+        assert gate.open
+        w.submit(cam, frame, np.zeros(0), 1.0)
+        _wait(lambda: w.checked == 1)
+        assert not gate.open and changes == [("health check failed (RuntimeError: boom)", 1.0)]
+        gate.withhold()
+        assert gate.withheld == {"health check failed (RuntimeError: boom)": 1}
+    finally:
+        w.close()
