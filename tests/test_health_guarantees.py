@@ -193,8 +193,8 @@ def _wait(cond, timeout: float = 10.0) -> None:
     assert cond()
 
 
-def test_the_camera_nodes_health_worker_runs_at_the_lowest_priority_and_closes_the_gate():
-    """The node's checks run on a thread at nice 19 (off the distance node's CPUs when they are busy), with
+def test_the_camera_nodes_health_worker_runs_at_a_low_priority_and_closes_the_gate():
+    """The node's checks run on a thread at nice 10 (off the distance node's CPUs when they are busy), with
     the same verdicts as the gate itself; a check that raises shuts the gate for good, naming why."""
     import sys
 
@@ -211,7 +211,7 @@ def test_the_camera_nodes_health_worker_runs_at_the_lowest_priority_and_closes_t
         assert changes == [("frozen", 2.0)] and not gate.open
         if sys.platform.startswith("linux"):
             stat = Path(f"/proc/self/task/{w.native_id}/stat").read_text()
-            assert int(stat.rsplit(")", 1)[1].split()[16]) == 19  # (field 19 of stat: nice)
+            assert int(stat.rsplit(")", 1)[1].split()[16]) == HealthWorker.NICE  # (field 19 of stat: nice)
     finally:
         w.close()
     gate, changes = FrameGate("c", None), []
@@ -229,4 +229,35 @@ def test_the_camera_nodes_health_worker_runs_at_the_lowest_priority_and_closes_t
         gate.withhold()
         assert gate.withheld == {"health check failed (RuntimeError: boom)": 1}
     finally:
+        w.close()
+
+
+def test_a_health_check_that_falls_behind_holds_the_frames():
+    """A starved check thread must not let frames through unchecked: more than ``MAX_BEHIND`` frames handed
+    over and not checked is ``behind`` (the node withholds them); catching up clears it."""
+    import threading
+
+    from depthguard.camera import Camera
+
+    cam = Camera(fx=20.0, fy=20.0, cx=8.0, cy=6.0, width=16, height=12)
+    gate, release = FrameGate("c", None), threading.Event()
+    after = gate.after
+
+    def slow(*args):
+        release.wait(10)
+        return after(*args)
+
+    gate.after = slow
+    w = HealthWorker(gate, lambda c, t: None)
+    try:
+        rng = np.random.default_rng(1)
+        for k in range(HealthWorker.MAX_BEHIND + 1):
+            assert not w.behind
+            w.submit(cam, (1 + rng.random(cam.shape)).astype(np.float32), np.zeros(0), float(k))
+        assert w.behind
+        release.set()
+        _wait(lambda: not w.behind)
+        assert gate.open
+    finally:
+        release.set()
         w.close()

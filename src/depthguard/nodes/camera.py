@@ -92,9 +92,9 @@ class FrameGate:
         """Whether the next frame may be published."""
         return self.failed is None and (self.health is None or self.health.fault is None)
 
-    def withhold(self) -> None:
-        """Count a frame not published because of the current fault."""
-        f = self.failed or (self.health.fault if self.health is not None else None) or "unknown"
+    def withhold(self, why: str | None = None) -> None:
+        """Count a frame not published because of the current fault (or ``why``)."""
+        f = why or self.failed or (self.health.fault if self.health is not None else None) or "unknown"
         self.withheld[f] = self.withheld.get(f, 0) + 1
 
     def after(self, cam: Camera, depth: np.ndarray, q: np.ndarray, stamp: float) -> str | None:
@@ -108,18 +108,24 @@ class FrameGate:
 
 
 class HealthWorker:
-    """Runs a :class:`FrameGate`'s checks on a thread of its own at the lowest CPU priority (nice 19, Linux),
+    """Runs a :class:`FrameGate`'s checks on a thread of its own at a low CPU priority (nice ``NICE``, Linux),
     off the frame's latency path: a check costs about 4.5 ms at 640x480 (mostly the arm's predicted depth for
     the "moved" test) and would otherwise take CPU from the distance node just when the frames it waits for
     arrive. The newest frame waits in a one-slot mailbox: a check that falls behind skips frames (a frozen
-    stream still repeats one image, and the stamps still advance). ``on_change(state, stamp)`` is called on
-    the worker's thread at each change of state; a check that raises shuts the gate for good."""
+    stream still repeats one image, and the stamps still advance). A check that falls more than
+    ``MAX_BEHIND`` frames behind (:attr:`behind`: a starved thread) must not let frames through unchecked:
+    the node withholds them ("health check behind") until it catches up. ``on_change(state, stamp)`` is
+    called on the worker's thread at each change of state; a check that raises shuts the gate for good."""
+
+    NICE = 10  # (weight 110 against 1024: it yields to the distance node, and is not starved by it)
+    MAX_BEHIND = 3  # frames submitted and not yet checked
 
     def __init__(self, gate: FrameGate, on_change) -> None:
         self.gate, self.on_change = gate, on_change
         self._slot: tuple | None = None
         self._closed = False
         self.checked = 0  # frames checked so far
+        self.submitted = 0  # frames handed over so far
         self.native_id: int | None = None  # the worker thread's id (for its priority)
         self._cv = threading.Condition()
         self._thread = threading.Thread(target=self._run, name=f"health-{gate.name}", daemon=True)
@@ -129,7 +135,13 @@ class HealthWorker:
         """Hand over a frame for checking (replaces one not yet checked)."""
         with self._cv:
             self._slot = (cam, depth, q, stamp)
+            self.submitted += 1
             self._cv.notify()
+
+    @property
+    def behind(self) -> bool:
+        """Whether the checks lag more than ``MAX_BEHIND`` frames behind the frames handed over."""
+        return self.submitted - self.checked > self.MAX_BEHIND
 
     def close(self) -> None:
         with self._cv:
@@ -142,7 +154,7 @@ class HealthWorker:
 
         self.native_id = threading.get_native_id()
         try:
-            os.setpriority(os.PRIO_PROCESS, self.native_id, 19)
+            os.setpriority(os.PRIO_PROCESS, self.native_id, self.NICE)
         except (OSError, AttributeError):  # (not Linux: the default priority)
             pass
         while True:
@@ -156,9 +168,30 @@ class HealthWorker:
                 change = self.gate.after(*job)
             except Exception as exc:  # noqa: BLE001 - reported, and the gate stays shut
                 self.gate.failed = change = f"health check failed ({type(exc).__name__}: {exc})"
-            self.checked += 1
+            with self._cv:
+                self.checked = self.submitted - (self._slot is not None)  # (skipped frames count as checked)
             if change is not None:
                 self.on_change(change, job[3])
+
+
+def _reporting_worker(gate: FrameGate, jl: JsonLog) -> HealthWorker:
+    """The gate's :class:`HealthWorker`, each change written to the log (``sensor_health``) and said on stderr."""
+
+    def said(change: str, stamp: float) -> None:
+        jl.write(ev="sensor_health", camera=gate.name, state=change, stamp=stamp)
+        tail = "" if change == "healthy" else ": frames withheld"
+        print(f"depthguard {gate.name}: camera {change}{tail}", file=sys.stderr)
+
+    return HealthWorker(gate, said)
+
+
+def _joint_state_at(joint_states: list, t: float) -> np.ndarray | None:
+    """The joint positions of the ``(stamp, q)`` pair nearest to ``t`` (s), None when none lies within
+    ``MAX_JOINT_SKEW``."""
+    if not joint_states:
+        return None
+    tj, q = min(joint_states, key=lambda x: abs(x[0] - t))
+    return q if abs(tj - t) <= MAX_JOINT_SKEW else None
 
 
 def run_camera_node(
@@ -207,13 +240,7 @@ def run_camera_node(
     pub_m = node.publisher(top.mask[name], "sensor_msgs/msg/Image", QOS_SENSOR_DATA)
     done = skipped = 0
     gate = FrameGate(name, model)
-
-    def said(change: str, stamp: float) -> None:
-        jl.write(ev="sensor_health", camera=name, state=change, stamp=stamp)
-        print(f"depthguard {name}: camera {change}" + ("" if change == "healthy" else ": frames withheld"),
-              file=sys.stderr)  # fmt: skip
-
-    worker = HealthWorker(gate, said)
+    worker = _reporting_worker(gate, jl)
     t_start = time.time()
     try:
         while not stop and (duration is None or time.time() - t_start < duration):
@@ -224,11 +251,8 @@ def run_camera_node(
                 msg, pub_in = latest["msg"], latest["pub"]
                 js = list(joints)
             t = ros2.to_seconds(msg.header.stamp)
-            if not js:
-                skipped += 1
-                continue
-            tj, q = min(js, key=lambda x: abs(x[0] - t))
-            if abs(tj - t) > MAX_JOINT_SKEW:
+            q = _joint_state_at(js, t)
+            if q is None:
                 skipped += 1
                 continue
             try:
@@ -237,14 +261,14 @@ def run_camera_node(
                 jl.write(ev="bad_frame", error=str(exc))
                 skipped += 1
                 continue
-            if gate.open:
+            if gate.open and not worker.behind:
                 fid = msg.header.frame_id
                 p1 = pub_d.publish(ros2.image_msg(t, fid, depth, "32FC1"))
                 pub_m.publish(mask_msg(t, fid, mask))
                 done += 1
                 jl.write(ev="prepared", stamp=t, pub_raw=pub_in * 1e-9, pub=p1 * 1e-9)
             else:
-                gate.withhold()
+                gate.withhold(None if not gate.open else "health check behind")
             worker.submit(cam, depth, q, t)
     finally:
         out = {"frames": done, "skipped": skipped, "dropped": dict(sub.dropped), "freed_memory": heap}

@@ -270,7 +270,7 @@ def run_loop(
         # ---------------------------------------------------------------- truth (metrics only)
         per_link, tmin, name, _ = truth.evaluate()
         log.step_true_min.append(tmin)
-        if tmin <= 0:
+        if not tmin > 0:  # (a NaN truth counts, as in the metrics)
             log.nearest_obstacle[name] = log.nearest_obstacle.get(name, 0) + 1
         if k % cfg.log_every == 0:
             elbow = cp.centres[elbow_idx[0]] if elbow_idx else cell.data.xpos[5]
