@@ -27,7 +27,9 @@ Per cycle (:func:`control_cycle`), a sequence of small stages:
 
 Nothing here raises in the real-time path: the outcome is a :class:`CycleStatus`; an unexpected
 exception is caught and turned into a jerk-limited stop (``STOP_INTERNAL_ERROR``). Bad *configuration*
-(wrong sizes at construction) raises ``ValueError`` once, at start-up.
+(a field outside its form when the :class:`ControllerConfig` is made; a per-joint limit of the wrong length
+or an ``a_max`` too small for the robot's speeds when the controller is built) raises ``ValueError`` naming
+the field, once, at start-up.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from depthguard.control.otg import JointOtg, OtgState, joint_velocity_bounds
 from depthguard.control.plan_kernel import both_finite, cycle_layout, plan_cycle, plan_params
 from depthguard.control.sns import sns_velocity_unchecked
 from depthguard.control.step import generate
-from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus
+from depthguard.control.types import ControllerConfig, CycleInput, CycleOutput, CycleStatus, check_config_for_robot
 from depthguard.robot.control_points import ControlPointSet
 
 __all__ = [
@@ -110,24 +112,18 @@ class AvoidanceController:
         n = model.n_dof
         self.n = n
         cfg = self.config
-        if not 0.0 < cfg.velocity_scale <= 1.0:
-            raise ValueError(f"velocity_scale must be in (0, 1], got {cfg.velocity_scale}")
-        if not (math.isfinite(cfg.resume_time) and cfg.resume_time >= 0.0):
-            raise ValueError(f"resume_time must be a finite number of seconds >= 0, got {cfg.resume_time}")
-        self.v_max = np.asarray(model.v_max, dtype=float) * cfg.velocity_scale
+        self.v_max = np.asarray(model.v_max, dtype=float) * float(cfg.velocity_scale)
+        check_config_for_robot(cfg, self.v_max)  # (the fields alone are checked when the config is made)
         self.q_min = np.asarray(model.q_min, dtype=float)
         self.q_max = np.asarray(model.q_max, dtype=float)
-        self.otg = JointOtg(
-            n, cfg.dt, np.asarray(cfg.a_max), np.asarray(cfg.j_max), cfg.synchronization, v_max=self.v_max
-        )
+        a_max, j_max = np.asarray(cfg.a_max, dtype=float), np.asarray(cfg.j_max, dtype=float)
+        self.otg = JointOtg(n, float(cfg.dt), a_max, j_max, cfg.synchronization, v_max=self.v_max)
         self.plan_ahead = 2.0 * float(np.max(self.otg.a_max / self.otg.j_max))  # s, see Bounds
         self.body_use = np.ones(self.points.n_points, dtype=bool)
         self.body_use[0] = False  # the end effector is handled by its repulsive velocity (eq. 10)
         self.state: ControllerState | None = None
         self.compiled = _compiled_parts(self.points, cfg, self.plan_ahead)  # (3-D task: M_TASK)
         self.sensor_fault: str | None = None
-        if cfg.avoidance not in ("repulsion", "ssm", "both"):
-            raise ValueError(f"avoidance must be 'repulsion', 'ssm' or 'both', got {cfg.avoidance!r}")
         self.monitor = None
         if cfg.avoidance != "repulsion":
             from depthguard.control.braking import chain_lengths

@@ -13,7 +13,22 @@ import numpy as np
 
 from depthguard.control.cycle import AvoidanceController, CycleInput
 
-__all__ = ["warm_up"]
+__all__ = ["warm_up", "start_position"]
+
+
+def start_position(q_min: np.ndarray, q_max: np.ndarray) -> np.ndarray:
+    """Joint positions (n,) strictly inside the limits ``q_min``, ``q_max`` (n,), rad or m (∓inf allowed),
+    wherever ``q_min < q_max``: the midpoint of a bounded joint (``0.5 lo + 0.5 hi``: no overflow), 0 for a
+    joint unbounded both ways (a continuous joint), and ``max(1, |limit| / 1000)`` inside the one finite
+    limit of a joint bounded on one side (``clip(0, lo, hi)`` put such a joint exactly on its limit when
+    ``lo > 0``)."""
+    lo, hi = np.asarray(q_min, dtype=float), np.asarray(q_max, dtype=float)
+    fin_lo, fin_hi = np.isfinite(lo), np.isfinite(hi)
+    lo0, hi0 = np.where(fin_lo, lo, 0.0), np.where(fin_hi, hi, 0.0)
+    q = np.zeros_like(lo)
+    q = np.where(fin_lo & fin_hi, 0.5 * lo0 + 0.5 * hi0, q)
+    q = np.where(fin_lo & ~fin_hi, lo0 + np.maximum(1.0, np.abs(lo0) * 1e-3), q)
+    return np.where(~fin_lo & fin_hi, hi0 - np.maximum(1.0, np.abs(hi0) * 1e-3), q)
 
 
 def warm_up(points, config, model, cycles: int = 300) -> list[str]:
@@ -22,7 +37,7 @@ def warm_up(points, config, model, cycles: int = 300) -> list[str]:
     stalled the node for 6-7 s twice (the braking kernel, first used at the first resume).
 
     The phases, ``cycles`` simulated cycles each (more where a timeout or the resume latch must pass first;
-    the robot at mid-range, an obstacle 0.3 m from every
+    the robot at :func:`start_position`, an obstacle 0.3 m from every
     sphere unless said): no input yet (STOP_INVALID_INPUT); joint states only; every input fresh with a slow
     task velocity (OK, moving); the distances going stale (STOP_STALE_DISTANCES, jerk-limited braking); fresh
     again (STOP_RESUME_WAIT, for ``resume_time``, then OK); the monitor's own distances; no task velocity and
@@ -32,10 +47,7 @@ def warm_up(points, config, model, cycles: int = 300) -> list[str]:
     if cycles <= 0:
         return []
     ctrl = AvoidanceController(points, config)
-    lo, hi = np.asarray(model.q_min, float), np.asarray(model.q_max, float)
-    with np.errstate(invalid="ignore"):  # (a continuous joint's midpoint is NaN or ±inf: its angle 0 instead)
-        mid = 0.5 * (lo + hi)
-    q = np.where(np.isfinite(mid), mid, np.clip(0.0, lo, hi))
+    q = start_position(model.q_min, model.q_max)
     qd, task = np.zeros_like(q), np.array([0.02, 0.0, 0.0])
     N = points.n_points
     near, none, touch = np.full(N, 0.3), np.full(N, np.inf), np.linspace(0.0, 0.05, N)
