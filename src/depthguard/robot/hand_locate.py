@@ -11,6 +11,7 @@ foreground points within ``hand_radius`` of that seed (:func:`locate_hands`).
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import fields, replace
 from typing import NamedTuple
 
@@ -44,14 +45,24 @@ def foreground_mask(
     escaped the self-filter), which a hand, a blob of many pixels, survives.
 
     A background pixel without reading (NaN/0) admits any reading in front of it. With ``box``
-    ``(u0, u1, v0, v1)`` (e.g. :func:`image_box`) only that part is computed; the rest is False.
+    ``(u0, u1, v0, v1)`` (e.g. :func:`image_box`) only that part is computed (clipped to the image); the rest
+    is False.
+
+    ``background`` and ``robot_mask`` must have the shape of ``depth`` and ``bg_margin`` must be a finite number
+    >= 0 or an (H, W) array of them (within ``box``): a NaN or infinite margin would hide every person;
+    anything else raises ``ValueError`` naming the argument (O(1), plus one min/max pass over a margin image).
     """
-    H, W = np.shape(depth)
-    u0, u1, v0, v1 = box if box is not None else (0, W, 0, H)
+    H, W = _image_shape(depth, "depth")
+    if np.asarray(depth).dtype.kind != "f":  # (an integer image in millimetres would compare with metres)
+        raise ValueError(f"foreground_mask: depth must be a float image in metres, got {np.asarray(depth).dtype}")
+    for name, a in (("background", background), ("robot_mask", robot_mask)):
+        if np.shape(a) != (H, W):
+            raise ValueError(f"foreground_mask: {name} must be an (H, W) = {(H, W)} image, got shape {np.shape(a)}")
+    u0, u1, v0, v1 = _clip_box(box, W, H)
     win = (slice(v0, v1), slice(u0, u1))
     d = np.asarray(depth[win], np.float32)
     bg = np.asarray(background[win], np.float32)
-    margin = bg_margin[win] if np.ndim(bg_margin) == 2 else bg_margin
+    margin = _check_bg_margin(bg_margin, (H, W), win)
     m = _window_margin(margin, d.shape) if bg.shape == d.shape else None
     rm = np.asarray(robot_mask[win], bool) if m is not None else None
     if rm is not None and rm.shape == d.shape:  # one compiled pass, the same mask
@@ -75,6 +86,50 @@ def foreground_mask(
     out = np.zeros((H, W), bool)
     out[win] = fg
     return out
+
+
+def _image_shape(a: object, name: str) -> tuple[int, int]:
+    """(H, W) of a 2-D image ``a``; ``ValueError`` naming ``name`` otherwise."""
+    shape = np.shape(a)
+    if len(shape) != 2:
+        raise ValueError(f"{name} must be an (H, W) image, got shape {shape}")
+    return shape[0], shape[1]
+
+
+def _clip_box(box: tuple[int, int, int, int] | None, W: int, H: int) -> tuple[int, int, int, int]:
+    """``box`` (u0, u1, v0, v1) clipped to the (W, H) image (a negative bound is the image's edge, not Python's
+    index from the end); the whole image for None; ``ValueError`` for anything but four integers."""
+    if box is None:
+        return 0, W, 0, H
+    try:
+        u0, u1, v0, v1 = (operator.index(x) for x in box)
+    except (TypeError, ValueError):
+        raise ValueError(f"foreground_mask: box must be four integers (u0, u1, v0, v1) or None, got {box!r}") from None
+    return min(max(u0, 0), W), min(max(u1, 0), W), min(max(v0, 0), H), min(max(v1, 0), H)
+
+
+def _check_bg_margin(bg_margin: object, shape: tuple[int, int], win: tuple[slice, slice]) -> float | np.ndarray:
+    """``bg_margin`` (its window for an (H, W) array) as given, checked: a finite number >= 0 (m) or an (H, W)
+    float array of them within ``win``; ``ValueError`` naming ``bg_margin`` otherwise."""
+    if type(bg_margin) in (float, int, np.float32, np.float64) and 0 <= bg_margin < math.inf:
+        return bg_margin  # (the common case, O(1))
+    if isinstance(bg_margin, np.ndarray) and bg_margin.ndim == 2:
+        if bg_margin.shape != shape or bg_margin.dtype.kind != "f":
+            raise ValueError(
+                f"bg_margin must be a number >= 0 or a float (H, W) = {shape} array, got {bg_margin.dtype} "
+                f"of shape {bg_margin.shape}"
+            )
+        m = np.ascontiguousarray(bg_margin[win])  # (what the kernel takes: reduced at full speed)
+        if m.size and not (m.min() >= 0 and math.isfinite(m.sum())):  # (NaN fails the first)
+            raise ValueError("bg_margin must be finite and >= 0 m in every pixel, got NaN, inf or a negative one")
+        return m
+    if isinstance(bg_margin, np.ndarray) and bg_margin.ndim == 0 and bg_margin.dtype.kind in "fiu":
+        if 0 <= bg_margin < np.inf:
+            return bg_margin
+    ok = isinstance(bg_margin, int | float | np.integer | np.floating) and not isinstance(bg_margin, bool)
+    if not (ok and 0 <= bg_margin < math.inf):
+        raise ValueError(f"bg_margin must be a finite number of metres >= 0 or an (H, W) array, got {bg_margin!r}")
+    return bg_margin
 
 
 def _window_margin(margin: object, shape: tuple[int, ...]) -> tuple[np.ndarray, bool] | None:
@@ -110,9 +165,16 @@ def _backproject(camera: Camera, depth: np.ndarray, us: np.ndarray, vs: np.ndarr
 
 def image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray | float) -> tuple[int, int, int, int] | None:
     """Pixel box (u0, u1, v0, v1) covering the image of every sphere (S, 3) grown by ``reach`` (m), from the
-    exact tangent bounds; the whole image if one reaches behind the camera; None if the box is empty."""
+    exact tangent bounds; the whole image if one reaches behind the camera; None if the box is empty (no
+    sphere among them). Centres or reaches that are not finite (reach >= 0 m, a number or (S,)) raise
+    ``ValueError`` naming them (an O(S) check)."""
+    centres, reach = _check_spheres(centres, reach, "reach")
+    return _image_box(camera, centres, reach) if len(centres) else None
+
+
+def _image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray) -> tuple[int, int, int, int] | None:
+    """:func:`image_box` of checked spheres: ``centres`` (S >= 1, 3), ``reach`` (S,) m."""
     pc = camera.world_to_camera(centres)
-    reach = np.broadcast_to(np.asarray(reach, float), (len(pc),))
     if pc.ndim == 2 and pc.shape[1] == 3 and len(pc):  # one compiled pass, the same box
         behind, a0, a1, b0, b1 = _box_kernel(pc, reach, camera.fx, camera.fy, camera.cx, camera.cy)
         if behind:
@@ -134,6 +196,39 @@ def image_box(camera: Camera, centres: np.ndarray, reach: np.ndarray | float) ->
     v0 = int(np.clip(np.floor(yl.min()) - 1, 0, camera.height))
     v1 = int(np.clip(np.ceil(yh.max()) + 2, 0, camera.height))
     return (u0, u1, v0, v1) if u1 > u0 and v1 > v0 else None
+
+
+def _check_spheres(centres: object, radii: object, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``centres`` (S, 3) and ``radii`` (a number or (S,), broadcast) as float arrays, both finite and the radii
+    >= 0 m; else ``ValueError`` naming them."""
+    c = np.asarray(centres, float)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise ValueError(f"centres must be an (S, 3) array of sphere centres in metres, got shape {c.shape}")
+    r = np.asarray(radii, float)
+    if r.ndim > 1 or (r.ndim == 1 and r.shape != (len(c),)):
+        raise ValueError(f"{name} must be a number or an ({len(c)},) array of metres, got shape {r.shape}")
+    r = np.broadcast_to(r, (len(c),))
+    if not math.isfinite(c.sum()):  # (a sum is finite only if every element is: one pass)
+        raise ValueError("centres must be finite (S, 3) sphere centres in metres, got NaN, inf or an overflowing one")
+    if len(r) and not (r.min() >= 0 and math.isfinite(r.sum())):  # (NaN fails the first)
+        raise ValueError(f"{name} must be finite and >= 0 m, got {r.tolist()}")
+    return c, r
+
+
+def _check_locate_args(n: object, rho: object, hand_radius: object, separation: object, depth_offset: object) -> int:
+    """:func:`locate_hands`' numbers checked (``ValueError`` naming the first bad one); returns ``n``."""
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 0:
+        raise ValueError(f"n (the number of hands) must be an integer >= 0, got {n!r}")
+    for name, v, positive in (
+        ("rho", rho, True),
+        ("hand_radius", hand_radius, True),
+        ("separation", separation, False),
+        ("depth_offset", depth_offset, False),
+    ):
+        ok = isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
+        if not (ok and math.isfinite(v) and (v > 0 if positive else v >= 0)):
+            raise ValueError(f"{name} must be a finite number of metres {'> 0' if positive else '>= 0'}, got {v!r}")
+    return int(n)
 
 
 def _hand_at(
@@ -218,10 +313,21 @@ def locate_hands(
 
     Only the image box around the robot's spheres grown by ``rho`` is prepared and searched (the depth-space
     query never looks further), so the cost depends on the robot's image size, not the frame's.
+
+    ``depth`` and ``fg`` must be the camera's (H, W) images; centres and radii finite (radii >= 0), ``n`` an
+    integer >= 0, ``rho`` and ``hand_radius`` finite > 0, ``separation`` and ``depth_offset`` finite >= 0:
+    anything else raises ``ValueError`` naming it (O(S) checks). No sphere (S = 0): no hand.
     """
-    centres = np.asarray(centres, float)
-    radii = np.asarray(radii, float)
-    box = image_box(camera, centres, radii + rho)
+    n = _check_locate_args(n, rho, hand_radius, separation, depth_offset)
+    for name, a in (("depth", depth), ("fg", fg)):
+        if np.shape(a) != camera.shape:
+            raise ValueError(
+                f"locate_hands: {name} must be the camera's (H, W) = {camera.shape} image, got {np.shape(a)}"
+            )
+    centres, radii = _check_spheres(centres, radii, "radii")
+    if n == 0 or not len(centres):
+        return []
+    box = _image_box(camera, centres, radii + rho)
     if box is None:
         return []
     u0, u1, v0, v1 = box

@@ -7,7 +7,10 @@ without a background the monitor never lets the arm move. Commissioning records 
 robot may stand or move, **nobody may be in the cell** — and writes a background file
 (:mod:`depthguard.io.background`): per camera the nearest valid non-robot depth seen over the frames (valid:
 finite and at or beyond the camera's ``min_depth``; NaN where no frame gave one; each frame self-filtered with
-its joint state, as ``depthguard run`` does) and the tolerance model of the pixel rule
+the joint state of its stamp, as ``depthguard run`` does) among the pixel's *steady* readings (a reading
+nearer than the pixel's median by more than the tolerance below came and went: someone passing, robot pixels
+the self-filter missed; it would hide everything behind it for good and is left out, and the summary counts
+those pixels as ``transient_pixels``) and the tolerance model of the pixel rule
 (:mod:`depthguard.robot.background`). The cell file references it with ``[controller] background = "FILE"``;
 ``depthguard run`` and the distance node apply it when ``ssm = true``.
 
@@ -32,6 +35,7 @@ import datetime as _dt
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +44,7 @@ import numpy as np
 from depthguard.errors import InputError
 from depthguard.io.background import BackgroundFile, write_background
 from depthguard.io.cellfile import read_cell
-from depthguard.robot.background import BACKGROUND_MARGIN
+from depthguard.robot.background import BACKGROUND_MARGIN, background_tolerance
 
 __all__ = ["commission_cell", "check_out_file", "COMMISSION_FRAMES"]
 
@@ -70,12 +74,20 @@ def default_background_path(cell_path: str | Path) -> Path:
 
 
 class _Accumulator:
-    """Per camera: the nearest valid non-robot depth over the frames, and the per-pixel moments for the noise.
-    A valid reading is finite, > 0 and at or beyond the camera's near limit ``min_depth`` (m): a single
-    spurious reading nearer than that (dust, a flying pixel) would otherwise become the pixel's background,
-    and every reading behind it would be hidden from the monitor for good."""
+    """Per camera: the valid non-robot readings of every frame (for the background, :meth:`background`), their
+    nearest, and the per-pixel moments for the noise. A valid reading is finite, > 0 and at or beyond the
+    camera's near limit ``min_depth`` (m): a single spurious reading nearer than that (dust, a flying pixel)
+    would otherwise become the pixel's background, and every reading behind it would be hidden from the monitor
+    for good. Memory: one float32 image per frame, at most ``MAX_KEPT`` (30 frames of 640x480: 37 MB; 64: 79 MB);
+    beyond that a uniform sample of the frames is kept (reservoir sampling, fixed seed): the background from a
+    subset of the frames is never nearer than from all of them, the safe side."""
+
+    MAX_KEPT = 64
 
     def __init__(self, shape: tuple[int, int], min_depth: float = 0.0) -> None:
+        self.frames: list[np.ndarray] = []
+        self.seen = 0
+        self._rng = np.random.default_rng(0)
         self.near = np.full(shape, np.nan, np.float32)
         self.n = np.zeros(shape, np.int32)
         self.s = np.zeros(shape, np.float64)
@@ -89,11 +101,39 @@ class _Accumulator:
             raise ValueError(f"a frame of shape {d.shape} (robot mask {np.shape(robot)}) for {self.near.shape}")
         with np.errstate(invalid="ignore"):
             valid = np.isfinite(d) & (d > 0) & (d >= self.min_depth) & ~np.asarray(robot, bool)
-        self.near = np.fmin(self.near, np.where(valid, d, np.float32(np.nan)))
+        dn = np.where(valid, d, np.float32(np.nan))
+        self.seen += 1
+        if len(self.frames) < self.MAX_KEPT:
+            self.frames.append(dn)
+        else:  # (reservoir sampling: every frame is kept with probability MAX_KEPT / seen)
+            j = int(self._rng.integers(0, self.seen))
+            if j < self.MAX_KEPT:
+                self.frames[j] = dn
+        self.near = np.fmin(self.near, dn)
         self.n += valid
         dv = np.where(valid, d, 0.0).astype(np.float64)
         self.s += dv
         self.s2 += dv * dv
+
+    def background(self, noise_coeff: float, quantization: float, margin: float) -> tuple[np.ndarray, int]:
+        """(H, W) float32 background depth (m, NaN: none) and the number of pixels where something came and went.
+
+        Per pixel the nearest *steady* valid reading: a reading nearer than the pixel's median valid reading
+        ``m`` by more than the background tolerance ``tol(m) = 3 c m² + q + margin`` is something passing in
+        front of the background (a person, a flying pixel at the arm's edge, robot pixels the self-filter
+        missed) and is left out; the noise of a steady surface stays within it (3 σ). Whatever was in front
+        of a pixel in fewer than half of its valid readings is therefore never hidden later: the written
+        ``b >= m - tol(m)``, so the rule's threshold ``b - tol(b) >= m - 2 tol(m)``."""
+        if not self.frames:
+            return self.near.copy(), 0
+        stack = np.stack(self.frames)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # (all-NaN pixels: NaN median, no background)
+            med = np.nanmedian(stack, axis=0)
+            steady_from = med - background_tolerance(med, noise_coeff, quantization, margin)
+            passing = stack < steady_from  # (False for NaN)
+        bg = np.fmin.reduce(np.where(passing, np.float32(np.nan), stack), axis=0).astype(np.float32)
+        return bg, int(np.count_nonzero(passing.any(axis=0)))
 
     def noise_coeff(self, frames: int) -> float | None:
         """``median(σ / z²)`` over the pixels valid in >= 80 % of ``frames`` (>= 5); None if not measurable."""
@@ -127,12 +167,17 @@ def _progress(k: int, n: int, label: str) -> None:
 
 def _check_options(frames: int, margin: float, noise_coeff: float | None) -> int:
     """The command's numbers, checked (``InputError`` naming the option); returns ``frames`` as an int."""
-    if int(frames) < 1:
-        raise InputError(f"--frames must be an integer >= 1, got {frames}")
-    if not (np.isfinite(margin) and margin >= 0):
-        raise InputError(f"--margin must be a number of metres >= 0, got {margin}")
-    if noise_coeff is not None and not (np.isfinite(noise_coeff) and noise_coeff >= 0):
-        raise InputError(f"--noise-coeff must be a number >= 0, got {noise_coeff}")
+    if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or frames < 1:
+        if not (isinstance(frames, float | np.floating) and float(frames).is_integer() and frames >= 1):
+            raise InputError(f"--frames must be an integer >= 1, got {frames!r}")
+    for name, v in (("--margin", margin), ("--noise-coeff", noise_coeff)):
+        if v is None and name == "--noise-coeff":
+            continue
+        number = isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
+        if not (number and np.isfinite(v) and v >= 0):
+            raise InputError(
+                f"{name} must be a finite number >= 0 ({'m' if name == '--margin' else 'm^-1'}), got {v!r}"
+            )
     return int(frames)
 
 
@@ -152,18 +197,20 @@ def _record(src, cell, model, source: str, frames: int, progress: bool, follow_t
             t_first = tick.t if t_first is None else t_first
             if follow is not None and tick.q is not None:
                 src.command(*follow(tick.q, tick.xdot_d))
-            if tick.frames is None or tick.q is None or np.shape(tick.q) != (n_ok,):
+            # the robot where the frames saw it: the joint state nearest to their stamps (a bag), as `run` does
+            q = tick.q if getattr(tick, "q_frames", None) is None else tick.q_frames
+            if tick.frames is None or q is None or np.shape(q) != (n_ok,):
                 continue
-            if not np.all(np.isfinite(tick.q)) or tick.faults:
+            if not np.all(np.isfinite(q)) or tick.faults:
                 continue
             if np.isfinite(spacing) and tick.t - t_first < taken * spacing - 1e-9:
                 continue
-            margins = self_filter_margins(cell, cams, tick.q, model) or [None] * len(cams)  # as `run` does
+            margins = self_filter_margins(cell, cams, q, model) or [None] * len(cams)  # as `run` does
             for a, c, d, m in zip(acc, cams, tick.frames, margins, strict=True):
                 if np.shape(d) != c.shape:
                     raise ValueError(f"{source}: a frame of shape {np.shape(d)} for a camera of {c.width}x{c.height}")
                 kw = {} if m is None else {"margin": m}
-                a.add(d, np.asarray(self_filter(c, d, tick.q, model, **kw, with_depth=False)[0]))
+                a.add(d, np.asarray(self_filter(c, d, q, model, **kw, with_depth=False)[0]))
             taken += 1
             if progress:
                 _progress(taken, frames, f"commission {source}")
@@ -193,6 +240,7 @@ def _camera_entry(cc, c, a, taken: int, source: str, sim_cam, noise_coeff: float
                 " Kinect v1)"
             )
         quant = float(cc.params.get("depth_scale", 0.001))
+    a.near, passing = a.background(coeff, quant, margin)  # (what is written: the steady readings' nearest)
     valid = float(np.mean(np.isfinite(a.near)))
     med = float(np.nanmedian(a.near)) if valid > 0 else float("nan")
     return {
@@ -206,6 +254,7 @@ def _camera_entry(cc, c, a, taken: int, source: str, sim_cam, noise_coeff: float
         "quantization_m": quant,
         "margin_m": float(margin),
         "tolerance_at_median_depth_m": 3.0 * float(coeff) * med * med + quant + float(margin),
+        "transient_pixels": passing,
     }
 
 
