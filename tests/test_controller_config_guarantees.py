@@ -226,6 +226,9 @@ def _closed_loop(points: ControlPointSet, cfg: ControllerConfig, seed: int, cycl
     vmax = np.asarray(model.v_max, float) * cfg.velocity_scale
     m = cfg.position_margin
     inner_lo, inner_hi = np.where(np.isfinite(lo), lo + m, -3.0), np.where(np.isfinite(hi), hi - m, 3.0)
+    # (a margin of half the range, 0.2 on the 0.1-0.5 m prismatic joint: lo + m and hi - m cross by a rounding)
+    mid, crossed = 0.5 * (inner_lo + inner_hi), inner_lo > inner_hi
+    inner_lo, inner_hi = np.where(crossed, mid, inner_lo), np.where(crossed, mid, inner_hi)
     # start at rest inside the margins, half the joints near a limit
     q = rng.uniform(inner_lo, inner_hi)
     near = rng.uniform(size=q.size) < 0.5
@@ -259,7 +262,15 @@ def test_any_accepted_config_keeps_the_closed_loop_within_the_models_limits(cfg,
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(configs(), st.integers(0, 2**32 - 1))
+@given(cfg=configs(), seed=st.integers(0, 2**32 - 1))
+@example(  # position_margin = half the prismatic joint's range (the test's start range was empty)
+    cfg=ControllerConfig(
+        dt=0.00025, rho_ee=1.0, alpha_ee=1.0, v_rep_max=0.0, rho_body=1.0, alpha_body=1.0, a_max=1.0, j_max=20.0,
+        position_margin=0.2, distance_timeout=1.0, joint_timeout=1.0, dls_eps=0.0, dls_lambda_max=0.0,
+        resume_time=0.0, stop_evades=False,
+    ),
+    seed=0,
+)  # fmt: skip
 def test_the_closed_loop_holds_for_prismatic_and_continuous_joints(tmp_path_factory, cfg, seed) -> None:
     a = cfg.a_max if np.ndim(cfg.a_max) == 0 else cfg.a_max[0]
     _closed_loop(_mixed(tmp_path_factory), dataclasses.replace(cfg, a_max=a), seed, 250)
