@@ -39,18 +39,11 @@ __all__ = ["enforce_velocity_bounds", "enforce_bounds_kernel", "braking_step"]
 _ROUNDING = 1e-12  # a planned velocity this far beyond a bound is rounding: clipped, not reported
 
 
-def _constant_jerk(state: OtgState, a_new: np.ndarray, dt: float) -> OtgState:
-    """Integrate one period with the jerk ``(a_new - a) / dt`` constant over it (exact)."""
-    p, v, a = state
-    v_new = v + 0.5 * (a + a_new) * dt
-    p_new = p + v * dt + a * (dt * dt / 2.0) + (a_new - a) * (dt * dt / 6.0)
-    return OtgState(p_new, v_new, a_new)
-
-
 @njit(cache=True, nogil=True, inline="always")
-def _brake_one(v: float, a: float, a_max: float, j_max: float, dt: float) -> tuple[float, float, float]:
-    """:func:`braking_step` for one joint with a finite state: the position change (rad), velocity (rad/s)
-    and acceleration (rad/s^2) after one period ``dt`` (s)."""
+def _brake_one(p: float, v: float, a: float, a_max: float, j_max: float, dt: float) -> tuple[float, float, float]:
+    """:func:`braking_step` for one joint with a finite state: position (rad), velocity (rad/s) and
+    acceleration (rad/s^2) after one period ``dt`` (s). The one implementation of the stop: the bound
+    enforcement uses it for a joint without a plan, :func:`braking_step` for every joint."""
     a = min(max(a, -a_max), a_max)
     a_des = -min(a_max, np.sqrt(2.0 * j_max * abs(v)))
     if v < 0.0:
@@ -59,9 +52,19 @@ def _brake_one(v: float, a: float, a_max: float, j_max: float, dt: float) -> tup
         a_des = 0.0
     a_new = min(max(min(max(a_des, a - j_max * dt), a + j_max * dt), -a_max), a_max)
     v_new = v + 0.5 * (a + a_new) * dt
-    if v == 0.0 or v_new * v < 0.0:  # it would reverse: it stops at 0
-        return 0.5 * v * dt, 0.0, min(max(0.0, a - j_max * dt), a + j_max * dt)
-    return v * dt + a * (dt * dt / 2.0) + (a_new - a) * (dt * dt / 6.0), v_new, a_new
+    if v == 0.0 or (v_new < 0.0 < v) or (v < 0.0 < v_new):  # it would reverse: it stops at 0
+        return p + 0.5 * v * dt, 0.0, min(max(0.0, a - j_max * dt), a + j_max * dt)
+    return p + v * dt + a * (dt * dt / 2.0) + (a_new - a) * (dt * dt / 6.0), v_new, a_new
+
+
+@njit(cache=True, nogil=True)
+def _braking_kernel(p: np.ndarray, v: np.ndarray, a: np.ndarray, a_max: np.ndarray, j_max: np.ndarray, dt: float):
+    """:func:`_brake_one` over float64 C-contiguous (n,) arrays of finite states: new (p, v, a)."""
+    n = p.shape[0]
+    po, vo, ao = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        po[i], vo[i], ao[i] = _brake_one(p[i], v[i], a[i], a_max[i], j_max[i], dt)
+    return po, vo, ao
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -95,8 +98,8 @@ def enforce_bounds_kernel(
         bad = bad or vs != v0[i] or a0 != a0_in[i] or not np.isfinite(p0[i])
         pi, vi, ai = pp[i], vp[i], ap[i]
         if not (np.isfinite(pi) and np.isfinite(vi) and np.isfinite(ai)):  # no plan: the braking step
-            dp, vi, ai = _brake_one(vs, a0, a_max[i], j_max[i], dt)
-            pi, bad = p0[i] + dp, True
+            pi, vi, ai = _brake_one(p0[i], vs, a0, a_max[i], j_max[i], dt)
+            bad = True
         over = vi > hi_i + _ROUNDING
         under = vi < lo_i - _ROUNDING
         if over or under:
@@ -162,19 +165,12 @@ def braking_step(state: OtgState, a_max: np.ndarray, j_max: np.ndarray, dt: floa
     back to 0 at ``j_max`` ends at ``v = 0``. A joint whose velocity would change sign stops at 0.
     Everything stays finite for finite inputs; non-finite state entries are treated as 0.
     """
-    p = np.nan_to_num(state.position, nan=0.0, posinf=0.0, neginf=0.0)
-    v = np.nan_to_num(state.velocity, nan=0.0, posinf=0.0, neginf=0.0)
-    a = np.nan_to_num(state.acceleration, nan=0.0, posinf=0.0, neginf=0.0)
-    a = np.minimum(np.maximum(a, -a_max), a_max)
-    a_des = -np.sign(v) * np.minimum(a_max, np.sqrt(2.0 * j_max * np.abs(v)))
-    a_new = np.minimum(np.maximum(a_des, a - j_max * dt), a + j_max * dt)
-    a_new = np.minimum(np.maximum(a_new, -a_max), a_max)
-    nxt = _constant_jerk(OtgState(p, v, a), a_new, dt)
-    crossed = (np.sign(nxt.velocity) * np.sign(v) < 0) | (v == 0.0)
-    if np.any(crossed):
-        a_rest = np.minimum(np.maximum(0.0, a - j_max * dt), a + j_max * dt)
-        vel = np.where(crossed, 0.0, nxt.velocity)
-        pos = np.where(crossed, p + 0.5 * v * dt, nxt.position)
-        acc = np.where(crossed, a_rest, nxt.acceleration)
-        return OtgState(pos, vel, acc)
-    return nxt
+
+    def finite(x: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.nan_to_num(np.asarray(x, np.float64), nan=0.0, posinf=0.0, neginf=0.0))
+
+    n = len(state.velocity)
+    a_m = np.ascontiguousarray(np.broadcast_to(np.asarray(a_max, np.float64), (n,)))
+    j_m = np.ascontiguousarray(np.broadcast_to(np.asarray(j_max, np.float64), (n,)))
+    return OtgState(*_braking_kernel(finite(state.position), finite(state.velocity), finite(state.acceleration),
+                                     a_m, j_m, float(dt)))  # fmt: skip
