@@ -48,10 +48,14 @@ def _scan_node(xc, yc, ex, ey, nc, h, a0, inc, n, rlim, obs, rob):
     else:
         phic = math.atan2(yc, xc)
         lo_rel, hi_rel = math.atan(tlo), math.atan(thi)
-        # the node's angles from ray 0, phic - a0 in [-2 pi, 2 pi] (a0 in [-pi, pi], see scanner_sets), taken
-        # as they are and one turn either way: the fan may cross the angle +-pi, and the increment need not
-        # divide a turn (a whole number of rays would not be one turn)
+        # the node's angle from ray 0, brought into [0, 2 pi] (phic - a0 lies in [-2 pi, 2 pi], a0 in [-pi, pi],
+        # see scanner_sets), taken as it is and one turn either way: the sectors span [-inc/2, (n - 1/2) inc],
+        # within [-pi, 3 pi) (less than a turn between the first and last ray, inc < 2 pi), and the node's own
+        # angles lie within pi/2 of its centre's, so these three turns meet every sector that holds a node
+        # angle (a wide fan's first and last sectors may overlap; the increment need not divide a turn)
         rel = phic - a0
+        if rel < 0.0:
+            rel += 2.0 * math.pi
         hit = False
         in_fov = False
         for turn in (0.0, 2.0 * math.pi, -2.0 * math.pi):
