@@ -39,7 +39,10 @@ _GRAY_INV = np.argsort(_GRAY)
 
 
 def _check_level(level: object, name: str = "level") -> np.ndarray:
-    arr = np.asarray(level)
+    try:
+        arr = np.asarray(level)
+    except (ValueError, TypeError):  # a ragged nested sequence
+        arr = np.asarray(None)
     if arr.dtype.kind not in "iu" or np.any(arr < 0) or np.any(arr >= N_LEVELS):
         raise ValueError(f"{name} must be integer(s) in 0..{N_LEVELS - 1}, got {level!r}")
     return arr.astype(np.int64)
@@ -105,17 +108,7 @@ def simulate_lines(
     Returns:
         :class:`LineTrace`. A line switched at exactly a sampling instant is read as switched.
     """
-    t_change = np.asarray(t_change, float)
-    lv = _check_level(np.asarray(levels), "levels")
-    if t_change.ndim != 1 or t_change.shape != lv.shape or t_change.size == 0:
-        raise ValueError(
-            f"t_change and levels must be 1-D of the same non-zero length, got {t_change.shape}, {lv.shape}"
-        )
-    if np.any(np.diff(t_change) < 0) or not np.all(np.isfinite(t_change)):
-        raise ValueError("t_change must be finite and non-decreasing")
-    delays = np.asarray(line_delays, float)
-    if delays.shape != (3,) or np.any(delays < 0) or not np.all(np.isfinite(delays)):
-        raise ValueError(f"line_delays must be 3 finite delays >= 0 s, got {line_delays!r}")
+    t_change, lv, delays = _check_sequence(t_change, levels, line_delays)
     _check_times(t_end, sample_period, sample_phase)
     if code not in ("gray", "binary"):
         raise ValueError(f"code must be 'gray' or 'binary', got {code!r}")
@@ -133,6 +126,32 @@ def simulate_lines(
     sent = lv[i_sent]
     previous = lv[np.maximum(i_sent - 1, 0)]
     return LineTrace(ts, decoded, sent, previous)
+
+
+def _floats(x: object, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(x)
+    except (ValueError, TypeError):  # a ragged nested sequence
+        arr = np.asarray(None)
+    if arr.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be real numbers, got {x!r}")
+    return arr.astype(float)
+
+
+def _check_sequence(t_change: object, levels: object, line_delays: object) -> tuple[np.ndarray, ...]:
+    """(t_change, levels, delays) validated as documented in :func:`simulate_lines`, else a ValueError."""
+    t_change = _floats(t_change, "t_change")
+    lv = _check_level(np.asarray(levels), "levels")
+    if t_change.ndim != 1 or t_change.shape != lv.shape or t_change.size == 0:
+        raise ValueError(
+            f"t_change and levels must be 1-D of the same non-zero length, got {t_change.shape}, {lv.shape}"
+        )
+    if np.any(np.diff(t_change) < 0) or not np.all(np.isfinite(t_change)):
+        raise ValueError("t_change must be finite and non-decreasing")
+    delays = _floats(line_delays, "line_delays")
+    if delays.shape != (3,) or np.any(delays < 0) or not np.all(np.isfinite(delays)):
+        raise ValueError(f"line_delays must be 3 finite delays >= 0 s, got {line_delays!r}")
+    return t_change, lv, delays
 
 
 def _check_times(t_end: float, sample_period: float, sample_phase: float) -> None:
@@ -160,9 +179,7 @@ def multibit_windows_sampled(
     """For every multi-line *binary* transition ``"a->b"`` of the sequence: [occurrences, occurrences
     with at least one robot sample inside the skew window, i.e. after the first and before the last of
     its changing lines switched, and at most ``t_end``]."""
-    t_change = np.asarray(t_change, float)
-    lv = _check_level(np.asarray(levels), "levels")
-    delays = np.asarray(line_delays, float)
+    t_change, lv, delays = _check_sequence(t_change, levels, line_delays)
     _check_times(t_end, sample_period, sample_phase)
     out: dict[str, list[int]] = {}
     for m in range(1, lv.size):
@@ -180,6 +197,12 @@ def multibit_windows_sampled(
         rec[0] += 1
         rec[1] += int(inside)
     return out
+
+
+def _time(t: object) -> float:
+    if isinstance(t, bool | np.bool_) or not isinstance(t, int | float | np.integer | np.floating):
+        raise ValueError(f"time t must be a number of seconds, got {t!r}")
+    return float(t)
 
 
 class SkewedLines:
@@ -201,9 +224,10 @@ class SkewedLines:
         self.levels: list[int] = [0]
 
     def write(self, t: float, level: int) -> None:
-        """The host writes ``level`` at time ``t`` (s, finite, non-decreasing)."""
-        _check_level(np.asarray(level))
-        t = float(t)
+        """The host writes ``level`` (one integer 0-7) at time ``t`` (s, finite, non-decreasing)."""
+        if _check_level(np.asarray(level)).ndim != 0:
+            raise ValueError(f"level must be one integer in 0..{N_LEVELS - 1}, got {level!r}")
+        t = _time(t)
         if not (math.isfinite(t) and t >= self.t_writes[-1]):
             raise ValueError(f"write time t must be finite and >= the last write ({self.t_writes[-1]} s), got {t!r}")
         self.t_writes.append(t)
@@ -211,7 +235,7 @@ class SkewedLines:
 
     def read(self, t: float) -> int:
         """The level the robot decodes from the three lines sampled at time ``t`` (s, not NaN)."""
-        if math.isnan(t):
+        if math.isnan(_time(t)):
             raise ValueError("read time t must be a number of seconds, got nan")
         enc = gray_encode if self.code == "gray" else binary_encode
         code = 0

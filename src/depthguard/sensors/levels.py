@@ -38,19 +38,25 @@ def hold_time(line_skew: float, sample_period: float) -> float:
     return float(line_skew + sample_period)
 
 
+def _level(level: object, name: str = "level") -> int:
+    """``level`` as an int if it is an integer 0-7 (not a bool, float or string), else a ValueError."""
+    if isinstance(level, bool | np.bool_) or not isinstance(level, int | np.integer) or not 0 <= level <= 7:
+        raise ValueError(f"{name} must be an integer in 0..7, got {level!r}")
+    return int(level)
+
+
 def extra_stop_delay(line_skew: float, sample_period: float, from_level: int = 0, to_level: int = 7) -> float:
     """Extra delay, s, of stepping one level at a time instead of jumping: ``(|to - from| - 1) * hold``."""
-    n = abs(int(to_level) - int(from_level))
+    n = abs(_level(to_level, "to_level") - _level(from_level, "from_level"))
     return max(n - 1, 0) * hold_time(line_skew, sample_period)
 
 
 def speed_for_level(level: int, speeds: tuple[float, ...] = TABLE1_SPEEDS) -> float:
-    """TCP speed, m/s, of ``level`` (0-7) from ``speeds`` (8 values)."""
-    if len(speeds) != 8:
-        raise ValueError(f"speeds must have 8 entries (levels 0-7), got {len(speeds)}")
-    if not 0 <= int(level) <= 7:
-        raise ValueError(f"level must be in 0..7, got {level!r}")
-    return float(speeds[int(level)])
+    """TCP speed, m/s, of ``level`` (an integer 0-7) from ``speeds`` (8 finite values >= 0, m/s)."""
+    sp = np.asarray(speeds, float)
+    if sp.shape != (8,) or not np.all(np.isfinite(sp) & (sp >= 0)):
+        raise ValueError(f"speeds must be 8 finite speeds >= 0 m/s (levels 0-7), got {speeds!r}")
+    return float(sp[_level(level)])
 
 
 @dataclass
@@ -89,7 +95,10 @@ class LevelMap:
         return int(np.searchsorted(self._th, signal, side="right"))
 
     def update(self, signal: float, contact: bool) -> int:
-        """Advance the map with one sample; returns the target level 0-7."""
+        """Advance the map with one sample (``signal`` a real number, NaN = no reading; else ValueError);
+        returns the target level 0-7."""
+        if isinstance(signal, bool | np.bool_) or not isinstance(signal, int | float | np.integer | np.floating):
+            raise ValueError(f"signal must be a real number of counts (NaN: no reading), got {signal!r}")
         if contact:
             self.level = 7
             return 7

@@ -95,7 +95,7 @@ class ProximityTaxel:
         """Distance, m, that the signal ``counts`` implies for the darkest expected surface: a lower bound
         of the true distance of any surface with reflectivity >= ``min_reflectivity``. inf when the
         signal is at the dark level (nothing seen); 0 at saturation (of the output or of the ADC) and for a
-        NaN signal. Noise is not bounded: filter first."""
+        NaN or negative signal (no ADC gives one: a fault). Noise is not bounded: filter first."""
         c = np.asarray(counts, float)
         v = (c + 0.5) / (2**self.bits - 1) * self.vref - self.v_dark  # +0.5: the rounding's worst case
         k = self.r_pd * self.eta * self.led_current * min_reflectivity
@@ -103,7 +103,7 @@ class ProximityTaxel:
             d = np.sqrt(k / v) - self.d0
         d = np.where(c <= round(self.v_dark / self.vref * (2**self.bits - 1)), np.inf, d)
         sat = np.floor(min(self.v_sat, self.vref) / self.vref * (2**self.bits - 1))  # the ADC clips at vref
-        return np.where((c >= sat) | np.isnan(c), 0.0, np.maximum(d, 0.0))
+        return np.where((c >= sat) | np.isnan(c) | (c < 0), 0.0, np.maximum(d, 0.0))
 
 
 @dataclass(frozen=True)
