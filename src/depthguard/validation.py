@@ -150,3 +150,44 @@ def check_query(
         r = np.broadcast_to(r.reshape(-1), (c.shape[0],))
     c, r = check_points(c, r)
     return c, r, rho_f, alpha_f
+
+
+def real_number(value: object, name: str, what: str) -> float:
+    """``value`` as a float if it is a real number (not a bool or a string), else ``ValueError`` naming it."""
+    if isinstance(value, str | bytes):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return _real(value, name, what)
+
+
+def positive_number(value: object, name: str) -> float:
+    """``value`` as a float if it is a finite number > 0 (not a bool or a string), else ``ValueError`` naming it."""
+    x = real_number(value, name, "a positive finite number")
+    if not 0.0 < x < math.inf:
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return x
+
+
+def positive_numbers(value: object, n: int, name: str) -> np.ndarray:
+    """(n,) floats from one number or (n,) numbers, all finite and > 0 (no bools or strings), else ValueError."""
+    a = np.asarray(value, float) if is_numeric_nest(value) else None
+    if a is None or a.shape not in ((), (n,)) or not (np.all(np.isfinite(a)) and np.all(a > 0)):
+        raise ValueError(f"{name} must be finite numbers > 0, one value or ({n},), got {value!r}")
+    return np.broadcast_to(a, (n,)).copy()
+
+
+def numeric_vector(x: object, n: int, name: str) -> np.ndarray:
+    """``x`` as a finite float (n,) array, or ``ValueError`` naming it (also for strings and bools)."""
+    if not is_numeric_nest(x):
+        raise ValueError(f"{name} must be a numeric array of shape ({n},), got {x!r}")
+    return check_finite_array(x, (n,), name)
+
+
+def real_array(value: object, name: str, form: str = "an array") -> np.ndarray:
+    """``value`` as a C-contiguous float64 array (a copy), or ``ValueError`` naming ``name`` unless it holds real
+    numbers: not bools, complex numbers, strings or ragged nests (numpy would cast them or fail unnamed)."""
+    try:
+        if not is_numeric_nest(value):
+            raise TypeError
+        return np.array(value, dtype=np.float64, order="C")
+    except (TypeError, ValueError, OverflowError):
+        raise ValueError(f"{name} must be {form} of real numbers (not bools, strings or complex)") from None

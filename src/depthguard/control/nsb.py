@@ -32,7 +32,7 @@ import numpy as np
 from depthguard.robot.model import RobotModel
 from depthguard.robot.sensor_kinematics import SensorArray
 from depthguard.sensors.buffer import energy_gradient, total_energy
-from depthguard.validation import check_finite_array
+from depthguard.validation import check_finite_array, real_array
 
 __all__ = [
     "LAMBDA_KINDS",
@@ -50,7 +50,13 @@ LAMBDA_KINDS = ("switch", "arctan", "linear")
 def weight(d: float, kind: str = "arctan", f: float = 0.25, K: float = 40.0, delta: float = 0.15) -> float:
     """lambda(d): eq. 5.10 (``switch``), 5.11 (``arctan``, slope ``K`` 1/m) or 5.12 (``linear``, width
     ``delta`` m) around the activation threshold ``f`` (m). ``d = inf``: nothing seen, 0 (with the arctan
-    its limit); ``d = -inf``: 1 (likewise); NaN counts as 0 m (safe side)."""
+    its limit); ``d = -inf``: 1 (likewise); NaN counts as 0 m (safe side). ``ValueError`` naming ``d``
+    unless it is a real number (a bool is not), ``f`` unless finite, ``K``/``delta`` unless finite > 0."""
+    d = _number(d, "d")
+    if not (
+        math.isfinite(_number(f, "f")) and 0 < _number(K, "K") < math.inf and 0 < _number(delta, "delta") < math.inf
+    ):
+        raise ValueError(f"weight: f must be finite, K and delta finite > 0, got f={f!r}, K={K!r}, delta={delta!r}")
     if np.isnan(d):
         d = 0.0
     if kind == "switch":
@@ -66,6 +72,23 @@ def weight(d: float, kind: str = "arctan", f: float = 0.25, K: float = 40.0, del
     raise ValueError(f"lambda kind must be one of {LAMBDA_KINDS}, got {kind!r}")
 
 
+def _number(value: object, name: str) -> float:
+    """``value`` as a float if it is a real number (not a bool, not an array), else ``ValueError`` naming it."""
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{name} must be a real number, got {value!r}")
+    return float(value)
+
+
+def _reals(value: object, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a float array of ``shape``, or ``ValueError`` naming ``name`` (bools, strings, complex
+    numbers and other shapes are refused; finiteness is left to the caller)."""
+    if not (type(value) is np.ndarray and value.dtype == np.float64):
+        value = real_array(value, name, f"a {shape} array")
+    if value.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {value.shape}")
+    return value
+
+
 def weighted_pinv(J: np.ndarray, w: np.ndarray, damping: float = 1e-6) -> np.ndarray:
     """Footnote 1: ``W J^T (J W J^T + damping I)^-1`` for (r, n) ``J`` and (n,) positive weights ``w``."""
     JW = J * w  # J W
@@ -75,7 +98,7 @@ def weighted_pinv(J: np.ndarray, w: np.ndarray, damping: float = 1e-6) -> np.nda
 
 def _targets(x_d: object, xdot_d: object) -> tuple[np.ndarray, np.ndarray]:
     """``x_d``, ``xdot_d`` as float (3,) arrays, or ValueError naming the one that is not finite (3,)."""
-    x, v = np.asarray(x_d, float), np.asarray(xdot_d, float)
+    x, v = _reals(x_d, "x_d", (3,)), _reals(xdot_d, "xdot_d", (3,))
     if x.shape != (3,) or v.shape != (3,) or not math.isfinite(x.sum() + v.sum()):
         check_finite_array(x_d, (3,), "x_d"), check_finite_array(xdot_d, (3,), "xdot_d")  # raises, naming it
     return x, v
@@ -88,6 +111,25 @@ class NSBTerms(NamedTuple):
     qdot_g: np.ndarray
     qdot_o: np.ndarray
     lam: float
+
+
+def _nsb_arrays(J_g, task_error, xdot_d, J_o, w) -> list[np.ndarray]:
+    """:func:`nsb_velocity`'s arrays as float arrays, or ``ValueError`` naming the one that is not finite real
+    numbers of its shape (``w`` also > 0)."""
+    try:
+        r, n = np.shape(J_g)
+    except ValueError:
+        raise ValueError(f"J_g must be a 2-D (r, n) array of real numbers, got {J_g!r}") from None
+    out = []
+    for name, v, shape in (
+        ("J_g", J_g, (r, n)), ("task_error", task_error, (r,)), ("xdot_d", xdot_d, (r,)), ("J_o", J_o, (n,)),
+        ("w", w, (n,)),
+    ):  # fmt: skip
+        a = _reals(v, name, shape)
+        if not np.all(np.isfinite(a)) or (name == "w" and not np.all(a > 0)):
+            raise ValueError(f"{name} must be finite{' and > 0' if name == 'w' else ''}, got {a!r}")
+        out.append(a)
+    return out
 
 
 def nsb_velocity(
@@ -108,7 +150,16 @@ def nsb_velocity(
         J_g: (r, n) task Jacobian.  task_error: (r,) ``x_d - k(q)``.  xdot_d: (r,) desired task velocity.
         sigma: total energy (eq. 5.2), m^2.  J_o: (n,) its gradient.  lam: lambda(d) in [0, 1].
         w: (n,) weights of the weighted pseudo-inverse.  gamma_g, gamma_o: CLIK gains, 1/s.
+    Raises:
+        ValueError: naming the argument that is not of that shape, not real numbers (bools refused) or not
+            finite, or ``w`` not > 0, or ``lam`` outside [0, 1], or ``sigma``, ``gamma_g``, ``gamma_o`` or
+            ``damping`` negative.
     """
+    J_g, task_error, xdot_d, J_o, w = _nsb_arrays(J_g, task_error, xdot_d, J_o, w)
+    for name, v, hi in (("sigma", sigma, math.inf), ("lam", lam, 1.0), ("gamma_g", gamma_g, math.inf),
+                        ("gamma_o", gamma_o, math.inf), ("damping", damping, math.inf)):  # fmt: skip
+        if not (0.0 <= _number(v, name) <= hi and math.isfinite(v)):
+            raise ValueError(f"{name} must be a finite number in [0, {hi}], got {v!r}")
     qg = weighted_pinv(J_g, w, damping) @ (xdot_d + gamma_g * task_error)
     n2 = float(J_o @ J_o)
     if n2 > 1e-12:
@@ -183,7 +234,8 @@ def _wpinv_apply(Jg, w, damping, rhs):  # pragma: no cover
 def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, damping, qdot_max):  # pragma: no cover
     """Compiled cycle: energy and gradient, eqs. 5.4, 5.5, 5.8 and the uniform velocity scaling.
 
-    Returns (qdot (n,), sigma, J_o (n,), scale). Same maths as :func:`nsb_velocity` (tested equal)."""
+    Returns (qdot (n,), sigma, J_o (n,), scale). Same maths as :func:`nsb_velocity` (tested equal). A command
+    that is not finite (an overflow, or an exactly singular ``Jg`` with no damping) is a stop: 0, scale 0."""
     sigma, Jo = _energy_kernel(d, rest, axes, Js)
     qg = _wpinv_apply(Jg, w, damping, xd + gamma_g * err)
     n = qg.shape[0]
@@ -200,8 +252,12 @@ def _nsb_kernel(Jg, err, xd, d, rest, axes, Js, w, gamma_g, gamma_o, lam, dampin
             qo = Jo[i] / n2 * (gamma_o * (0.0 - sigma))
             proj = qg[i] - Jo[i] / n2 * jq
         qdot[i] = (1.0 - lam) * qg[i] + lam * (qo + proj)
-        ratio = max(ratio, abs(qdot[i]) / qdot_max[i])
+        r_i = abs(qdot[i]) / qdot_max[i]
+        ratio = r_i if not r_i <= ratio else ratio  # (NaN sticks)
     scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
+    if not ratio < np.inf:  # NaN or inf: stop
+        scale = 0.0
+        qdot[:] = 0.0
     for i in range(n):
         qdot[i] *= scale
     return qdot, sigma, Jo, scale
@@ -256,7 +312,8 @@ class NSBConfig:
 
 class NSBOutput(NamedTuple):
     """One NSB cycle: ``qdot`` (n,) command, ``q_next`` (n,) = q + dt qdot, ``lam``, ``sigma`` (m^2),
-    ``d_min`` (m, inf = nothing), ``J_o`` (n,), ``ee`` (3,) end-effector position, ``scale`` (<= 1)."""
+    ``d_min`` (m, inf = nothing), ``J_o`` (n,), ``ee`` (3,) end-effector position, ``scale`` (<= 1; 0 with a
+    zero command when the unscaled one was not finite, e.g. an overflow)."""
 
     qdot: np.ndarray
     q_next: np.ndarray
@@ -291,15 +348,21 @@ class NSBController:
         if not np.all(np.isfinite(self.rest) & (self.rest > 0)):
             raise ValueError(f"NSBConfig.rest must be positive finite lengths (m), got {self.cfg.rest!r}")
 
+    def _inputs(self, q: object, x_d: object, xdot_d: object, distances: object) -> tuple[np.ndarray, ...]:
+        """The arguments of :meth:`step` as float arrays, or ``ValueError`` naming the bad one (``q``'s
+        shape and finiteness are checked by the sensor array)."""
+        d = _reals(distances, "distances", (self.sensors.n_sensors,))
+        if not (type(q) is np.ndarray and q.dtype == np.float64):
+            q = _reals(q, "q", (len(self.w),))
+        return (q, *_targets(x_d, xdot_d), d)
+
     def step(self, q: np.ndarray, x_d: np.ndarray, xdot_d: np.ndarray, distances: np.ndarray) -> NSBOutput:
         """One cycle: ``q`` (n,), desired EE position ``x_d`` (3,) m and velocity ``xdot_d`` (3,) m/s,
         sensor readings ``distances`` (N,) m along each optical axis (inf = nothing in range). A non-finite
-        or mis-shaped ``q``, ``x_d`` or ``xdot_d`` raises ``ValueError`` naming it."""
+        or mis-shaped ``q``, ``x_d`` or ``xdot_d``, mis-shaped ``distances``, or any of them not real numbers
+        (bools, strings, complex numbers) raises ``ValueError`` naming it."""
         cfg = self.cfg
-        d = np.asarray(distances, float)
-        if d.shape != (self.sensors.n_sensors,):
-            raise ValueError(f"distances must have shape ({self.sensors.n_sensors},), got {d.shape}")
-        x_d, xdot_d = _targets(x_d, xdot_d)
+        q, x_d, xdot_d, d = self._inputs(q, x_d, xdot_d, distances)
         st = self.sensors.evaluate(q)
         d_safe = np.where(np.isnan(d), 0.0, d)
         d_min = float(d_safe.min())
@@ -317,8 +380,7 @@ class NSBController:
         """:meth:`step` in plain numpy (eqs. 5.2, 5.6-5.7 through :mod:`depthguard.sensors.buffer` and
         :func:`nsb_velocity`): the reference the compiled kernel is tested against."""
         cfg = self.cfg
-        d = np.asarray(distances, float)
-        x_d, xdot_d = _targets(x_d, xdot_d)
+        q, x_d, xdot_d, d = self._inputs(q, x_d, xdot_d, distances)
         st = self.sensors.evaluate(q)
         sigma = total_energy(d, self.rest)
         J_o = energy_gradient(d, self.rest, st.axes, st.jacobians)
@@ -330,5 +392,6 @@ class NSBController:
         )  # fmt: skip
         ratio = float(np.max(np.abs(terms.qdot) / self.qdot_max))
         scale = 1.0 if ratio <= 1.0 else 1.0 / ratio
-        qdot = terms.qdot * scale
+        qdot = terms.qdot * scale if ratio < np.inf else np.zeros_like(terms.qdot)  # NaN or inf: a stop
+        scale = scale if ratio < np.inf else 0.0
         return NSBOutput(qdot, np.asarray(q, float) + cfg.dt * qdot, lam, sigma, d_min, J_o, st.ee_position, scale)

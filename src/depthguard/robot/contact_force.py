@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from depthguard.robot.fk import ChainKinematics, _pack_chain, checked_point_jacobian, world_point_jacobian
+from depthguard.validation import real_array
 
 __all__ = ["ForceEstimate", "estimate_contact_forces", "point_jacobian", "observable_error", "sym_eig_jacobi"]
 
@@ -124,11 +125,18 @@ def estimate_contact_forces(
             the well-observable directions of two contacts on one arm exact (their weakest singular value
             is about 1 cm on the LWR) and damps only true near-singularities.
         lambda_max: largest damping factor λ (m).
-        tol: relative singular value below which a direction is reported unobservable.
+        tol: relative singular value below which a direction is reported unobservable; without damping
+            (``lambda_max = 0``) such a direction gets no force (the pseudo-inverse's rank cut-off: its σ_i is
+            rounding noise).
     Raises:
-        ValueError: Jacobians or ``r`` of the wrong shape or not finite; ``eps`` not a finite number > 0,
-            ``lambda_max`` not a finite number >= 0, ``tol`` not in [0, 1).
+        ValueError: Jacobians or ``r`` of the wrong shape, not numbers (strings, bools, complex) or not finite,
+            or so large that the estimate overflows; ``eps`` not a finite number > 0, ``lambda_max`` not a
+            finite number >= 0, ``tol`` not in [0, 1) (each a real number, not a bool or a string).
     """
+    if not (type(eps) is float and type(lambda_max) is float and type(tol) is float):
+        for x, name in ((eps, "eps"), (lambda_max, "lambda_max"), (tol, "tol")):
+            if isinstance(x, bool | np.bool_) or not isinstance(x, int | float | np.integer | np.floating):
+                raise ValueError(f"{name} must be a real number, got {x!r}")
     if not (0.0 < eps < math.inf):
         raise ValueError(f"eps must be a positive finite lever arm in metres, got {eps!r}")
     if not (0.0 <= lambda_max < math.inf):
@@ -136,11 +144,14 @@ def estimate_contact_forces(
     if not (0.0 <= tol < 1.0):
         raise ValueError(f"tol must be a relative singular value in [0, 1), got {tol!r}")
     if type(jacobians) is np.ndarray and jacobians.ndim == 2:  # one contact: Aᵀ = J_c
-        At = jacobians if jacobians.dtype is _F64 else jacobians.astype(float)
+        At = jacobians if jacobians.dtype is _F64 else real_array(jacobians, "jacobians", "(3, n) arrays")
         if At.shape[0] != 3:
             raise ValueError(f"jacobians must all be finite with shape (3, n), got {[jacobians.shape]}")
     else:
-        Js = [np.asarray(J, float) for J in jacobians]
+        Js = [
+            J if type(J) is np.ndarray and J.dtype is _F64 else real_array(J, "jacobians", "(3, n) arrays")
+            for J in jacobians
+        ]
         if not Js or Js[0].ndim != 2:
             raise ValueError("jacobians must be one (3, n) array or a list of them")
         n = Js[0].shape[1]
@@ -149,12 +160,14 @@ def estimate_contact_forces(
         At = np.vstack(Js)  # (3k, n) = Aᵀ with A = (J_1ᵀ … J_kᵀ)
     m, n = At.shape
     if type(r) is not np.ndarray or r.dtype is not _F64:
-        r = np.asarray(r, float)
+        r = real_array(r, "r", "an (n,) array")
     if r.shape != (n,):
         raise ValueError(f"r must be finite with shape ({n},), got shape {r.shape}")
     out = np.empty((3 + 2 * m, m))  # rows: F, σ, λ², the projector (m rows), the unobservable directions
     nbad = _estimate_kernel(np.ascontiguousarray(At), r, float(eps), float(lambda_max), float(tol), out)
     if nbad < 0:
+        if nbad == -2:
+            raise ValueError("jacobians and r are so large that the force estimate overflows (not finite)")
         raise ValueError("jacobians and r must be finite (no NaN or inf)")
     stacked = out[0]
     return _tuple_new(
@@ -216,7 +229,7 @@ def _estimate_kernel(At, r, eps, lambda_max, tol, out):  # pragma: no cover - co
     """Selectively damped ``A^# r`` from the eigen-decomposition of ``AᵀA`` (module docstring), with
     ``At`` = Aᵀ (m, n). Writes into ``out`` (3 + 2m, m): row 0 F, row 1 σ descending, ``out[2, 0]`` the
     largest λ², rows 3..3+m the projector, then the u unobservable directions (one a row). Returns u, or
-    -1 when the input is not finite."""
+    -1 when the input is not finite, -2 when the result overflows."""
     m, n = At.shape
     for k in range(n):
         if not np.isfinite(r[k]):
@@ -237,17 +250,17 @@ def _estimate_kernel(At, r, eps, lambda_max, tol, out):  # pragma: no cover - co
             G[j, i] = v
     w, V = sym_eig_jacobi(G)  # ascending σ²
     sig = np.sqrt(np.maximum(w, 0.0))
+    smax = max(sig[m - 1], 1e-300)
     lam2_max = 0.0
     coef = np.zeros(m)  # vᵢᵀ Aᵀ r / (σᵢ² + λᵢ²)
     for i in range(m):
         lam2 = lambda_max**2 * (1.0 - (sig[i] / eps) ** 2) if sig[i] < eps else 0.0
         lam2_max = max(lam2_max, lam2)
         den = max(w[i], 0.0) + lam2
-        if den > 1e-300:
+        if den > 1e-300 and (lam2 > 0.0 or sig[i] >= tol * smax):  # undamped noise σ: rank cut-off
             for k in range(m):
                 coef[i] += V[k, i] * Ar[k]
             coef[i] /= den
-    smax = max(sig[m - 1], 1e-300)
     nbad = 0
     for i in range(m):
         if sig[i] < tol * smax:
@@ -266,6 +279,9 @@ def _estimate_kernel(At, r, eps, lambda_max, tol, out):  # pragma: no cover - co
                 p -= out[3 + m + u, a] * out[3 + m + u, b]
             out[3 + a, b] = p
     out[2, 0] = lam2_max
+    for a in range(m):
+        if not (np.isfinite(out[0, a]) and np.isfinite(out[1, a])):
+            return -2
     return nbad
 
 

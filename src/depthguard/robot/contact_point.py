@@ -93,7 +93,7 @@ class RobotSurface:
     """
 
     def __init__(self, model, spacing: float = 0.01, links: list[str] | None = None) -> None:
-        if not (np.isfinite(spacing) and spacing > 0):
+        if isinstance(spacing, bool | np.bool_ | str | bytes) or not (np.isfinite(spacing) and spacing > 0):
             raise ValueError(f"spacing must be a positive number of metres, got {spacing!r}")
         self.model = model
         self.spacing = float(spacing)
@@ -151,7 +151,11 @@ class RobotSurface:
 def nearest_vertex(vertices: np.ndarray, p_h: np.ndarray) -> tuple[int, float]:
     """Algorithm 1, vectorised: index of the vertex (V, 3) nearest to ``p_h`` (3,) and its distance (m).
 
-    Float arrays take one compiled pass over the vertices (no (V, 3) temporaries), with the same result."""
+    Float arrays take one compiled pass over the vertices (no (V, 3) temporaries), with the same result.
+    As ``np.argmin``: the first minimum, or the first NaN distance where a NaN is involved (never a finite
+    distance then; :func:`contact_from_hand` refuses it). ``vertices`` not a non-empty (V, 3) numeric array,
+    or ``p_h`` not a (3,) one: ``ValueError`` naming it. Where every squared distance overflows (a point
+    beyond ~1e154 m) the differences are compared scaled: a finite distance, correct to rounding."""
     if (
         type(vertices) is np.ndarray
         and vertices.dtype is _F64
@@ -163,12 +167,35 @@ def nearest_vertex(vertices: np.ndarray, p_h: np.ndarray) -> tuple[int, float]:
         and p_h.shape == (3,)
     ):  # one compiled pass, the same numbers
         i, d2 = _nearest_vertex_kernel(vertices, p_h.astype(_F64, copy=False))
-        return int(i), math.sqrt(d2)
-    diff = np.asarray(vertices - p_h)
-    # (the kernel's order of operations, so that near ties go the same way; einsum's order differed)
-    d2 = (diff[..., 0] * diff[..., 0] + diff[..., 1] * diff[..., 1]) + diff[..., 2] * diff[..., 2]
+        if d2 != math.inf:  # (inf: an infinite input, or every squared distance overflowed: below)
+            return int(i), math.sqrt(d2)
+    V, p = _checked_vertices(vertices, p_h)
+    with np.errstate(over="ignore", invalid="ignore"):
+        diff = V - p
+        # (the kernel's order of operations, so that near ties go the same way; einsum's order differed)
+        d2 = (diff[..., 0] * diff[..., 0] + diff[..., 1] * diff[..., 1]) + diff[..., 2] * diff[..., 2]
     i = int(np.argmin(d2))
+    if d2[i] == math.inf and np.all(np.isfinite(V)) and np.all(np.isfinite(p)):  # overflow: scaled
+        s = float(np.abs(diff).max())
+        diff = diff / s
+        d2 = (diff[..., 0] * diff[..., 0] + diff[..., 1] * diff[..., 1]) + diff[..., 2] * diff[..., 2]
+        i = int(np.argmin(d2))
+        return i, s * float(np.sqrt(d2[i]))
     return i, float(np.sqrt(d2[i]))
+
+
+def _checked_vertices(vertices: object, p_h: object) -> tuple[np.ndarray, np.ndarray]:
+    """``vertices`` (V >= 1, 3) and ``p_h`` (3,) as float arrays, or ``ValueError`` naming the bad one."""
+    out = []
+    for x, name, shape in ((vertices, "vertices", "(V, 3), V >= 1"), (p_h, "p_h", "(3,)")):
+        a = np.asarray(x) if not isinstance(x, str | bytes) else np.empty(0, object)
+        ok = a.dtype.kind in "iuf" and (
+            a.shape == (3,) if name == "p_h" else a.ndim == 2 and a.shape[1] == 3 and len(a)
+        )
+        if not ok:
+            raise ValueError(f"{name} must be a numeric array of shape {shape}, got {x!r}")
+        out.append(a.astype(_F64))
+    return out[0], out[1]
 
 
 def nearest_vertex_loop(vertices_per_link: list[np.ndarray], p_h: np.ndarray) -> tuple[np.ndarray, int, float]:
@@ -198,8 +225,13 @@ class ContactPoint(NamedTuple):
 
 
 def contact_from_hand(surface: RobotSurface, q: np.ndarray, vertices: np.ndarray, p_h: np.ndarray) -> ContactPoint:
-    """Algorithm 1 on posed ``vertices`` (V, 3) for the hand at ``p_h`` (3,): the nearest vertex and its link."""
+    """Algorithm 1 on posed ``vertices`` (V, 3) for the hand at ``p_h`` (3,): the nearest vertex and its link.
+
+    ``ValueError`` naming ``p_h`` or ``vertices`` where one is not finite (a NaN hand has no contact point)."""
     i, d = nearest_vertex(vertices, p_h)
+    if not math.isfinite(d):
+        bad = "p_h" if not np.all(np.isfinite(np.asarray(p_h, float))) else "vertices"
+        raise ValueError(f"{bad} must be finite (no NaN or inf) to give a contact point")
     return ContactPoint(vertices[i].copy(), surface.link_names[surface.link[i]], i, surface.local[i].copy(), d)
 
 

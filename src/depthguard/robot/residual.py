@@ -65,7 +65,14 @@ from depthguard.robot.observer_kernels import (  # noqa: F401 - _momentum_terms,
     _momentum_terms,
     _observer_step,
 )
-from depthguard.validation import check_finite_array, check_positive
+from depthguard.validation import (
+    check_finite_array,
+    is_numeric_nest,
+    numeric_vector,
+    positive_number,
+    positive_numbers,
+    real_number,
+)
 
 __all__ = [
     "RigidBodyDynamics",
@@ -134,11 +141,12 @@ class RigidBodyDynamics:
 def scaled_inertia_model(model, scale: np.ndarray | float):
     """A copy of a pinocchio model (or ``RobotModel``) with every link's mass and inertia scaled.
 
-    ``scale`` is one factor or (n,) factors, one per joint body (for model-error studies, e.g. 0.9-1.1).
+    ``scale`` is one factor or (n,) factors, one per joint body (for model-error studies, e.g. 0.9-1.1), each
+    finite and > 0 (else ``ValueError``: a negative mass has no meaning).
     """
     base = getattr(model, "model", model)
     m = copy.deepcopy(base)
-    s = np.broadcast_to(np.asarray(scale, float), (m.njoints - 1,))
+    s = positive_numbers(scale, m.njoints - 1, "scale")
     for j in range(1, m.njoints):
         inert = m.inertias[j]
         inert.mass = float(inert.mass * s[j - 1])
@@ -150,8 +158,12 @@ def scaled_inertia_model(model, scale: np.ndarray | float):
 def discrete_time_constant(gain: float | np.ndarray, dt: float) -> np.ndarray:
     """Time constant (s) of the discrete residual filter of :class:`MomentumObserver` per joint: that of the
     decay ``|pole|^k = exp(-k dt / T)`` (for ``K_I dt > 2`` the pole is negative and the error alternates
-    in sign within that envelope; ``K_I dt = 2``: dead-beat, 0)."""
-    a = np.asarray(gain, float) * dt / 2.0
+    in sign within that envelope; ``K_I dt = 2``: dead-beat, 0). ``gain`` and ``dt`` must be finite and > 0."""
+    g = np.asarray(gain, float) if is_numeric_nest(gain) else None
+    if g is None or not (np.all(np.isfinite(g)) and np.all(g > 0)):
+        raise ValueError(f"gain must be finite numbers > 0, got {gain!r}")
+    dt = positive_number(dt, "dt")
+    a = g * dt / 2.0
     with np.errstate(divide="ignore"):
         return -dt / np.log(np.abs((1.0 - a) / (1.0 + a)))
 
@@ -208,10 +220,8 @@ class MomentumObserver:
     ) -> None:
         n = dynamics.n_dof
         self.dyn = dynamics
-        self.dt = check_positive(dt, "dt")
-        self.gain = np.broadcast_to(np.asarray(gain, float), (n,)).copy()
-        if not np.all(np.isfinite(self.gain)) or np.any(self.gain <= 0):
-            raise ValueError(f"gain must be > 0 (one value or ({n},)), got {gain!r}")
+        self.dt = positive_number(dt, "dt")
+        self.gain = positive_numbers(gain, n, "gain")
         if tau_mode not in ("sample", "average"):
             raise ValueError(f"tau_mode must be 'sample' or 'average', got {tau_mode!r}")
         self.tau_mode = tau_mode
@@ -237,8 +247,9 @@ class MomentumObserver:
 
     def update(self, q: np.ndarray, qd: np.ndarray, tau: np.ndarray, dt: float | None = None) -> np.ndarray:
         """One cycle: joint positions ``q`` (n,) rad, velocities ``qd`` (n,) rad/s, motor torques ``tau``
-        (n,) N m. Returns the residual ``r`` (n,) N m (an estimate of τ_ext). Non-finite input raises
-        ``ValueError`` (the caller should then treat the robot as in contact, i.e. stop)."""
+        (n,) N m. Returns the residual ``r`` (n,) N m (an estimate of τ_ext). Non-finite input, wrong shapes,
+        non-numbers (strings, bools) and a ``dt`` that is not a finite number > 0 raise ``ValueError`` naming
+        the field, with the state untouched (the caller should then treat the robot as in contact, i.e. stop)."""
         n = self.dyn.n_dof
         sh = self._shape
         if dt is None:
@@ -268,8 +279,8 @@ class MomentumObserver:
         if not (_is_vector(q, n) and _is_vector(qd, n) and _is_vector(tau, n)) or not math.isfinite(
             q.sum() + qd.sum() + tau.sum()
         ):
-            q, qd, tau = (check_finite_array(x, (n,), name) for x, name in ((q, "q"), (qd, "qd"), (tau, "tau")))
-        h = self.dt if dt is None else check_positive(dt, "dt")
+            q, qd, tau = (numeric_vector(x, n, name) for x, name in ((q, "q"), (qd, "qd"), (tau, "tau")))
+        h = self.dt if dt is None else positive_number(dt, "dt")
         r = np.empty(n)
         self._step(q, qd, tau, h, r)
         return r
@@ -343,15 +354,19 @@ class ContactDetector:
     classifier: Callable[[ContactEvidence], str] = default_classifier
 
     def __post_init__(self) -> None:
-        self.r_th = check_positive(self.r_th, "r_th")
-        if not 0.0 < self.release_ratio <= 1.0:
+        self.r_th = positive_number(self.r_th, "r_th")
+        ratio = real_number(self.release_ratio, "release_ratio", "a number in (0, 1]")
+        if not 0.0 < ratio <= 1.0:
             raise ValueError(f"release_ratio must be in (0, 1], got {self.release_ratio!r}")
-        if not (isinstance(self.release_cycles, (int, np.integer)) and self.release_cycles >= 1):
-            raise ValueError(f"release_cycles must be an integer >= 1, got {self.release_cycles!r}")
+        self.release_ratio = ratio
+        c = self.release_cycles
+        if isinstance(c, bool | np.bool_) or not (isinstance(c, int | np.integer) and c >= 1):
+            raise ValueError(f"release_cycles must be an integer >= 1, got {c!r}")
         if self.r_th_joint is not None:
-            self.r_th_joint = check_finite_array(self.r_th_joint, (-1,), "r_th_joint")
-            if np.any(self.r_th_joint <= 0):
-                raise ValueError("r_th_joint must be > 0")
+            rj = self.r_th_joint
+            self.r_th_joint = positive_numbers(rj, np.size(rj), "r_th_joint") if np.ndim(rj) == 1 else None
+            if self.r_th_joint is None or not self.r_th_joint.size:
+                raise ValueError(f"r_th_joint must be finite numbers > 0 of shape (n,), got {rj!r}")
         self.reset()
 
     def reset(self) -> None:
@@ -364,11 +379,24 @@ class ContactDetector:
 
     def step(self, r: np.ndarray, dt: float, hand_distance: float | None = None) -> DetectionState:
         """Feed one residual ``r`` (n,) N m of period ``dt`` s. Non-finite ``r`` counts as a contact
-        (safety: the caller cannot trust the robot state). ``dt`` must be > 0 (ValueError)."""
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0 s, got {dt!r}")
+        (safety: the caller cannot trust the robot state). ``ValueError`` naming the field: ``dt`` not a finite
+        number > 0; ``r`` not a non-empty 1-D numeric array (of ``r_th_joint``'s length where that is set);
+        ``hand_distance`` not a number >= 0 or None (NaN: no hand known, as None)."""
+        if not (type(dt) is float and 0.0 < dt < math.inf):
+            dt = positive_number(dt, "dt")
+        rj = self.r_th_joint
         if type(r) is not np.ndarray or r.dtype is not _F64:
-            r = np.asarray(r, float)
+            r = np.asarray(r, float) if is_numeric_nest(r) else f"{r!r} (not numbers)"
+        if type(r) is str or r.ndim != 1 or not r.size or (rj is not None and r.shape != rj.shape):
+            got = r if type(r) is str else f"shape {r.shape}"
+            raise ValueError(
+                f"r must be a non-empty numeric array of shape ({'n' if rj is None else len(rj)},), got {got}"
+            )
+        if hand_distance is not None and not (type(hand_distance) is float and hand_distance >= 0.0):
+            hand_distance = real_number(hand_distance, "hand_distance", "a distance >= 0 m or None")
+            if hand_distance < 0:
+                raise ValueError(f"hand_distance must be a distance >= 0 m or None, got {hand_distance!r}")
+            hand_distance = None if math.isnan(hand_distance) else hand_distance
         norm = math.hypot(*r.tolist())  # no overflow below inf; NaN or inf -> not finite
         if not math.isfinite(norm):
             norm = math.inf
