@@ -11,6 +11,11 @@
   pixels can hold beyond the tile's smallest start depth: the distance to the tile-centre ray from that
   depth on, less the tile frustum's half-diagonal slack ``hT (d_ray + d_p)``; +inf for a tile whose
   smallest depth lies beyond ``d_p + ρ + r`` (RA-L'16 case i).
+
+Domain: ``ρ + r`` finite and >= 0, P (camera frame, metres) with ``|p_x| + |p_y| + |p_z| <`` :data:`FAR`.
+Beyond (a NaN or infinite coordinate, or a point so far that the arithmetic overflows), a point is in
+doubt: the box is the whole image and the point lies in the unseen space (distance 0, with the conservative
+policy); its pixels and tiles give no distance (``tests/test_region_kernel_guarantees.py``).
 """
 
 from __future__ import annotations
@@ -31,7 +36,13 @@ __all__ = [
     "nearest_tile",
     "next_tile",
     "first_index",
+    "FAR",
 ]
+
+#: metres: a point with ``|p_x| + |p_y| + |p_z|`` at or beyond this is in doubt: far beyond any depth camera's
+#: range, it comes from a wrong unit or transform; and squared norms overflow near 1e154 m, float-to-integer
+#: pixel and cell indices near 1e18 pixels or cells
+FAR = 1e12
 
 
 @nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
@@ -45,8 +56,10 @@ def ray_distance_from(px, py, pz, a, b, s_min):
 
 @nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def unseen_space(h, px, py, pz, radius, intr, qp):
-    """``h`` plus the five unseen half-spaces within reach (see the module docstring)."""
+    """``h`` plus the five unseen half-spaces within reach (see the module docstring); a point in doubt (not
+    finite, or at or beyond :data:`FAR`) lies in each of them (distance 0)."""
     reff = qp.rho + radius
+    lost = not abs(px) + abs(py) + abs(pz) < FAR
     for k in range(5):
         if k == 0:
             a0 = (0.0 - intr.cx) / intr.fx
@@ -69,7 +82,7 @@ def unseen_space(h, px, py, pz, radius, intr, qp):
         s = px * ux + py * uy + pz * uz
         if k == 4:
             s -= intr.near_limit
-        if s < 0.0:
+        if s < 0.0 or lost:
             s = 0.0
         if s < reff:
             h = add_hit(
@@ -80,11 +93,12 @@ def unseen_space(h, px, py, pz, radius, intr, qp):
 
 @nb.njit(cache=True, nogil=True, inline="always", _nrt=False, fastmath=FASTMATH)
 def surveillance_box(px, py, pz, reff, intr):
-    """Inclusive pixel box ``(u0, u1, v0, v1)`` of the region of surveillance (empty when u0 > u1 or v0 > v1)."""
+    """Inclusive pixel box ``(u0, u1, v0, v1)`` of the region of surveillance (empty when u0 > u1 or v0 > v1);
+    the whole image for a cube that reaches z <= 1e-6 and for a point in doubt (see the module docstring)."""
     W = intr.width
     H = intr.height
     u0, u1, v0, v1 = 0, W - 1, 0, H - 1
-    if pz - reff > 1e-6:
+    if pz - reff > 1e-6 and abs(px) + abs(py) + abs(pz) < FAR:
         umin = vmin = np.inf
         umax = vmax = -np.inf
         for cxs in (-reff, reff):
