@@ -438,7 +438,7 @@ def test_ssm_measured_obstacle_speed_and_data_age(v_obs, age):
         if sp > cfg.near_limit:
             sp = max(cfg.v_h_far * T_r + cfg.constant_terms, cfg.near_limit)
         # the shift to now: 'where the far branch is clamped to exactly near_limit this takes the larger near
-        # speed' (ssm._to_now)
+        # speed' (ssm_kernels._to_now)
         v_h = cfg.v_h_near if sp <= cfg.near_limit else cfg.v_h_far
     assert out.s_p[0] == pytest.approx(sp - v_h * a, rel=1e-12, abs=1e-12)
     assert out.separation[0] == pytest.approx(1.0 - v_h * a, rel=1e-12, abs=1e-12)

@@ -30,7 +30,7 @@ from depthguard.control.body import body_bounds_inplace
 from depthguard.control.endeffector import _dls_apply, _dls_damping, repulsive_velocity_kernel
 from depthguard.control.otg import joint_velocity_bounds
 from depthguard.control.sns import sns_velocity_unchecked
-from depthguard.control.ssm import _update
+from depthguard.control.ssm_kernels import _update
 from depthguard.robot.fk import _chain_fk, fixed_points
 
 __all__ = ["plan_prepare", "plan_cycle", "plan_params", "both_finite", "cycle_layout"]
@@ -106,7 +106,7 @@ def plan_cycle(
     """Stages 3 and 4 of the control cycle in one call, for valid inputs: the joint bounds
     (:func:`~depthguard.control.otg.joint_velocity_bounds` at ``q`` with the motion ``v``; ``jprm`` =
     ``(latency, position_margin, plan_ahead)``), :func:`plan_prepare`, when ``monitor`` the separation
-    monitor (:func:`depthguard.control.ssm._update` on ``mdist``/``mdirs`` with the current ``v``, ``acc``;
+    monitor (:func:`depthguard.control.ssm_kernels._update` on ``mdist``/``mdirs`` with the current ``v``, ``acc``;
     its parameters ``lengths, mprm, v_h, sensing_range, hysteresis, stopped, age`` from
     :meth:`~depthguard.control.ssm.SsmMonitor.kernel_inputs`), the task scaled by it (or, in a protective
     stop with ``evades``, the end effector's repulsion alone), and SNS.
