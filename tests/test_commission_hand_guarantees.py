@@ -353,6 +353,10 @@ def test_a_passing_person_never_hides_a_person_later(tmp_path, monkeypatch, seed
     assert cam_sum["tolerance_at_median_depth_m"] == pytest.approx(_tol(med))
     assert (cam_sum["noise_coeff"], cam_sum["quantization_m"], cam_sum["margin_m"]) == (C, Q, MARGIN)
     assert cam_sum["transient_pixels"] <= np.count_nonzero(passed) + 0.01 * b.size  # (noise: 3 sigma, rare)
+    # a warning when more than 2 % of the pixels had something passing, none about the valid fraction here
+    passing_said = any("something passed" in w for w in summary["warnings"])
+    assert passing_said == (cam_sum["transient_pixels"] > 0.02 * b.size)
+    assert not any("of its pixels have a background" in w for w in summary["warnings"])
 
 
 def test_commissioning_filters_each_frame_with_the_joint_state_of_its_stamp(tmp_path, monkeypatch) -> None:
@@ -396,6 +400,7 @@ def test_mixed_sizes_covered_camera_and_too_few_frames(tmp_path, monkeypatch) ->
     summary, bg, _ = _commission(tmp_path, monkeypatch, covered)
     assert np.all(np.isnan(bg.depths[0])) and summary["cameras"][0]["valid_fraction"] == 0.0
     assert not _hidden(bg, np.full((48, 64), 1.0, np.float32)).any()
+    assert len(summary["warnings"]) == 1 and "only 0 % of its pixels" in summary["warnings"][0]  # (said)
     with pytest.raises(ValueError, match="--noise-coeff"):
         _commission(tmp_path, monkeypatch, [wall], noise=False)
     _, bg1, _ = _commission(tmp_path, monkeypatch, [wall], noise=False, noise_coeff=C)

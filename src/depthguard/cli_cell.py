@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from depthguard.cli_common import (
     CliExit,
@@ -57,6 +58,8 @@ def _cmd_commission(args: argparse.Namespace) -> int:
         noise_coeff=args.noise_coeff,
         margin=args.margin,
     )
+    for w in out["warnings"]:
+        print(f"depthguard commission: warning: {w}", file=sys.stderr)
     print(json.dumps(out, indent=None if args.json else 2, default=float))
     return 0
 

@@ -258,6 +258,32 @@ def _camera_entry(cc, c, a, taken: int, source: str, sim_cam, noise_coeff: float
     }
 
 
+LOW_VALID_FRACTION = 0.5  # below this share of pixels with a background, a camera is reported
+HIGH_TRANSIENT_FRACTION = 0.02  # above this share of pixels with a passing object, a camera is reported
+
+
+def commission_warnings(entries: list[dict]) -> list[str]:
+    """Warnings about the cameras' summary entries (see :func:`_camera_entry`): a camera with few background
+    pixels (covered, or seeing only surfaces beyond its range: nothing is subtracted there, which is safe but
+    leaves the cell's fixed objects as obstacles) or with many pixels where something passed (the cell was
+    not empty: a person who stood still for half the frames or more is not detected and became background)."""
+    out = []
+    for e in entries:
+        n = e["width"] * e["height"]
+        if not e["valid_fraction"] >= LOW_VALID_FRACTION:
+            out.append(
+                f"camera '{e['name']}': only {100 * e['valid_fraction']:.0f} % of its pixels have a background"
+                " (is it covered, or looking past its range?); nothing is subtracted at the others"
+            )
+        if e["transient_pixels"] > HIGH_TRANSIENT_FRACTION * n:
+            out.append(
+                f"camera '{e['name']}': something passed through {100 * e['transient_pixels'] / n:.1f} % of its"
+                " pixels while recording; commission the cell again when it is empty (anything that stood still"
+                " for half the frames or more became background)"
+            )
+    return out
+
+
 def commission_cell(
     cell_path: str | Path,
     source: str,
@@ -311,6 +337,7 @@ def commission_cell(
         "source": source,
         "frames": taken,
         "cameras": entries,
+        "warnings": commission_warnings(entries),
         "written": str(path),
         "cell_file_key": f'[controller] background = "{Path(rel).as_posix()}"',
         "wall_s": round(time.perf_counter() - t0, 3),
