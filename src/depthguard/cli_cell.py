@@ -58,7 +58,7 @@ def _cmd_commission(args: argparse.Namespace) -> int:
         noise_coeff=args.noise_coeff,
         margin=args.margin,
     )
-    for w in out["warnings"]:
+    for w in out.get("warnings", ()):
         print(f"depthguard commission: warning: {w}", file=sys.stderr)
     print(json.dumps(out, indent=None if args.json else 2, default=float))
     return 0
