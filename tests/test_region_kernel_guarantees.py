@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from functools import partial
 
 import numpy as np
 import pytest
@@ -49,6 +50,7 @@ from depthguard.kernels.region import (
     tile_lower_bounds,
     unseen_space,
 )
+from depthguard.validation import MAX_COORDINATE
 
 SOME = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 FEW = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -345,9 +347,10 @@ def test_a_point_in_doubt_lies_in_the_unseen_space(P, mode):
 @pytest.mark.parametrize("backend", ["depthspace", "fusion"])
 @pytest.mark.parametrize("mode", ["min", "all", "hybrid"])
 def test_a_point_too_far_for_the_arithmetic_is_not_reported_free(mode, backend):
-    """A centre 1e13 m or more away on the optical axis, behind a wall 2 m in front of the camera, lies in the
-    wall's gray area (truth: 0); beyond 1e154 m its squared distances overflowed to inf, which made it "nothing
-    within ρ" (from 1e18 m with the depth grid's cell index). Beyond ``FAR`` a point is in doubt: 0."""
+    """A centre far away on the optical axis, behind a wall 2 m in front of the camera, lies in the wall's gray
+    area (truth: 0); beyond 1e154 m its squared distances overflowed to inf, which made it "nothing within ρ"
+    (from 1e18 m with the depth grid's cell index). The public queries refuse centres beyond
+    ``MAX_COORDINATE`` (1e9 m) by name; up to there the answer is 0 (beyond ``FAR`` the kernels: in doubt)."""
     R, t = look_at([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0])
     cam = Camera(width=32, height=24, fx=30.0, fy=30.0, cx=16.0, cy=12.0, R=R, t=t, min_depth=0.3)
     depth = np.full(cam.shape, 2.0, np.float32)
@@ -355,13 +358,14 @@ def test_a_point_too_far_for_the_arithmetic_is_not_reported_free(mode, backend):
         fusion = DepthGridFusion([cam], dd=0.02)
         fusion.update([depth])
     frame = prepare_frame(cam, depth)
-    for z in (1e13, 1e20, 1e100, 1e160, 1e300):
+    for z in (1e3, 1e6, 1e9, 1.1e9, 1e13, 1e20, 1e100, 1e160, 1e300):
         P = cam.camera_to_world(np.array([0.0, 0.0, z]))[None]
-        if backend == "fusion":
-            res = fusion.query(P, 0.0, rho=0.4, mode=mode)
+        query = fusion.query if backend == "fusion" else partial(query_distances, frame)
+        if z > MAX_COORDINATE:
+            with pytest.raises(ValueError, match="within 1e"):
+                query(P, 0.0, rho=0.4, mode=mode)
         else:
-            res = query_distances(frame, P, 0.0, rho=0.4, mode=mode)
-        assert res.distance[0] == 0.0, z
+            assert query(P, 0.0, rho=0.4, mode=mode).distance[0] == 0.0, z
 
 
 # ------------------------------------------------------------------------------- rays, indices, tile order

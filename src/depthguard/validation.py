@@ -94,14 +94,26 @@ def check_rotation(value: object, name: str, tol: float = 1e-6) -> np.ndarray:
     return R
 
 
+#: metres: the largest coordinate or radius a query point may have. Beyond, it comes from a wrong unit or
+#: transform, and the distance kernels' arithmetic (squared norms, pixel and cell indices) would overflow
+#: and could report "nothing within reach" for a point in the shadow of an obstacle.
+MAX_COORDINATE = 1e9
+
+
 def check_points(centres: object, radii: object, name: str = "points") -> tuple[np.ndarray, np.ndarray]:
-    """Return (N, 3) centres and (N,) non-negative radii as float arrays, or raise."""
+    """Return (N, 3) centres and (N,) non-negative radii as float arrays, or raise (also for a coordinate or
+    radius beyond :data:`MAX_COORDINATE`)."""
     c = check_finite_array(centres, (-1, 3), f"{name} centres")
     r = check_finite_array(radii, (-1,), f"{name} radii")
     if r.shape[0] != c.shape[0]:
         raise ValueError(f"{name}: {c.shape[0]} centres but {r.shape[0]} radii")
     if np.any(r < 0):
         raise ValueError(f"{name} radii must be >= 0")
+    if c.size and not (np.abs(c).max() <= MAX_COORDINATE and r.max() <= MAX_COORDINATE):
+        raise ValueError(
+            f"{name} centres and radii must lie within {MAX_COORDINATE:g} m (metres, world frame), got up to"
+            f" {max(np.abs(c).max(), r.max()):g}"
+        )
     return c, r
 
 
