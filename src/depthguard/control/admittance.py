@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from depthguard.robot.contact_force import point_jacobian
-from depthguard.validation import check_finite_array
+from depthguard.validation import check_finite_array, real_array, real_number
 
 __all__ = ["AdmittanceParams", "SOFT", "STIFF", "admittance_step", "task_priority_velocity", "ContactAdmittance"]
 
@@ -34,16 +34,19 @@ __all__ = ["AdmittanceParams", "SOFT", "STIFF", "admittance_step", "task_priorit
 @dataclass(frozen=True)
 class AdmittanceParams:
     """Cartesian admittance at a contact point: ``mass`` kg, ``damping`` N s/m, ``stiffness`` N/m (0: none);
-    finite numbers."""
+    finite numbers (not bools or strings: ValueError naming the field)."""
 
     mass: float
     damping: float
     stiffness: float = 0.0
 
     def __post_init__(self) -> None:
-        finite = all(np.isfinite(x) for x in (self.mass, self.damping, self.stiffness))
-        if not (finite and self.mass > 0 and self.damping >= 0 and self.stiffness >= 0):
-            raise ValueError(f"admittance needs mass > 0, damping >= 0, stiffness >= 0; got {self}")
+        for name in ("mass", "damping", "stiffness"):
+            value = getattr(self, name)
+            x = real_number(value, name, "a finite number (admittance parameter)")
+            if not (math.isfinite(x) and (x > 0 if name == "mass" else x >= 0)):
+                raise ValueError(f"admittance needs mass > 0, damping >= 0, stiffness >= 0 (finite); {name}={value!r}")
+            object.__setattr__(self, name, x)
 
 
 #: Experiment 1: a soft, yielding contact point (time constant D/K ≈ 0.5 s, 20 N -> 0.3 m/s at first).
@@ -55,19 +58,58 @@ STIFF = AdmittanceParams(mass=3.0, damping=450.0, stiffness=3000.0)
 def admittance_step(p: AdmittanceParams, v: np.ndarray, e: np.ndarray, force: np.ndarray, dt: float) -> np.ndarray:
     """One step of ``M v̇ + D v + K e = F`` (each (3,)): the new velocity (3,) m/s.
 
-    Semi-implicit: ``v⁺ = (M v + dt (F - K e)) / (M + dt D + dt² K)`` (stable for any dt > 0)."""
-    return (p.mass * v + dt * (force - p.stiffness * e)) / (p.mass + dt * p.damping + dt * dt * p.stiffness)
+    Implicit (backward Euler, with ``e⁺ = e + dt v⁺``): ``v⁺ = (M v + dt (F - K e)) / (M + dt D + dt² K)``.
+    Stable for any dt > 0: the energy ``M |v|²/2 + K |e - F/K|²/2`` of a constant force never grows.
+
+    Raises:
+        ValueError naming the argument: ``p`` not :class:`AdmittanceParams`, ``v``, ``e``, ``force`` not finite
+        (3,) arrays, ``dt`` not a finite number > 0, or a result beyond float range (absurd magnitudes).
+    """
+    if not isinstance(p, AdmittanceParams):
+        raise ValueError(f"p must be AdmittanceParams, got {p!r}")
+    v, e = check_finite_array(v, (3,), "v"), check_finite_array(e, (3,), "e")
+    force = check_finite_array(force, (3,), "force")
+    dt = real_number(dt, "dt", "a finite number of seconds > 0")
+    if not 0.0 < dt < math.inf:
+        raise ValueError(f"dt must be a finite number of seconds > 0, got {dt!r}")
+    with np.errstate(over="ignore", invalid="ignore"):  # (refused below)
+        out = (p.mass * v + dt * (force - p.stiffness * e)) / (p.mass + dt * p.damping + dt * dt * p.stiffness)
+    if not math.isfinite(out.sum()):
+        raise ValueError("admittance_step: v, e, force, dt and p overflow float range (inf or NaN velocity)")
+    return out
 
 
 def _dls(J: np.ndarray, lam: float) -> np.ndarray:
-    """Damped pseudo-inverse ``Jᵀ (J Jᵀ + λ² I)⁻¹``."""
-    return J.T @ np.linalg.solve(J @ J.T + lam * lam * np.eye(J.shape[0]), np.eye(J.shape[0]))
+    """Damped pseudo-inverse ``Jᵀ (J Jᵀ + λ² I)⁻¹``, as ``V diag(s / (s² + λ²)) Uᵀ`` over the singular values
+    above rounding (``s > s_max max(m, n) eps``): the solve of ``J Jᵀ + λ² I`` turned the rounding of a
+    singular value 0 (J2 N1 has rank n - k < its rows with two contacts) into joint velocities of the order
+    of ``1e-16 |J| / λ²`` (20 rad/s off at λ = 1e-9, tests/test_reaction_guarantees.py), and raised for λ = 0."""
+    U, sv, Vt = np.linalg.svd(J, full_matrices=False)
+    keep = sv > sv.max(initial=0.0) * max(J.shape) * np.finfo(float).eps
+    return (Vt.T[:, keep] * (sv[keep] / (sv[keep] ** 2 + lam * lam))) @ U[:, keep].T
+
+
+def _task(J: object, v: object, n: int | None, name: str) -> tuple[np.ndarray, np.ndarray]:
+    Ja = real_array(J, f"J{name}", "an (m, n) matrix")
+    if Ja.ndim != 2 or Ja.shape[0] < 1 or (n is not None and Ja.shape[1] != n) or not np.all(np.isfinite(Ja)):
+        raise ValueError(f"J{name} must be a finite (m, {n or 'n'}) matrix, got shape {Ja.shape}")
+    return Ja, check_finite_array(v, (Ja.shape[0],), f"v{name}")
 
 
 def task_priority_velocity(
     J1: np.ndarray, v1: np.ndarray, J2: np.ndarray | None = None, v2: np.ndarray | None = None, lam: float = 0.01
 ) -> np.ndarray:
-    """Joint velocity (n,) for task 1 ``J1 q̇ = v1`` and, in its null space, task 2 ``J2 q̇ = v2``."""
+    """Joint velocity (n,) for task 1 ``J1 q̇ = v1`` and, in its null space, task 2 ``J2 q̇ = v2``; damped
+    pseudo-inverses (``lam`` finite >= 0, 0: the pseudo-inverse). ValueError naming the argument for shapes
+    that do not fit, non-finite numbers, ``J2`` without ``v2``."""
+    J1, v1 = _task(J1, v1, None, "1")
+    lam = real_number(lam, "lam", "a finite number >= 0")
+    if not 0.0 <= lam < math.inf:
+        raise ValueError(f"lam must be a finite number >= 0, got {lam!r}")
+    if (J2 is None) != (v2 is None):
+        raise ValueError("J2 and v2 must be given together (the secondary task)")
+    if J2 is not None:
+        J2, v2 = _task(J2, v2, J1.shape[1], "2")
     J1p = _dls(J1, lam)
     qd = J1p @ v1
     if J2 is None:
@@ -97,7 +139,17 @@ class ContactAdmittance:
     """
 
     def __init__(self, model, params: AdmittanceParams, ee_gain: float = 5.0, lam: float = 0.01) -> None:
-        self.model, self.params, self.ee_gain, self.lam = model, params, float(ee_gain), float(lam)
+        if not isinstance(params, AdmittanceParams):
+            raise ValueError(f"params must be AdmittanceParams (e.g. SOFT, STIFF), got {params!r}")
+        gain, lam_f = (
+            real_number(ee_gain, "ee_gain", "a finite gain >= 0"),
+            real_number(lam, "lam", "a finite number >= 0"),
+        )
+        if not 0.0 <= gain < math.inf:
+            raise ValueError(f"ee_gain must be a finite gain >= 0 (1/s), got {ee_gain!r}")
+        if not 0.0 <= lam_f < math.inf:  # (NaN made every command NaN; the scaling into the limits let it pass)
+            raise ValueError(f"lam must be a finite DLS damping >= 0, got {lam!r}")
+        self.model, self.params, self.ee_gain, self.lam = model, params, gain, lam_f
         self.contacts: list[_Contact] = []
 
     def _world(self, c: _Contact) -> np.ndarray:
@@ -156,6 +208,7 @@ class ContactAdmittance:
         ee_target = check_finite_array(ee_target, (3,), "ee_target")
         if ee_velocity is not None:
             ee_velocity = check_finite_array(ee_velocity, (3,), "ee_velocity")
+        dt = real_number(dt, "dt", "a finite number of seconds > 0")
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a finite number of seconds > 0, got {dt!r}")
         pin.computeJointJacobians(m.model, m.data, q)
@@ -177,7 +230,10 @@ class ContactAdmittance:
         return self._limit(qd)
 
     def _limit(self, qd: np.ndarray) -> np.ndarray:
+        """``qd`` scaled uniformly into the joint velocity limits; not finite (overflow): a stop (zeros)."""
         s = np.max(np.abs(qd) / self.model.v_max)
+        if not math.isfinite(s):  # (NaN > 1.0 is False: it would pass unscaled)
+            return np.zeros_like(qd)
         return qd / s if s > 1.0 else qd
 
     def clear(self) -> None:

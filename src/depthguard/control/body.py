@@ -21,7 +21,11 @@ For each joint the most restrictive bound over all points is taken. Two addition
 * at or below ``contact_distance`` the motion towards the obstacle is denied completely (bound 0):
   f(0) = 1/(1 + e^-alpha) < 1, so eq. 14 alone would still allow ``V_max (1 - f(0))`` at contact.
 
-Points with ``D = inf`` (nothing within rho) impose nothing.
+Points with ``D = inf`` (nothing within rho) impose nothing. When in doubt the bounds tighten: a negative
+``D`` (penetration) denies the motion towards the obstacle as contact does, and a direction that is zero or
+of a norm outside ``[1e-150, 1e150]`` (unknown: which way is towards?) bounds every joint that moves the
+point (a column of ``J_C`` over ``influence_eps``) to ``V_max,i (1 - f)`` both ways. The compiled kernel
+also takes a NaN distance as contact and a NaN ``J_C^T n`` as the unknown direction.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from depthguard.repulsion import risk  # ICRA'12 eq. 12, shared with the distance stage
+from depthguard.validation import real_array, real_number
 
 __all__ = ["risk", "body_velocity_bounds", "body_bounds_inplace"]
 
@@ -50,28 +55,41 @@ def body_bounds_inplace(
 ) -> None:
     """:func:`body_velocity_bounds` for the real-time path: no validation, bounds tightened in place.
 
-    Arrays float64, C-contiguous: jac (N, 3, n), dist (N,) (finite >= 0 or inf), dirs (N, 3) (finite
-    where dist is finite), use (N,) bool, v_max (n,); qmin/qmax (n,) are tightened in place.
+    Arrays float64, C-contiguous: jac (N, 3, n), dist (N,) (inf: none; NaN reads as contact), dirs (N, 3)
+    (zero or non-finite: unknown, module docstring), use (N,) bool, v_max (n,); qmin/qmax (n,) are
+    tightened in place; rho, alpha finite > 0, contact_distance and influence_eps finite >= 0.
     """
     N, _, n = jac.shape
     for k in range(N):
         if not use[k]:
             continue
         d = dist[k]
-        if not np.isfinite(d) or d >= rho:
+        if d >= rho:  # inf (nothing within rho) or beyond: nothing (a NaN goes on, as contact)
             continue
-        if d <= contact_distance:
+        if not d > contact_distance:  # contact, penetration (d < 0) or NaN: no motion towards it
             keep = 0.0
         else:
             f = 1.0 / (1.0 + np.exp((d * 2.0 / rho - 1.0) * alpha))
             keep = 1.0 - f
+        dx, dy, dz = dirs[k, 0], dirs[k, 1], dirs[k, 2]
+        nrm = np.sqrt(dx * dx + dy * dy + dz * dz)
+        known = 1e-150 <= nrm <= 1e150  # (not zero, NaN, inf or so far from unit that J_C^T n is unreliable)
+        thr = influence_eps * nrm  # (|J_C^T n| > eps |n|: the eps of a unit n)
         for i in range(n):
-            g = jac[k, 0, i] * dirs[k, 0] + jac[k, 1, i] * dirs[k, 1] + jac[k, 2, i] * dirs[k, 2]
-            if g > influence_eps:  # negative qdot_i moves C towards the obstacle
+            g = jac[k, 0, i] * dx + jac[k, 1, i] * dy + jac[k, 2, i] * dz
+            lower = upper = False
+            if not known or g != g:  # the direction is unknown: both ways, for a joint that moves C at all
+                c = np.sqrt(jac[k, 0, i] ** 2 + jac[k, 1, i] ** 2 + jac[k, 2, i] ** 2)
+                lower = upper = not c <= influence_eps
+            elif g > thr:  # negative qdot_i moves C towards the obstacle
+                lower = True
+            elif g < -thr:  # positive qdot_i moves C towards the obstacle
+                upper = True
+            if lower:
                 b = -v_max[i] * keep
                 if b > qmin[i]:
                     qmin[i] = b
-            elif g < -influence_eps:  # positive qdot_i moves C towards the obstacle
+            if upper:
                 b = v_max[i] * keep
                 if b < qmax[i]:
                     qmax[i] = b
@@ -93,44 +111,50 @@ def body_velocity_bounds(
 
     Args:
         jacobians: (N, 3, n) positional Jacobians of the control points.
-        distances: (N,) distances from the sphere surfaces to the nearest obstacle, m (inf = none).
+        distances: (N,) distances from the sphere surfaces to the nearest obstacle, m (inf = none; below 0:
+            penetration, treated as contact).
         directions: (N, 3) unit repulsive directions, from the obstacle towards the point; finite
-            wherever the distance is finite (ignored where it is inf).
+            wherever the distance is finite (ignored where it is inf; zero: unknown, module docstring).
         v_max: (n,) original joint velocity bounds ``V_max,i`` (finite, > 0), rad/s.
         rho: distance of influence, m; alpha: steepness of the risk function (both finite, > 0).
         use: (N,) bool, points that take part (default all); the end effector is usually excluded
             because it is handled by the repulsive velocity (eqs. 10-11).
-        contact_distance: at or below it the motion towards the obstacle is denied, m.
+        contact_distance: at or below it the motion towards the obstacle is denied, m (finite, >= 0).
         influence_eps: ``|J_C^T n|_i`` below this (m/rad, finite >= 0) counts as no influence.
     Returns:
         ``(qdot_min, qdot_max)``, each (n,), with ``-v_max <= qdot_min <= 0 <= qdot_max <= v_max``.
     Raises:
-        ValueError naming the argument: wrong shapes, non-finite Jacobians, NaN distances, ...
+        ValueError naming the argument: wrong shapes, non-finite Jacobians, NaN or -inf distances, bools or
+        strings for numbers, a negative or non-finite contact_distance, ...
     """
-    jac = np.ascontiguousarray(jacobians, dtype=np.float64)
+    jac = real_array(jacobians, "jacobians", "an (N, 3, n) array")
     if jac.ndim != 3 or jac.shape[1] != 3:
         raise ValueError(f"jacobians must have shape (N, 3, n), got {jac.shape}")
     if not np.all(np.isfinite(jac)):  # (a NaN column would restrict nothing)
         raise ValueError("jacobians must be finite (no NaN or inf)")
     N, _, n = jac.shape
-    dist = np.ascontiguousarray(distances, dtype=np.float64)
-    dirs = np.ascontiguousarray(directions, dtype=np.float64)
-    vmax = np.ascontiguousarray(v_max, dtype=np.float64)
+    dist = real_array(distances, "distances", f"an ({N},) array")
+    dirs = real_array(directions, "directions", f"an ({N}, 3) array")
+    vmax = real_array(v_max, "v_max", f"an ({n},) array")
     if dist.shape != (N,):
         raise ValueError(f"distances must have shape ({N},), got {dist.shape}")
     if dirs.shape != (N, 3):
         raise ValueError(f"directions must have shape ({N}, 3), got {dirs.shape}")
     if vmax.shape != (n,) or np.any(~(vmax > 0)) or not np.all(np.isfinite(vmax)):
         raise ValueError(f"v_max must be ({n},) positive numbers, got {v_max!r}")
-    if np.any(np.isnan(dist)) or np.any(dist < 0):
-        raise ValueError("distances must be >= 0 (inf for none), without NaN")
+    if np.any(np.isnan(dist)) or np.any(dist == -np.inf):
+        raise ValueError("distances must be numbers of metres (inf for none, < 0 penetration), without NaN or -inf")
     bad = np.isfinite(dist) & ~np.all(np.isfinite(dirs), axis=1)
     if np.any(bad):
         raise ValueError(f"directions must be finite where the distance is finite (point {int(np.argmax(bad))} is not)")
+    rho = real_number(rho, "rho", "a finite number of metres > 0")
+    alpha = real_number(alpha, "alpha", "a finite number > 0")
     if not (rho > 0 and alpha > 0 and np.isfinite(rho) and np.isfinite(alpha)):
         raise ValueError(f"rho and alpha must be finite numbers > 0, got rho={rho}, alpha={alpha}")
-    if np.isnan(contact_distance):
-        raise ValueError("contact_distance must be a number of metres, got NaN")
+    contact_distance = real_number(contact_distance, "contact_distance", "a finite number of metres >= 0")
+    if not (np.isfinite(contact_distance) and contact_distance >= 0):  # (< 0: motion towards allowed at contact)
+        raise ValueError(f"contact_distance must be a finite number of metres >= 0, got {contact_distance!r}")
+    influence_eps = real_number(influence_eps, "influence_eps", "a finite number >= 0")
     if not (np.isfinite(influence_eps) and influence_eps >= 0):
         raise ValueError(f"influence_eps must be a finite number >= 0, got {influence_eps!r}")
     use_a = np.ones(N, dtype=np.bool_) if use is None else np.ascontiguousarray(use, dtype=np.bool_)
