@@ -530,11 +530,23 @@ def test_body_bounds_never_loosen(case, seed):
         ("influence_eps", dict(influence_eps=-1.0)),
         ("distances", dict(distances=np.array([0.1, np.nan]))),
         ("directions", dict(directions=np.array([[np.nan, 0, 0], [1.0, 0, 0]]))),
+        pytest.param("rho", dict(rho="0.4"), id="rho-string"),
+        pytest.param("alpha", dict(alpha=True), id="alpha-bool"),
+        pytest.param("contact_distance", dict(contact_distance=-0.1), id="contact-negative"),
+        pytest.param("contact_distance", dict(contact_distance=np.inf), id="contact-inf"),
+        pytest.param("contact_distance", dict(contact_distance="0"), id="contact-string"),
+        pytest.param("influence_eps", dict(influence_eps=False), id="eps-bool"),
+        pytest.param("jacobians", dict(jacobians=[[["a"] * 3] * 3] * 2), id="jacobians-strings"),
+        pytest.param("distances", dict(distances=np.array([0.1, -np.inf])), id="distances-minus-inf"),
+        pytest.param("distances", dict(distances=[True, False]), id="distances-bools"),
+        pytest.param("v_max", dict(v_max=np.zeros(3)), id="v_max-zero"),
     ],
 )
 def test_body_bounds_bad_input_gets_a_value_error_naming_the_field(field, kw):
     """Before: a NaN Jacobian or influence_eps imposed nothing (motion towards a touching obstacle allowed),
-    a short ``use`` was read past its end, ``v_max = inf`` gave inf bounds at contact (inf * 0 = NaN)."""
+    a short ``use`` was read past its end, ``v_max = inf`` gave inf bounds at contact (inf * 0 = NaN); (stop
+    50) a negative contact_distance allowed motion towards a touching obstacle (V_max (1 - f(0))), a string
+    rho raised TypeError, a bool read as 1, a string array raised numpy's unnamed error."""
     args = dict(
         jacobians=np.ones((2, 3, 3)), distances=np.array([0.0, 0.1]), directions=np.tile([1.0, 0, 0], (2, 1)),
         v_max=np.ones(3), rho=0.4, alpha=6.0,

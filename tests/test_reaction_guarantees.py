@@ -180,33 +180,6 @@ def test_body_bounds_several_points_the_tightest_wins():
     assert hi[0] == pytest.approx(2.0 * _keep(0.3, 0.4, 6.0, 0.0), rel=1e-14)
 
 
-@pytest.mark.parametrize(
-    "field, kw",
-    [
-        pytest.param("rho", dict(rho="0.4"), id="rho-string"),
-        pytest.param("alpha", dict(alpha=True), id="alpha-bool"),
-        pytest.param("contact_distance", dict(contact_distance=-0.1), id="contact-negative"),
-        pytest.param("contact_distance", dict(contact_distance=np.inf), id="contact-inf"),
-        pytest.param("contact_distance", dict(contact_distance="0"), id="contact-string"),
-        pytest.param("influence_eps", dict(influence_eps=False), id="eps-bool"),
-        pytest.param("jacobians", dict(jacobians=[[["a"] * 3] * 3] * 2), id="jacobians-strings"),
-        pytest.param("distances", dict(distances=np.array([0.1, -np.inf])), id="distances-minus-inf"),
-        pytest.param("distances", dict(distances=[True, False]), id="distances-bools"),
-        pytest.param("v_max", dict(v_max=np.zeros(3)), id="v_max-zero"),
-    ],
-)
-def test_body_bounds_bad_input_is_named(field, kw):
-    """Before: a negative contact_distance allowed motion towards a touching obstacle (V_max (1 - f(0))), a
-    string rho raised TypeError, a bool read as 1, a string array raised numpy's unnamed error."""
-    args = dict(
-        jacobians=np.ones((2, 3, 3)), distances=np.array([0.0, 0.1]), directions=np.tile([1.0, 0, 0], (2, 1)),
-        v_max=np.ones(3), rho=0.4, alpha=6.0,
-    )  # fmt: skip
-    args.update(kw)
-    with pytest.raises(ValueError, match=field):
-        body_velocity_bounds(**args)
-
-
 # ========================================================================================= end effector
 @settings(deadline=None, max_examples=100)
 @given(

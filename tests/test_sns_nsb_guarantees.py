@@ -31,11 +31,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from scipy.optimize import linprog
 
 from depthguard.control.nsb import NSBConfig, NSBController, nsb_velocity, weight
 from depthguard.control.sns import sns_velocity, sns_velocity_raw, sns_velocity_unchecked
 from depthguard.robot.youbot import YOUBOT_Q0, YOUBOT_SENSORS, load_youbot
+from test_sns import _max_feasible_scale as _lp_scale  # (independent reference: a linear program)
 
 NAN, INF = math.nan, math.inf
 _CACHE: dict = {}
@@ -45,20 +45,6 @@ def _youbot():
     if "yb" not in _CACHE:
         _CACHE["yb"] = load_youbot()
     return _CACHE["yb"]
-
-
-def _lp_scale(J: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
-    """Independent reference: the largest s in [0, 1] with J q = s x, lo <= q <= hi (a linear program)."""
-    m, n = J.shape
-    res = linprog(
-        np.r_[np.zeros(n), -1.0],
-        A_eq=np.hstack([J, -x[:, None]]),
-        b_eq=np.zeros(m),
-        bounds=[(a, b) for a, b in zip(lo, hi, strict=True)] + [(0.0, 1.0)],
-        method="highs",
-    )
-    assert res.status == 0
-    return float(res.x[-1])
 
 
 def _nearest_to_zero(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
