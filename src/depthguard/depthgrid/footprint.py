@@ -2,8 +2,10 @@
 
 A cell's footprint in camera k is the pixel bounding box ``[u0, u0+du] x [v0, v0+dv]`` of its 8 projected
 corners, and ``q`` its quantised far depth: ``d_end = q * DEND_SCALE >= max_k z`` (rounded up, so
-conservatively far). ``u0 = -1`` marks a camera that is not involved (the cell is not entirely in front of
-it and inside its image, or its footprint is wider than ``FOOT_MAX`` pixels); the stored map packs the
+conservatively far; at worst one float64 ulp below ``max_k z`` by the product's rounding, a gap that holds no
+float32 vote). ``u0 = -1`` marks a camera that is not involved (the cell is not entirely in front of
+it and inside its image, its footprint is wider than ``FOOT_MAX`` pixels, its far depth beyond
+``Q_MAX`` steps, or a depth is NaN or infinite); the stored map packs the
 five numbers in one int64 (:func:`pack`). None of this is compiled with fast-math, so the stored map and
 the on-the-fly footprints are bit-identical. Rays (:func:`ray`) and camera rows:
 :mod:`depthguard.depthgrid.records`.
@@ -20,6 +22,7 @@ __all__ = ["DEND_SCALE", "Q_MAX", "FOOT_MAX", "ray", "rect_footprint", "cell_foo
 
 DEND_SCALE = 4e-4  # metres per unit of the quantised far depth (15 bits): 0.4 mm steps, up to 13.1 m
 Q_MAX = 32767
+Z_FAR = 1e6  # metres: a far depth beyond this is refused before quantising (far beyond Q_MAX steps)
 FOOT_MAX = 255  # largest footprint extent (pixels - 1) a cell may have in a secondary camera
 
 
@@ -60,7 +63,7 @@ def rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams):
             for s in range(2):
                 d = d1 if s == 0 else d2
                 Z = d * mz + bz
-                if Z <= 1e-6:
+                if not Z > 1e-6:  # (NaN too: a NaN depth projects nowhere)
                     return -1, 0, 0, 0, 0
                 iz = 1.0 / Z
                 pu = fx * (d * mx + bx) * iz + cx
@@ -71,6 +74,8 @@ def rect_footprint(k, ua, va, ub, vb, d1, d2, corner_rays, cams):
                 vmax = max(vmax, pv)
                 zmax = max(zmax, Z)
     if not (umin >= 0.0 and vmin >= 0.0 and umax < cams[k, 7] and vmax < cams[k, 8]):
+        return -1, 0, 0, 0, 0
+    if not zmax < Z_FAR:  # far beyond Q_MAX (inf too): before int(), which overflows there
         return -1, 0, 0, 0, 0
     iu0 = int(math.floor(umin))
     iv0 = int(math.floor(vmin))

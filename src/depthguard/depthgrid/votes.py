@@ -8,8 +8,11 @@ projected cell does not touch has no say about the cell (the same pixel-area sam
 so the same tolerance). A missing pixel votes 0 and clears nothing; a cell that is not involved for camera
 k gets no vote from it. A *block* (several cells of one pixel, or of a whole tile) is cleared when one
 camera clears the frustum piece that contains them all: its footprint contains each cell's and its far
-depth is at least theirs, so every cell in it is cleared by the per-cell rule. A block that is not
-cleared tells nothing (its cells are then tested one by one).
+depth is at least theirs, and its pixels pass the monotone block rule (:func:`sees_all_before`: the pixel
+sees past every depth up to the block's far depth), so every cell in it is cleared by the per-cell rule. (A
+robot window behind the vote passes a single cell whose far depth lies in the window; a block whose far
+depth lies there held the hidden space in front of the window too, and was cleared with it before.) A block
+that is not cleared tells nothing (its cells are then tested one by one).
 
 Records: ``mp`` :class:`~depthguard.depthgrid.records.MapArrays`, ``vt``
 :class:`~depthguard.depthgrid.records.Votes`, ``grid`` :class:`~depthguard.depthgrid.records.Grid`.
@@ -28,12 +31,15 @@ from __future__ import annotations
 import math
 
 import numba as nb
+import numpy as np
 
 from depthguard.depthgrid.footprint import DEND_SCALE, cell_footprint, ray, rect_footprint, unpack
 from depthguard.depthgrid.pyramid import pixel_sees_past, rect_sees_past
+from depthguard.depthgrid.records import Votes
 
 __all__ = [
     "pixel_sees_past",
+    "sees_all_before",
     "footprint_sees_past",
     "centre_sees_past",
     "cell_occupied",
@@ -44,24 +50,45 @@ __all__ = [
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
+def sees_all_before(k, pv, pu, dend, votes):
+    """Pixel (pu, pv) of camera k sees past *every* depth up to ``dend``: its vote exceeds ``dend``, or its
+    robot window starts no deeper than its vote and reaches ``dend`` (``lo <= vote``, ``dend <= hi``).
+
+    The block rule: unlike :func:`pixel_sees_past` it is monotone (it holds for every ``d <= dend`` when it
+    holds for ``dend``), so a block that passes it passes the per-cell rule for each of its cells, whose far
+    depths are at most the block's. Without a window (``lo = +inf``) it is ``vote > dend``, as
+    :func:`pixel_sees_past`. A window behind the vote (a box in front of the arm) lets a single cell pass at
+    the arm's body, never the hidden space in front of it that a block would hold.
+    """
+    x = votes[k, pv, pu]
+    if x > dend:
+        return True
+    hm = votes.shape[1] // 3
+    return votes[k, hm + pv, pu] <= x and dend <= votes[k, 2 * hm + pv, pu]
+
+
+@nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def footprint_sees_past(k, u0, v0, du, dv, q, votes):
-    """True when camera k calls the cell free: every covered pixel sees past ``d_end``
-    (:func:`pixel_sees_past`)."""
+    """True when camera k clears the block (or cell) whose footprint this is: every covered pixel sees past
+    every depth up to ``d_end`` (:func:`sees_all_before`)."""
     if u0 < 0:
         return False  # not involved: no vote
     dend = q * DEND_SCALE
     for pv in range(v0, v0 + dv + 1):
         for pu in range(u0, u0 + du + 1):
-            if not pixel_sees_past(k, pv, pu, dend, votes):
+            if not sees_all_before(k, pv, pu, dend, votes):
                 return False
     return True
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _corner(k, cu, cv, d, corner_rays, cams):
-    """Image point (x, y) in camera k of the principal corner ray (cu, cv) at depth d."""
+    """Image point (x, y) in camera k of the principal corner ray (cu, cv) at depth d; NaN where the corner
+    is not in front of camera k (no projection: :func:`pixel_touches_cell` then keeps the pixel)."""
     mx, my, mz = ray(corner_rays, k, cv, cu)
     Z = d * mz + cams[k, 2]
+    if not Z > 1e-6:
+        return np.nan, np.nan
     return (
         cams[k, 3] * (d * mx + cams[k, 0]) / Z + cams[k, 5],
         cams[k, 4] * (d * my + cams[k, 1]) / Z + cams[k, 6],
@@ -76,7 +103,8 @@ def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
     Separating-axis test: the square and the hull are disjoint exactly when a line through two projected
     corners has all 8 corners on one side and the square's 4 corners strictly (1e-6 px) on the other (the
     image axes do not separate them: the pixel lies in the hull's bounding box). Only ever *removes* a
-    pixel that sees nothing of the cell, so it never clears more than the exact projection allows.
+    pixel that sees nothing of the cell, so it never clears more than the exact projection allows. A corner
+    not in front of camera k (or a NaN or infinite depth) gives no separating line: True.
     """
     x0, y0 = _corner(k, u, v, d1, corner_rays, cams)
     x1, y1 = _corner(k, u, v, d2, corner_rays, cams)
@@ -107,14 +135,14 @@ def pixel_touches_cell(k, u, v, d1, d2, pu, pv, corner_rays, cams):
             ok = True
             tol = 1e-9 * math.sqrt(ex * ex + ey * ey)
             for m in range(8):
-                if ex * (py[m] - py[i]) - ey * (px[m] - px[i]) < -tol:
+                if not ex * (py[m] - py[i]) - ey * (px[m] - px[i]) >= -tol:  # (NaN: no line)
                     ok = False
                     break
             if not ok:
                 continue
             sep = True  # every square corner strictly on the right
             for c in range(4):
-                if ex * (sy[c] - py[i]) - ey * (sx[c] - px[i]) > -1e-6 * math.sqrt(ex * ex + ey * ey):
+                if not ex * (sy[c] - py[i]) - ey * (sx[c] - px[i]) <= -1e-6 * math.sqrt(ex * ex + ey * ey):
                     sep = False
                     break
             if sep:
@@ -137,11 +165,15 @@ def _cell_seen_past(k, u, v, d1, d2, u0, v0, du, dv, q, mp, votes):
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _sees_past(k, u0, v0, du, dv, q, vt, stack):
-    """:func:`footprint_sees_past` for an involved footprint, through the min pyramid when it is large
-    (exactly the same answer, robot windows included: :mod:`depthguard.depthgrid.pyramid`)."""
+    """:func:`footprint_sees_past` for an involved block footprint, through the min pyramid when it is large.
+
+    The pyramid is built from ``e = max(vote, hi)`` where ``lo <= vote`` (else the vote), and ``e > d_end``
+    is the block rule of :func:`sees_all_before`. The walk is taken without windows: its nodes answer by
+    ``e``, the pixels it reaches at the rectangle's edge by the vote alone (stricter where a window starts
+    before the vote: a block fails that the pixel loop would clear, and its cells are tested one by one)."""
     if (du + 1) * (dv + 1) <= 128:
         return footprint_sees_past(k, u0, v0, du, dv, q, vt.votes)
-    return rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, vt, stack)
+    return rect_sees_past(k, u0, v0, u0 + du, v0 + dv, q * DEND_SCALE, Votes(vt.votes, vt.pyr, vt.meta, False), stack)
 
 
 @nb.njit(cache=True, nogil=True, _nrt=False, inline="always")

@@ -38,10 +38,10 @@ The discrete filter pole is ``(1 - K_I dt/2) / (1 + K_I dt/2)``: stable for ever
 the time constant ``-dt / ln(pole)`` ≈ ``1/K_I (1 - (K_I dt)²/12)`` (0.5 % short of ``1/K_I`` at ``K_I dt = 0.25``)
 (:func:`discrete_time_constant`).
 
-Detection (:class:`ContactDetector`, in :mod:`depthguard.robot.contact_detector`): a contact is detected when ``‖r‖ > r_th`` or any
-``|r_i| > r_th,i``, and released when ``‖r‖`` and every ``|r_i|`` have stayed below ``release_ratio``
-times their thresholds for ``release_cycles`` cycles (hysteresis). At every onset a classifier hook
-labels the contact ``"intentional"`` or ``"collision"``; the default, :func:`default_classifier`, is
+Detection (:class:`ContactDetector`, in :mod:`depthguard.robot.contact_detector`): a contact is detected
+when ``‖r‖ > r_th`` or any ``|r_i| > r_th,i``, and released when ``‖r‖`` and every ``|r_i|`` have stayed
+below ``release_ratio`` times their thresholds for ``release_cycles`` cycles (hysteresis). At every onset a
+classifier hook labels the contact ``"intentional"`` or ``"collision"``; the default, :func:`default_classifier`, is
 documented there.
 
 No simulator is imported here; pinocchio is imported when a :class:`RigidBodyDynamics` is built.
