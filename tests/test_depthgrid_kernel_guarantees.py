@@ -459,15 +459,6 @@ def test_column_search_with_an_unbounded_limit_still_finds_the_space_beyond_the_
             K.scratch(1, grid.n_cells),
         )  # fmt: skip
         assert found and hi == math.inf and lo == pytest.approx(grid.d_max), (limit, found, lo, hi)
-    # a pixel wider than the frustum bound (h >= 1): the space beyond the grid is within reach of any point,
-    # its safe-form distance max(0, d_ray - h min(hi, pz + d_ray)) is 0 (old: T < 0, nothing found)
-    P = (5.0, 0.0, 0.1)
-    found, lo, hi, _ = column_search(
-        3, 2, 0.0, 0.0, grid.d_min, False, False, P, 1.18, 0.6, (0, 0, 8, 6), g_, mp, vt, K.scratch(1, grid.n_cells)
-    )
-    assert found and hi == math.inf, (found, lo, hi)
-    d_ray = math.dist(P, (0.0, 0.0, max(lo, 0.1)))
-    assert max(0.0, d_ray - 1.18 * (P[2] + d_ray)) == 0.0
 
 
 # ----------------------------------------------------------------------------------------------- end to end
@@ -538,14 +529,18 @@ def test_fused_query_with_broken_secondary_readings_against_the_true_shadow(seed
 
 @pytest.mark.parametrize("fx", [0.3, 0.6, 0.69, 0.8, 2.0], ids=["fx0.3", "fx0.6", "fx0.69", "fx0.8", "fx2"])
 def test_one_pixel_cameras_with_wide_pixels_still_report_the_measured_surface(fx):
-    """1x1 images whose one pixel is wider than the frustum bound handles (``h >= 1`` for fx below ~0.71 px):
-    the measured surface at 1 m is an obstacle, so a point behind it or beside it is no farther than that
-    point (old: with h in [1, ~1.5) the chunk and column search windows came out negative: nothing within
-    rho, inf)."""
+    """1x1 images: the measured surface at 1 m is an obstacle, so a point behind it or beside it is no farther
+    than that point. A principal pixel wider than the frustum bound handles (``h >= 1``, fx below ~0.71 px) is
+    refused by name (before: with h in [1, ~1.5) the chunk and column search windows came out negative:
+    nothing within rho, inf)."""
     R, t = look_at(np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([0.0, -1.0, 0.0]))
     c0 = Camera(width=1, height=1, fx=fx, fy=fx, cx=0.5, cy=0.5, R=R, t=t, min_depth=0.2, max_depth=4.0)
     R1, t1 = look_at(np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.5]), np.array([0.0, -1.0, 0.0]))
     c1 = Camera(width=1, height=1, fx=fx, fy=fx, cx=0.5, cy=0.5, R=R1, t=t1, min_depth=0.2, max_depth=4.0)
+    if 0.5 * math.sqrt(2.0) / fx >= 1.0:
+        with pytest.raises(ValueError, match=r"cameras\[0\]: the depth grid needs pixels narrower"):
+            DepthGridFusion([c0, c1], dd=0.05)
+        return
     for chunks in (True, False):
         fusion = DepthGridFusion([c0, c1], dd=0.05)
         fusion._chunks = chunks

@@ -10,8 +10,7 @@ it). Any other cell is occupied unless a secondary camera clears it (:mod:`depth
 Order: ``|P - s r|^2 = l2 + rr (s - s_line)^2``, so the ray distance grows with the depth gap to
 ``s_line`` (the depth of the ray point nearest P): the segments are visited by that gap, alternating
 outward, and only within the gap ``delta_max`` where the frustum bound ``d_ray (1 - h) - h d_p`` stays
-below ``limit`` (all segments where the pixel is too wide for the bound, ``h >= 1``). The first occupied
-segment met is the nearest. Free space is skipped in blocks: first an
+below ``limit``. The first occupied segment met is the nearest. Free space is skipped in blocks: first an
 8-cell block shared by the whole tile (state in ``Scratch.tstate``, shared by the tile's columns), then an
 8-cell and a 2-cell block of the column, then single cells; cleared blocks hold only cells that the
 per-cell rule clears, so the answer is that of the cell-by-cell search.
@@ -197,8 +196,6 @@ def column_search(u, v, a, b, s0, surface, robot, P, h, limit, rect, grid, mp, v
     s_line = pr / rr
     l2 = max(px * px + py * py + pz * pz - pr * s_line, 0.0)
     T = (limit + h * pz) / (1.0 - h)
-    if not h < 1.0:  # a pixel too wide for the bound (fx, fy below ~0.7 px): every segment is within reach
-        T = np.inf
     if not l2 < T * T:
         return False, 0.0, 0.0, 0
     delta_max = math.sqrt((T * T - l2) / rr)

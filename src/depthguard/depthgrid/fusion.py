@@ -172,6 +172,12 @@ class DepthGridFusion:
         for i, c in enumerate(cameras):
             if not isinstance(c, Camera):
                 raise ValueError(f"cameras[{i}] must be a depthguard.camera.Camera, got {type(c).__name__}")
+        c0 = cameras[0]
+        if not 0.5 * float(np.hypot(1.0 / c0.fx, 1.0 / c0.fy)) < 1.0:  # (the column and chunk bounds need h < 1)
+            raise ValueError(
+                "cameras[0]: the depth grid needs pixels narrower than its distance bound allows,"
+                f" 0.5 sqrt(1/fx^2 + 1/fy^2) < 1 (fx, fy above about 0.71 px), got fx={c0.fx}, fy={c0.fy}"
+            )
         self.cameras = cameras
         self.grid = DepthGrid.from_workspace(cameras[0], dd, workspace)
         self.map = GridMap(self.grid, cameras[1:], map_mode, cache_dir)

@@ -185,7 +185,6 @@ def sphere_hits(P, radius, qp, intr, pr, grid, mp, vt, sc, chunks, stride, part,
     px, py, pz = P
     reff = qp.rho + radius
     h = 0.5 * math.sqrt(1.0 / (intr.fx * intr.fx) + 1.0 / (intr.fy * intr.fy))
-    chunks = chunks and h < 1.0  # (the chunks' search window needs h < 1: fx, fy above ~0.7 px)
     hits = no_hits(reff)
     if qp.unseen and part == 0:
         hits = unseen_space(hits, px, py, pz, radius, intr, qp)
