@@ -103,7 +103,7 @@ def sns_velocity_unchecked(
     """SNS for the real-time path: :func:`sns_velocity_raw` plus the final guard (module docstring).
 
     Arrays must be float64, C-contiguous. The result is within ``[qmin, qmax]`` exactly: a solver
-    output off by more than 1e-9 (or NaN) is replaced by the velocity nearest to zero within the bounds
+    output off by more than 1e-9 (or not finite) is replaced by the velocity nearest to zero within the bounds
     with ``s = 0`` (``qdot = 0`` when ``qmin <= 0 <= qmax``, as :func:`sns_velocity` requires; only then
     does ``J qdot = s xdot`` hold for it), smaller rounding is clipped. So is any non-finite ``J``,
     ``xdot`` or ``damping``, NaN bound, or box without a finite velocity (``qmin > qmax``, ``qmin = inf``
@@ -119,7 +119,10 @@ def sns_velocity_unchecked(
     if bad:
         return _stand_still(qmin, qmax), 0.0
     qdot, s = sns_velocity_raw(J, xdot, qmin, qmax, damping)
-    if _violates(qdot, qmin, qmax, 1e-9) or not np.isfinite(s):
+    bad = _violates(qdot, qmin, qmax, 1e-9) or not np.isfinite(s)
+    for j in range(qdot.shape[0]):  # (an unbounded joint may take an overflowing solution: -inf in (-inf, inf))
+        bad = bad or not np.isfinite(qdot[j])
+    if bad:
         return _stand_still(qmin, qmax), 0.0
     return np.minimum(np.maximum(qdot, qmin), qmax), s
 
