@@ -36,6 +36,12 @@ def is_host(text: object) -> bool:
         return bool(_HOST_NAME.fullmatch(text))
 
 
+def is_real_scalar(value: object) -> bool:
+    """True if ``value`` is one real number: a Python or numpy int or float, not a bool (nor a string, an array
+    or a complex number). The type test that the input checks share; finiteness is left to the caller."""
+    return not isinstance(value, bool | np.bool_) and isinstance(value, int | float | np.integer | np.floating)
+
+
 def is_numeric_nest(value: object) -> bool:
     """True if ``value`` is a real number or nested lists / tuples of them (or a numeric numpy array): the JSON
     or TOML form of a vector or matrix. Strings and booleans are not numbers here, although numpy would
@@ -48,7 +54,7 @@ def is_numeric_nest(value: object) -> bool:
         elif isinstance(v, np.ndarray):
             if v.dtype.kind not in "iuf":
                 return False
-        elif isinstance(v, bool | np.bool_) or not isinstance(v, int | float | np.integer | np.floating):
+        elif not is_real_scalar(v):
             return False
     return True
 

@@ -32,7 +32,7 @@ import numpy as np
 from depthguard.robot.model import RobotModel
 from depthguard.robot.sensor_kinematics import SensorArray
 from depthguard.sensors.buffer import energy_gradient, total_energy
-from depthguard.validation import check_finite_array, real_array
+from depthguard.validation import check_finite_array, is_real_scalar, real_array
 
 __all__ = [
     "LAMBDA_KINDS",
@@ -74,7 +74,7 @@ def weight(d: float, kind: str = "arctan", f: float = 0.25, K: float = 40.0, del
 
 def _number(value: object, name: str) -> float:
     """``value`` as a float if it is a real number (not a bool, not an array), else ``ValueError`` naming it."""
-    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
+    if not is_real_scalar(value):
         raise ValueError(f"{name} must be a real number, got {value!r}")
     return float(value)
 

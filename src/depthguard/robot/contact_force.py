@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from depthguard.robot.fk import ChainKinematics, _pack_chain, checked_point_jacobian, world_point_jacobian
-from depthguard.validation import real_array
+from depthguard.validation import is_real_scalar, real_array
 
 __all__ = ["ForceEstimate", "estimate_contact_forces", "point_jacobian", "observable_error", "sym_eig_jacobi"]
 
@@ -135,7 +135,7 @@ def estimate_contact_forces(
     """
     if not (type(eps) is float and type(lambda_max) is float and type(tol) is float):
         for x, name in ((eps, "eps"), (lambda_max, "lambda_max"), (tol, "tol")):
-            if isinstance(x, bool | np.bool_) or not isinstance(x, int | float | np.integer | np.floating):
+            if not is_real_scalar(x):
                 raise ValueError(f"{name} must be a real number, got {x!r}")
     if not (0.0 < eps < math.inf):
         raise ValueError(f"eps must be a positive finite lever arm in metres, got {eps!r}")

@@ -20,6 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from depthguard.validation import is_real_scalar
+
 __all__ = [
     "N_LEVELS",
     "gray_encode",
@@ -200,7 +202,7 @@ def multibit_windows_sampled(
 
 
 def _time(t: object) -> float:
-    if isinstance(t, bool | np.bool_) or not isinstance(t, int | float | np.integer | np.floating):
+    if not is_real_scalar(t):
         raise ValueError(f"time t must be a number of seconds, got {t!r}")
     return float(t)
 

@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from depthguard.validation import is_real_scalar
+
 __all__ = ["TABLE1_SPEEDS", "LevelMap", "LevelStepper", "hold_time", "extra_stop_delay", "speed_for_level"]
 
 #: Table 1: TCP linear speed per safety level 0-7, m/s (400, 320, 260, 200, 140, 80, 10, 0 mm/s).
@@ -97,7 +99,7 @@ class LevelMap:
     def update(self, signal: float, contact: bool) -> int:
         """Advance the map with one sample (``signal`` a real number, NaN = no reading; else ValueError);
         returns the target level 0-7."""
-        if isinstance(signal, bool | np.bool_) or not isinstance(signal, int | float | np.integer | np.floating):
+        if not is_real_scalar(signal):
             raise ValueError(f"signal must be a real number of counts (NaN: no reading), got {signal!r}")
         if contact:
             self.level = 7

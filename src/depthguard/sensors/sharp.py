@@ -45,14 +45,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["SharpModel", "GP2Y0A21YK", "GP2D120XJ00F", "AmbiguityTracker", "IRRanger"]
+from depthguard.validation import is_real_scalar
 
-_REAL = (int, float, np.integer, np.floating)
+__all__ = ["SharpModel", "GP2Y0A21YK", "GP2D120XJ00F", "AmbiguityTracker", "IRRanger"]
 
 
 def _real(x: object, name: str, lo: float = -math.inf) -> float:
     """``x`` as a float if it is a real number >= ``lo`` (NaN fails), else a ValueError naming ``name``."""
-    if isinstance(x, bool | np.bool_) or not isinstance(x, _REAL) or not x >= lo:
+    if not is_real_scalar(x) or not x >= lo:
         raise ValueError(f"{name} must be a number >= {lo}, got {x!r}")
     return float(x)
 
@@ -176,7 +176,7 @@ class AmbiguityTracker:
         """Distance, m, to report for output ``v`` (V, a real number; else ValueError): never more than either
         candidate distance while the object may be closer than the peak; inf when nothing is in range; 0
         for a reading no distance can give (module docstring)."""
-        if isinstance(v, bool | np.bool_) or not isinstance(v, _REAL):
+        if not is_real_scalar(v):
             raise ValueError(f"v must be a real number of volts, got {v!r}")
         if not self._v_lo <= v <= self._v_hi:  # NaN, +-inf, negative, above the peak: a fault
             self.near = True
@@ -242,9 +242,7 @@ class IRRanger:
         ``true_distance`` (m, inf = nothing) is used only when a new measurement is due."""
         if not math.isfinite(_real(t, "t")):
             raise ValueError(f"t must be a finite time (s), got {t!r}")
-        if true_distance is not None and (
-            isinstance(true_distance, bool | np.bool_) or not isinstance(true_distance, _REAL)
-        ):
+        if true_distance is not None and (not is_real_scalar(true_distance)):
             raise ValueError(f"true_distance must be a number of metres or None, got {true_distance!r}")
         if self.due(t) and true_distance is not None:
             v = self.model.voltage_scalar(true_distance) + self.rng.normal(0.0, self.noise_v)
